@@ -1,0 +1,53 @@
+# Two commands do all set-up on a fresh machine: `make demo` and `make test`.
+# Each creates .venv when missing and installs what it needs.
+
+VENV   ?= .venv
+PY     := $(VENV)/bin/python
+PYTHON ?= python3
+STAMP  := $(VENV)/.installed-core
+# A CPU build of torch is installed before stable-baselines3 so that the `rl`
+# extra never pulls a multi-gigabyte CUDA build.
+TORCH_PIN := torch==2.13.0
+RL_STAMP  := $(VENV)/.installed-rl
+
+.PHONY: demo test lint pytest ctest bench fuzz clean venv rl
+
+venv: $(STAMP)
+
+$(STAMP): pyproject.toml
+	test -x $(PY) || $(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install --quiet --upgrade pip
+	$(PY) -m pip install --quiet -e '.[dev,plot,sim]'
+	touch $@
+
+$(RL_STAMP): $(STAMP)
+	$(PY) -m pip install --quiet $(TORCH_PIN)
+	$(PY) -m pip install --quiet -e '.[rl]'
+	touch $@
+
+rl: $(RL_STAMP)
+
+demo: $(STAMP)
+	$(VENV)/bin/rfsas demo
+
+lint: $(STAMP)
+	$(VENV)/bin/ruff check .
+	$(VENV)/bin/ruff format --check .
+	$(VENV)/bin/mypy rfsas_hw
+
+ctest:
+	$(MAKE) -C firmware_protocol/c test
+
+pytest: $(STAMP)
+	$(PY) -m pytest -q
+
+test: lint ctest pytest
+
+bench: $(STAMP)
+	@for f in bench/bench_*.py; do echo "== $$f"; $(PY) $$f || exit 1; done
+
+fuzz: $(STAMP)
+	RFSAS_FUZZ_CASES=1000000 $(PY) -m pytest -q -m fuzz tests
+
+clean:
+	rm -rf $(VENV) build *.egg-info .pytest_cache .mypy_cache .ruff_cache

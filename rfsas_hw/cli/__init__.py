@@ -1,0 +1,1 @@
+"""The ``rfsas`` command line: thin click shells over the library."""

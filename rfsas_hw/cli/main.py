@@ -1,0 +1,63 @@
+"""Entry point of the ``rfsas`` command.
+
+Subcommands live in their own modules and are added to :data:`COMMANDS`.
+Any :class:`~rfsas_hw.errors.RfsasError` becomes one line on stderr and exit
+code 2; a traceback means a bug.
+"""
+
+from __future__ import annotations
+
+import importlib
+import logging
+import sys
+from collections.abc import Sequence
+
+import click
+
+from rfsas_hw import __version__
+from rfsas_hw.errors import RfsasError
+
+EXIT_BAD_INPUT = 2
+
+# "module:attribute" of every subcommand, imported when the CLI starts.
+COMMANDS: list[str] = [
+    "rfsas_hw.cli.calibrate:calibrate",
+]
+
+
+@click.group(context_settings={"help_option_names": ["-h", "--help"]})
+@click.version_option(__version__, prog_name="rfsas")
+@click.option("-v", "--verbose", count=True, help="More log output (repeat for debug).")
+def cli(verbose: int) -> None:
+    """RF situational awareness: monopulse DF from Wi-Fi/BLE frames to collision risk."""
+    level = logging.WARNING - 10 * min(verbose, 2)
+    logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s")
+
+
+def _load_commands() -> None:
+    for path in COMMANDS:
+        module_name, _, attr = path.partition(":")
+        command = getattr(importlib.import_module(module_name), attr)
+        cli.add_command(command)
+
+
+def main(argv: Sequence[str] | None = None) -> None:
+    """Run the CLI; turn library errors into one clear line and exit code 2."""
+    _load_commands()
+    try:
+        cli.main(args=list(argv) if argv is not None else None, standalone_mode=False)
+    except RfsasError as err:
+        click.echo(f"error: {err}", err=True)
+        sys.exit(EXIT_BAD_INPUT)
+    except click.exceptions.Abort:
+        click.echo("aborted", err=True)
+        sys.exit(130)
+    except click.ClickException as err:
+        err.show()
+        sys.exit(EXIT_BAD_INPUT if isinstance(err, click.UsageError) else err.exit_code)
+    except click.exceptions.Exit as err:
+        sys.exit(err.exit_code)
+
+
+if __name__ == "__main__":
+    main()

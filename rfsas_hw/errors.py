@@ -1,0 +1,63 @@
+"""One rooted exception tree for everything rfsas-hw raises on purpose.
+
+Every error says what was wrong and where (file, line, key, frame number, byte
+offset). Errors that wrap a lower-level failure chain it with ``raise … from``.
+The CLI turns any :class:`RfsasError` into one line on stderr and exit code 2.
+"""
+
+from __future__ import annotations
+
+
+class RfsasError(Exception):
+    """Root of every error rfsas-hw raises deliberately."""
+
+
+class ConfigError(RfsasError):
+    """A configuration value or file is invalid (unknown key, wrong type, bad range)."""
+
+
+class DataFormatError(RfsasError):
+    """An input file (CSV, YAML, JSONL) does not have the expected shape."""
+
+
+class CalibrationError(RfsasError):
+    """A calibration cannot be fitted, loaded or applied."""
+
+
+class CaptureFormatError(RfsasError):
+    """A capture (pcap, pcapng, radiotap, 802.11) is malformed.
+
+    The message names the file, the frame number and the byte offset.
+    """
+
+
+class SourceError(RfsasError):
+    """A capture source cannot be opened or read (device, interface, permissions)."""
+
+
+class SourceNotAvailableError(SourceError):
+    """A source needs an optional dependency or a platform feature that is missing."""
+
+
+class BoardProtocolError(RfsasError):
+    """A DF-board frame or message violates the firmware protocol."""
+
+
+class LinkError(RfsasError):
+    """A safety message cannot be built, sent or received."""
+
+
+class LinkSecurityError(LinkError):
+    """A safety message failed verification: signature, replay, stale, unknown sender."""
+
+
+class KeyStoreError(RfsasError):
+    """Key files are missing, malformed, or would be overwritten."""
+
+
+class BackendError(RfsasError):
+    """The backend cannot compute a result from its inputs."""
+
+
+class SimulationError(RfsasError):
+    """A scenario or simulation run is invalid."""

@@ -1,0 +1,21 @@
+"""Privacy: keyed MAC hashing with epoch nonces, and nonce distribution."""
+
+from rfsas_hw.privacy.hashing import (
+    DEFAULT_EPOCH_S,
+    FixedNonce,
+    MacHasher,
+    NonceProvider,
+    NonceUnavailableError,
+    epoch_of,
+    hash_mac,
+)
+
+__all__ = [
+    "DEFAULT_EPOCH_S",
+    "FixedNonce",
+    "MacHasher",
+    "NonceProvider",
+    "NonceUnavailableError",
+    "epoch_of",
+    "hash_mac",
+]

@@ -1,0 +1,355 @@
+"""The records that flow between stages, per frame and columnar.
+
+Per-frame dataclasses (:class:`Observation`, :class:`Bearing`) are for the API
+edge; the hot path moves :class:`ObservationBatch` and :class:`BearingBatch`,
+whose fields are numpy arrays of equal length.
+
+An observation holds the transmitter's raw MAC address and therefore never
+leaves the sensor process. A bearing holds only the keyed hash of it (the
+emitter id); the privacy stage is the only way from one to the other.
+"""
+
+from __future__ import annotations
+
+import enum
+import math
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from rfsas_hw.errors import DataFormatError
+
+MAC_MASK = (1 << 48) - 1
+NO_SEQ = -1
+"""Value of ``ObservationBatch.seq`` when the frame carries no sequence number."""
+
+
+class FrameKind(enum.IntEnum):
+    """What kind of frame an observation was measured on."""
+
+    UNKNOWN = 0
+    BEACON = 1
+    PROBE_REQUEST = 2
+    PROBE_RESPONSE = 3
+    OTHER_MGMT = 4
+    CONTROL = 5
+    DATA = 6
+    QOS_DATA = 7
+    BLE_ADV = 8
+
+
+class ObsFlag(enum.IntFlag):
+    """Per-frame quality flags carried in ``ObservationBatch.flags``."""
+
+    NONE = 0
+    RETRY = 0x01
+    """802.11 retry bit set: a retransmission of an earlier frame."""
+    BAD_FCS = 0x02
+    """The receiver reported a failed FCS; addresses may be corrupt."""
+    NO_SIGNAL = 0x04
+    """The receiver reported no signal value for this frame."""
+    SENTINEL_CHAIN = 0x08
+    """A chain carried a sentinel (-128 or 0 dBm) and was replaced by NaN."""
+    MISSING_CHAIN = 0x10
+    """Fewer antennas than the batch's width were reported."""
+    PAIRED = 0x20
+    """RSSI values come from two receivers paired frame by frame."""
+
+
+def mac_to_int(text: str) -> int:
+    """Parse ``aa:bb:cc:dd:ee:ff`` (``:``, ``-``, ``.`` or no separator) to a 48-bit int.
+
+    Raises:
+        DataFormatError: when the text is not 12 hex digits.
+    """
+    digits = "".join(ch for ch in text if ch not in ":-. ")
+    if len(digits) != 12:
+        raise DataFormatError(f"not a MAC address: {text!r}")
+    try:
+        return int(digits, 16)
+    except ValueError as err:
+        raise DataFormatError(f"not a MAC address: {text!r}") from err
+
+
+def int_to_mac(value: int) -> str:
+    """Format a 48-bit int as lower-case ``aa:bb:cc:dd:ee:ff``."""
+    raw = (int(value) & MAC_MASK).to_bytes(6, "big")
+    return ":".join(f"{b:02x}" for b in raw)
+
+
+@dataclass(frozen=True, slots=True)
+class Pose:
+    """Where a sensor (or vehicle) is and which way it points."""
+
+    x_m: float
+    """East coordinate in the local frame, metres (origin: intersection centre)."""
+    y_m: float
+    """North coordinate in the local frame, metres."""
+    heading_deg: float
+    """Compass azimuth of the array boresight (or vehicle heading), degrees clockwise from north."""
+
+
+@dataclass(frozen=True, slots=True)
+class Observation:
+    """One frame heard by the sensor, with the signal on each antenna.
+
+    Holds a raw MAC address: it never leaves the sensor process.
+    """
+
+    t_ns: int
+    """Capture time, UTC nanoseconds."""
+    mac: int
+    """Transmitter MAC address as a 48-bit integer (raw; sensor-internal)."""
+    freq_mhz: int
+    """Centre frequency of the channel the frame was heard on, MHz (0 if unknown)."""
+    channel: int
+    """IEEE channel number (0 if unknown)."""
+    rssi_dbm: tuple[float, ...]
+    """Signal per antenna, dBm, antenna 0 first; NaN where an antenna reported nothing."""
+    seq: int | None = None
+    """802.11 sequence number (0–4095), or None."""
+    kind: FrameKind = FrameKind.UNKNOWN
+    """Frame kind."""
+    flags: ObsFlag = ObsFlag.NONE
+    """Quality flags."""
+
+
+def _as(arr: Any, dtype: npt.DTypeLike, name: str, n: int | None) -> npt.NDArray[Any]:
+    out = np.ascontiguousarray(arr, dtype=dtype)
+    if n is not None and out.shape[0] != n:
+        raise ValueError(f"column {name!r} has {out.shape[0]} rows, expected {n}")
+    return out
+
+
+@dataclass(slots=True)
+class ObservationBatch:
+    """Columnar observations: every field is an array with one row per frame.
+
+    ``rssi_dbm`` has shape ``(n, n_antennas)``; NaN marks a missing value.
+    """
+
+    t_ns: npt.NDArray[np.int64]
+    """Capture time, UTC nanoseconds."""
+    mac: npt.NDArray[np.uint64]
+    """Raw transmitter MAC as 48-bit integers (sensor-internal)."""
+    freq_mhz: npt.NDArray[np.int32]
+    """Channel centre frequency, MHz (0 if unknown)."""
+    channel: npt.NDArray[np.int16]
+    """IEEE channel number (0 if unknown)."""
+    rssi_dbm: npt.NDArray[np.float32]
+    """Signal per antenna, dBm, shape (n, n_antennas), NaN where missing."""
+    seq: npt.NDArray[np.int32] = field(default_factory=lambda: np.empty(0, np.int32))
+    """802.11 sequence number, or ``NO_SEQ`` (-1)."""
+    kind: npt.NDArray[np.uint8] = field(default_factory=lambda: np.empty(0, np.uint8))
+    """:class:`FrameKind` values."""
+    flags: npt.NDArray[np.uint16] = field(default_factory=lambda: np.empty(0, np.uint16))
+    """:class:`ObsFlag` values."""
+
+    def __post_init__(self) -> None:
+        n = len(self.t_ns)
+        self.t_ns = _as(self.t_ns, np.int64, "t_ns", None)
+        self.mac = _as(self.mac, np.uint64, "mac", n)
+        self.freq_mhz = _as(self.freq_mhz, np.int32, "freq_mhz", n)
+        self.channel = _as(self.channel, np.int16, "channel", n)
+        rssi = np.asarray(self.rssi_dbm, dtype=np.float32)
+        if rssi.ndim == 1:
+            rssi = rssi.reshape(n, -1) if n else rssi.reshape(0, 2)
+        self.rssi_dbm = _as(rssi, np.float32, "rssi_dbm", n)
+        self.seq = (
+            np.full(n, NO_SEQ, np.int32) if len(self.seq) == 0 and n else _as(self.seq, np.int32, "seq", n)
+        )
+        self.kind = np.zeros(n, np.uint8) if len(self.kind) == 0 and n else _as(self.kind, np.uint8, "kind", n)
+        self.flags = (
+            np.zeros(n, np.uint16) if len(self.flags) == 0 and n else _as(self.flags, np.uint16, "flags", n)
+        )
+
+    @classmethod
+    def empty(cls, n_antennas: int = 2) -> ObservationBatch:
+        """A batch with no rows and ``n_antennas`` RSSI columns."""
+        return cls(
+            t_ns=np.empty(0, np.int64),
+            mac=np.empty(0, np.uint64),
+            freq_mhz=np.empty(0, np.int32),
+            channel=np.empty(0, np.int16),
+            rssi_dbm=np.empty((0, n_antennas), np.float32),
+        )
+
+    @classmethod
+    def from_observations(cls, rows: Sequence[Observation], n_antennas: int = 2) -> ObservationBatch:
+        """Build a batch from per-frame records (missing antennas become NaN)."""
+        n = len(rows)
+        rssi = np.full((n, n_antennas), np.nan, np.float32)
+        for i, row in enumerate(rows):
+            k = min(n_antennas, len(row.rssi_dbm))
+            rssi[i, :k] = row.rssi_dbm[:k]
+        return cls(
+            t_ns=np.array([r.t_ns for r in rows], np.int64),
+            mac=np.array([r.mac for r in rows], np.uint64),
+            freq_mhz=np.array([r.freq_mhz for r in rows], np.int32),
+            channel=np.array([r.channel for r in rows], np.int16),
+            rssi_dbm=rssi,
+            seq=np.array([NO_SEQ if r.seq is None else r.seq for r in rows], np.int32),
+            kind=np.array([int(r.kind) for r in rows], np.uint8),
+            flags=np.array([int(r.flags) for r in rows], np.uint16),
+        )
+
+    @staticmethod
+    def concat(batches: Sequence[ObservationBatch]) -> ObservationBatch:
+        """Concatenate batches with the same antenna count, in order."""
+        if not batches:
+            return ObservationBatch.empty()
+        return ObservationBatch(
+            t_ns=np.concatenate([b.t_ns for b in batches]),
+            mac=np.concatenate([b.mac for b in batches]),
+            freq_mhz=np.concatenate([b.freq_mhz for b in batches]),
+            channel=np.concatenate([b.channel for b in batches]),
+            rssi_dbm=np.concatenate([b.rssi_dbm for b in batches]),
+            seq=np.concatenate([b.seq for b in batches]),
+            kind=np.concatenate([b.kind for b in batches]),
+            flags=np.concatenate([b.flags for b in batches]),
+        )
+
+    @property
+    def n_antennas(self) -> int:
+        """Number of RSSI columns."""
+        return int(self.rssi_dbm.shape[1])
+
+    def __len__(self) -> int:
+        return int(self.t_ns.shape[0])
+
+    def select(self, index: npt.NDArray[Any] | slice) -> ObservationBatch:
+        """Rows picked by a boolean mask, an index array or a slice."""
+        return ObservationBatch(
+            t_ns=self.t_ns[index],
+            mac=self.mac[index],
+            freq_mhz=self.freq_mhz[index],
+            channel=self.channel[index],
+            rssi_dbm=self.rssi_dbm[index],
+            seq=self.seq[index],
+            kind=self.kind[index],
+            flags=self.flags[index],
+        )
+
+    def row(self, i: int) -> Observation:
+        """Row ``i`` as an :class:`Observation`."""
+        seq = int(self.seq[i])
+        return Observation(
+            t_ns=int(self.t_ns[i]),
+            mac=int(self.mac[i]),
+            freq_mhz=int(self.freq_mhz[i]),
+            channel=int(self.channel[i]),
+            rssi_dbm=tuple(float(v) for v in self.rssi_dbm[i]),
+            seq=None if seq == NO_SEQ else seq,
+            kind=FrameKind(int(self.kind[i])),
+            flags=ObsFlag(int(self.flags[i])),
+        )
+
+    def __iter__(self) -> Iterator[Observation]:
+        for i in range(len(self)):
+            yield self.row(i)
+
+
+def emitter_hex(emitter: int) -> str:
+    """The 16-hex-digit text form of a 64-bit emitter id."""
+    return f"{int(emitter) & 0xFFFF_FFFF_FFFF_FFFF:016x}"
+
+
+@dataclass(frozen=True, slots=True)
+class Bearing:
+    """One direction-finding result for one frame, safe to share.
+
+    Carries the keyed hash of the transmitter's MAC, never the MAC itself.
+    """
+
+    t_ns: int
+    """Capture time, UTC nanoseconds."""
+    sensor_id: str
+    """Id of the sensor that measured it."""
+    azimuth_deg: float
+    """Compass azimuth of the emitter from the sensor, degrees clockwise from north, [0, 360)."""
+    sigma_deg: float
+    """One-sigma angle error, degrees, from SNR, calibration slope and RSSI quantisation."""
+    snr_db: float
+    """Signal-to-noise ratio of the stronger antenna, dB."""
+    channel: int
+    """IEEE channel number the frame was heard on."""
+    emitter: str
+    """Emitter id: 16 hex digits of the keyed hash of the MAC for the current nonce epoch."""
+    relative_deg: float = math.nan
+    """Angle from the array boresight, degrees clockwise (diagnostic)."""
+
+
+@dataclass(slots=True)
+class BearingBatch:
+    """Columnar bearings from one sensor; ``emitter`` holds 64-bit hashed ids."""
+
+    sensor_id: str
+    """Id of the sensor that measured these bearings."""
+    t_ns: npt.NDArray[np.int64]
+    """Capture time, UTC nanoseconds."""
+    azimuth_deg: npt.NDArray[np.float64]
+    """Compass azimuth, degrees clockwise from north, [0, 360)."""
+    sigma_deg: npt.NDArray[np.float64]
+    """One-sigma angle error, degrees."""
+    snr_db: npt.NDArray[np.float64]
+    """SNR of the stronger antenna, dB."""
+    channel: npt.NDArray[np.int16]
+    """IEEE channel number."""
+    emitter: npt.NDArray[np.uint64]
+    """Keyed hash of the MAC (64 bits) for the epoch of ``t_ns``."""
+    relative_deg: npt.NDArray[np.float64] = field(default_factory=lambda: np.empty(0))
+    """Angle from the array boresight, degrees clockwise (diagnostic)."""
+
+    def __post_init__(self) -> None:
+        n = len(self.t_ns)
+        self.t_ns = _as(self.t_ns, np.int64, "t_ns", None)
+        self.azimuth_deg = _as(self.azimuth_deg, np.float64, "azimuth_deg", n)
+        self.sigma_deg = _as(self.sigma_deg, np.float64, "sigma_deg", n)
+        self.snr_db = _as(self.snr_db, np.float64, "snr_db", n)
+        self.channel = _as(self.channel, np.int16, "channel", n)
+        self.emitter = _as(self.emitter, np.uint64, "emitter", n)
+        if len(self.relative_deg) == 0 and n:
+            self.relative_deg = np.full(n, np.nan)
+        self.relative_deg = _as(self.relative_deg, np.float64, "relative_deg", n)
+
+    @classmethod
+    def empty(cls, sensor_id: str) -> BearingBatch:
+        """A batch with no rows."""
+        z = np.empty(0)
+        return cls(sensor_id, np.empty(0, np.int64), z, z, z, np.empty(0, np.int16), np.empty(0, np.uint64))
+
+    def __len__(self) -> int:
+        return int(self.t_ns.shape[0])
+
+    def select(self, index: npt.NDArray[Any] | slice) -> BearingBatch:
+        """Rows picked by a boolean mask, an index array or a slice."""
+        return BearingBatch(
+            sensor_id=self.sensor_id,
+            t_ns=self.t_ns[index],
+            azimuth_deg=self.azimuth_deg[index],
+            sigma_deg=self.sigma_deg[index],
+            snr_db=self.snr_db[index],
+            channel=self.channel[index],
+            emitter=self.emitter[index],
+            relative_deg=self.relative_deg[index],
+        )
+
+    def row(self, i: int) -> Bearing:
+        """Row ``i`` as a :class:`Bearing`."""
+        return Bearing(
+            t_ns=int(self.t_ns[i]),
+            sensor_id=self.sensor_id,
+            azimuth_deg=float(self.azimuth_deg[i]),
+            sigma_deg=float(self.sigma_deg[i]),
+            snr_db=float(self.snr_db[i]),
+            channel=int(self.channel[i]),
+            emitter=emitter_hex(int(self.emitter[i])),
+            relative_deg=float(self.relative_deg[i]),
+        )
+
+    def __iter__(self) -> Iterator[Bearing]:
+        for i in range(len(self)):
+            yield self.row(i)

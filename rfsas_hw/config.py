@@ -74,7 +74,10 @@ def _convert(value: Any, hint: Any, where: str) -> Any:
         if origin is tuple and args and args[-1] is not Ellipsis:
             if len(value) != len(args):
                 raise ConfigError(f"{where}: expected {len(args)} items, got {len(value)}")
-            return tuple(_convert(v, a, f"{where}[{i}]") for i, (v, a) in enumerate(zip(value, args, strict=True)))
+            return tuple(
+                _convert(v, a, f"{where}[{i}]")
+                for i, (v, a) in enumerate(zip(value, args, strict=True))
+            )
         item = args[0] if args else Any
         items = [_convert(v, item, f"{where}[{i}]") for i, v in enumerate(value)]
         return tuple(items) if (origin is tuple or hint is tuple) else items
@@ -86,7 +89,16 @@ def _convert(value: Any, hint: Any, where: str) -> Any:
     if hint is bool:
         if isinstance(value, bool):
             return value
-        if isinstance(value, str) and value.lower() in ("1", "true", "yes", "on", "0", "false", "no", "off"):
+        if isinstance(value, str) and value.lower() in (
+            "1",
+            "true",
+            "yes",
+            "on",
+            "0",
+            "false",
+            "no",
+            "off",
+        ):
             return value.lower() in ("1", "true", "yes", "on")
         raise ConfigError(f"{where}: expected true/false, got {value!r}")
     if hint is float:
@@ -140,12 +152,18 @@ def from_mapping(cls: type[T], data: Mapping[str, Any], where: str = "config") -
         raise ConfigError(f"{where}: {err}") from err
 
 
-def env_overrides(section: str, cls: type[Any], environ: Mapping[str, str] | None = None) -> dict[str, str]:
+def env_overrides(
+    section: str, cls: type[Any], environ: Mapping[str, str] | None = None
+) -> dict[str, str]:
     """Values from ``RFSAS_<SECTION>_<FIELD>`` environment variables for ``cls``'s fields."""
     env = os.environ if environ is None else environ
     prefix = f"RFSAS_{section.upper()}_"
     names = {f.name for f in dataclasses.fields(cls)}
-    return {k[len(prefix) :].lower(): v for k, v in env.items() if k.startswith(prefix) and k[len(prefix) :].lower() in names}
+    return {
+        k[len(prefix) :].lower(): v
+        for k, v in env.items()
+        if k.startswith(prefix) and k[len(prefix) :].lower() in names
+    }
 
 
 def load(

@@ -159,11 +159,19 @@ class ObservationBatch:
             rssi = rssi.reshape(n, -1) if n else rssi.reshape(0, 2)
         self.rssi_dbm = _as(rssi, np.float32, "rssi_dbm", n)
         self.seq = (
-            np.full(n, NO_SEQ, np.int32) if len(self.seq) == 0 and n else _as(self.seq, np.int32, "seq", n)
+            np.full(n, NO_SEQ, np.int32)
+            if len(self.seq) == 0 and n
+            else _as(self.seq, np.int32, "seq", n)
         )
-        self.kind = np.zeros(n, np.uint8) if len(self.kind) == 0 and n else _as(self.kind, np.uint8, "kind", n)
+        self.kind = (
+            np.zeros(n, np.uint8)
+            if len(self.kind) == 0 and n
+            else _as(self.kind, np.uint8, "kind", n)
+        )
         self.flags = (
-            np.zeros(n, np.uint16) if len(self.flags) == 0 and n else _as(self.flags, np.uint16, "flags", n)
+            np.zeros(n, np.uint16)
+            if len(self.flags) == 0 and n
+            else _as(self.flags, np.uint16, "flags", n)
         )
 
     @classmethod
@@ -178,7 +186,9 @@ class ObservationBatch:
         )
 
     @classmethod
-    def from_observations(cls, rows: Sequence[Observation], n_antennas: int = 2) -> ObservationBatch:
+    def from_observations(
+        cls, rows: Sequence[Observation], n_antennas: int = 2
+    ) -> ObservationBatch:
         """Build a batch from per-frame records (missing antennas become NaN)."""
         n = len(rows)
         rssi = np.full((n, n_antennas), np.nan, np.float32)
@@ -319,7 +329,9 @@ class BearingBatch:
     def empty(cls, sensor_id: str) -> BearingBatch:
         """A batch with no rows."""
         z = np.empty(0)
-        return cls(sensor_id, np.empty(0, np.int64), z, z, z, np.empty(0, np.int16), np.empty(0, np.uint64))
+        return cls(
+            sensor_id, np.empty(0, np.int64), z, z, z, np.empty(0, np.int16), np.empty(0, np.uint64)
+        )
 
     def __len__(self) -> int:
         return int(self.t_ns.shape[0])

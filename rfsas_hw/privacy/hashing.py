@@ -62,7 +62,9 @@ class MacHasher:
         cache_epochs: how many epochs of (MAC → id) cache to keep.
     """
 
-    def __init__(self, nonces: NonceProvider, epoch_s: float = DEFAULT_EPOCH_S, cache_epochs: int = 3) -> None:
+    def __init__(
+        self, nonces: NonceProvider, epoch_s: float = DEFAULT_EPOCH_S, cache_epochs: int = 3
+    ) -> None:
         if epoch_s <= 0:
             raise ValueError(f"epoch length must be positive, got {epoch_s} s")
         self.nonces = nonces
@@ -94,7 +96,9 @@ class MacHasher:
             table[int(mac)] = got
         return got
 
-    def hash_batch(self, macs: npt.NDArray[np.uint64], t_ns: npt.NDArray[np.int64]) -> npt.NDArray[np.uint64]:
+    def hash_batch(
+        self, macs: npt.NDArray[np.uint64], t_ns: npt.NDArray[np.int64]
+    ) -> npt.NDArray[np.uint64]:
         """Emitter ids for arrays of MACs and capture times (same length).
 
         HMAC runs once per distinct (epoch, MAC); the rest is array indexing.

@@ -7,7 +7,7 @@ iterate it for :class:`~rfsas_hw.records.ObservationBatch` values.
 from rfsas_hw.sources.base import ErrorPolicy, Source, SourceStats
 from rfsas_hw.sources.registry import open_source, parse_spec, register, schemes, source_class
 
-open = open_source  # noqa: A001 - the documented entry point is rfsas_hw.sources.open
+open = open_source
 
 __all__ = [
     "ErrorPolicy",

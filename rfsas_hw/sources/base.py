@@ -15,18 +15,21 @@ from collections import Counter
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from types import TracebackType
-from typing import Any, ClassVar, Literal
+from typing import Any, ClassVar, Generic, Literal, TypeVar
 
 import numpy as np
 import numpy.typing as npt
 
 from rfsas_hw.errors import RfsasError
-from rfsas_hw.records import ObservationBatch
+from rfsas_hw.records import BearingBatch, ObservationBatch
 
 log = logging.getLogger(__name__)
 
 ErrorPolicy = Literal["raise", "skip"]
-BatchFilter = Callable[[ObservationBatch], npt.NDArray[np.bool_]]
+
+
+BatchT = TypeVar("BatchT", ObservationBatch, BearingBatch)
+BatchFilter = Callable[[Any], npt.NDArray[np.bool_]]
 
 MAX_KEPT_ERRORS = 20
 
@@ -69,8 +72,12 @@ class SourceStats:
         }
 
 
-class Source(ABC):
-    """A stream of :class:`ObservationBatch` from a capture, a device or a model.
+class Source(ABC, Generic[BatchT]):
+    """A stream of batches from a capture, a device or a model.
+
+    Most sources yield :class:`ObservationBatch` (raw MAC + RSSI per antenna);
+    a source of finished bearings (a Doppler DF unit) yields
+    :class:`BearingBatch`.
 
     Use as a context manager and iterate::
 
@@ -97,25 +104,25 @@ class Source(ABC):
         self._exhausted = False
 
     @classmethod
-    def from_spec(cls, arg: str, **options: Any) -> Source:
+    def from_spec(cls, arg: str, **options: Any) -> Source[Any]:
         """Build the source from the part of the spec after ``scheme:``.
 
         Drivers whose constructor does not take the argument as its first
         positional parameter override this.
         """
-        return cls(arg, **options)  # type: ignore[call-arg]
+        return cls(arg, **options)  # type: ignore[call-arg, arg-type]
 
     # -- what drivers implement -------------------------------------------------
 
     @abstractmethod
-    def _read_raw(self, timeout: float | None) -> ObservationBatch | None:
+    def _read_raw(self, timeout: float | None) -> BatchT | None:
         """Read the next batch from the hardware or file.
 
         Return None on timeout; call :meth:`_end` and return None at the end
         of the input. Report a bad frame through :meth:`_bad` and go on.
         """
 
-    def _close(self) -> None:  # noqa: B027 - optional hook, default does nothing
+    def _close(self) -> None:
         """Release the driver's resources. Called once."""
 
     # -- helpers for drivers ----------------------------------------------------
@@ -147,7 +154,7 @@ class Source(ABC):
         """True when the input has ended (a file fully read, a device gone for good)."""
         return self._exhausted
 
-    def read(self, timeout: float | None = None) -> ObservationBatch | None:
+    def read(self, timeout: float | None = None) -> BatchT | None:
         """The next batch after filtering, or None on timeout or at the end.
 
         Raises:
@@ -173,7 +180,7 @@ class Source(ABC):
             self.stats.batches += 1
         return batch
 
-    def __iter__(self) -> Iterator[ObservationBatch]:
+    def __iter__(self) -> Iterator[BatchT]:
         """Yield non-empty batches until the input ends or the source is closed."""
         while not self._closed and not self._exhausted:
             batch = self.read()
@@ -187,7 +194,7 @@ class Source(ABC):
         self._closed = True
         self._close()
 
-    def __enter__(self) -> Source:
+    def __enter__(self) -> Source[BatchT]:
         return self
 
     def __exit__(

@@ -20,10 +20,10 @@ _LAZY: dict[str, str] = {
     "virtual": "rfsas_hw.sources.virtual:VirtualSource",
     "agrelo": "rfsas_hw.sources.agrelo:AgreloSource",
 }
-_LOADED: dict[str, type[Source]] = {}
+_LOADED: dict[str, type[Source[Any]]] = {}
 
 
-def register(scheme: str, target: type[Source] | str) -> None:
+def register(scheme: str, target: type[Source[Any]] | str) -> None:
     """Register a source class (or a lazy ``"module:Class"`` path) under ``scheme``."""
     if isinstance(target, str):
         _LAZY[scheme] = target
@@ -51,7 +51,7 @@ def parse_spec(spec: str) -> tuple[str, str]:
     return scheme, arg
 
 
-def source_class(scheme: str) -> type[Source]:
+def source_class(scheme: str) -> type[Source[Any]]:
     """The class registered under ``scheme``, importing it on first use.
 
     Raises:
@@ -78,7 +78,7 @@ def source_class(scheme: str) -> type[Source]:
     return cls
 
 
-def open_source(spec: str, **options: Any) -> Source:
+def open_source(spec: str, **options: Any) -> Source[Any]:
     """Open the source named by ``spec``; ``options`` go to the driver.
 
     Raises:

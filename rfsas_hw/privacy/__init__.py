@@ -1,5 +1,6 @@
 """Privacy: keyed MAC hashing with epoch nonces, and nonce distribution."""
 
+from rfsas_hw.privacy.epochs import DEFAULT_GRACE_S, EpochSchedule
 from rfsas_hw.privacy.hashing import (
     DEFAULT_EPOCH_S,
     FixedNonce,
@@ -12,6 +13,8 @@ from rfsas_hw.privacy.hashing import (
 
 __all__ = [
     "DEFAULT_EPOCH_S",
+    "DEFAULT_GRACE_S",
+    "EpochSchedule",
     "FixedNonce",
     "MacHasher",
     "NonceProvider",

@@ -7,7 +7,12 @@ Why 64 bits: ids only need to be unique among the emitters heard in one epoch
 by one deployment. With n = 10,000 emitters the birthday bound gives a
 collision probability of n²/2⁶⁵ ≈ 3e-12 per epoch, while 8 bytes keep the
 wire format and the numpy columns compact. Unlinkability does not depend on
-the length: it comes from the secret, per-epoch nonce.
+the length: it comes from the secret, per-epoch nonce. Truncation also means
+an id is not a full HMAC tag; nothing uses it as an authenticator.
+
+Epoch numbering and the receiving side's grace period live in
+:mod:`rfsas_hw.privacy.epochs`; where nonces come from in a deployment, in
+:mod:`rfsas_hw.privacy.nonces`.
 """
 
 from __future__ import annotations
@@ -21,9 +26,21 @@ import numpy as np
 import numpy.typing as npt
 
 from rfsas_hw.errors import RfsasError
+from rfsas_hw.privacy.epochs import DEFAULT_EPOCH_S, NS_PER_S, epoch_of
 
-NS_PER_S = 1_000_000_000
-DEFAULT_EPOCH_S = 60.0
+__all__ = [
+    "DEFAULT_EPOCH_S",
+    "NS_PER_S",
+    "FixedNonce",
+    "MacHasher",
+    "NonceProvider",
+    "NonceUnavailableError",
+    "epoch_of",
+    "hash_mac",
+]
+
+ID_BYTES = 8
+"""Length of an emitter id: the first 8 bytes of the HMAC-SHA256 tag."""
 
 
 class NonceUnavailableError(RfsasError):
@@ -42,15 +59,22 @@ class NonceProvider(Protocol):
         ...
 
 
-def epoch_of(t_ns: int, epoch_s: float = DEFAULT_EPOCH_S) -> int:
-    """Epoch number of a UTC time: fixed slots of ``epoch_s`` seconds since the Unix epoch."""
-    return int(t_ns // int(epoch_s * NS_PER_S))
-
-
 def hash_mac(nonce: bytes, mac: int) -> int:
     """The 64-bit emitter id of one 48-bit MAC under ``nonce``."""
     digest = hmac.new(nonce, int(mac).to_bytes(6, "big"), hashlib.sha256).digest()
-    return int.from_bytes(digest[:8], "big")
+    return int.from_bytes(digest[:ID_BYTES], "big")
+
+
+def _hash_many(nonce: bytes, macs: list[int]) -> list[int]:
+    # Keying HMAC costs two SHA-256 compressions; copying the keyed state
+    # saves them for every MAC after the first.
+    keyed = hmac.new(nonce, digestmod=hashlib.sha256)
+    out = []
+    for mac in macs:
+        h = keyed.copy()
+        h.update(mac.to_bytes(6, "big"))
+        out.append(int.from_bytes(h.digest()[:ID_BYTES], "big"))
+    return out
 
 
 class MacHasher:
@@ -60,10 +84,19 @@ class MacHasher:
         nonces: where the nonce of each epoch comes from.
         epoch_s: epoch length in seconds (every sensor of a deployment must agree).
         cache_epochs: how many epochs of (MAC → id) cache to keep.
+        cache_size: most MACs cached per epoch; beyond it ids are computed, not stored,
+            so a flood of random MACs cannot grow memory without bound.
+
+    Raises:
+        ValueError: on a non-positive epoch length.
     """
 
     def __init__(
-        self, nonces: NonceProvider, epoch_s: float = DEFAULT_EPOCH_S, cache_epochs: int = 3
+        self,
+        nonces: NonceProvider,
+        epoch_s: float = DEFAULT_EPOCH_S,
+        cache_epochs: int = 3,
+        cache_size: int = 262_144,
     ) -> None:
         if epoch_s <= 0:
             raise ValueError(f"epoch length must be positive, got {epoch_s} s")
@@ -72,6 +105,7 @@ class MacHasher:
         self._epoch_ns = int(self.epoch_s * NS_PER_S)
         self._cache: OrderedDict[int, dict[int, int]] = OrderedDict()
         self._cache_epochs = cache_epochs
+        self._cache_size = cache_size
 
     def _table(self, epoch: int) -> dict[int, int]:
         table = self._cache.get(epoch)
@@ -93,7 +127,8 @@ class MacHasher:
         got = table.get(int(mac))
         if got is None:
             got = hash_mac(self.nonces.nonce_for(epoch), int(mac))
-            table[int(mac)] = got
+            if len(table) < self._cache_size:
+                table[int(mac)] = got
         return got
 
     def hash_batch(
@@ -114,17 +149,19 @@ class MacHasher:
             sel = epochs == epoch
             uniq, inverse = np.unique(np.asarray(macs)[sel], return_inverse=True)
             table = self._table(int(epoch))
-            ids = np.empty(len(uniq), dtype=np.uint64)
-            nonce: bytes | None = None
-            for i, mac in enumerate(uniq.tolist()):
-                got = table.get(mac)
-                if got is None:
-                    if nonce is None:
-                        nonce = self.nonces.nonce_for(int(epoch))
-                    got = hash_mac(nonce, mac)
-                    table[mac] = got
-                ids[i] = got
-            out[sel] = ids[inverse]
+            macs_u = uniq.tolist()
+            got = [table.get(mac) for mac in macs_u]
+            missing = [i for i, g in enumerate(got) if g is None]
+            if missing:
+                nonce = self.nonces.nonce_for(int(epoch))
+                fresh = _hash_many(nonce, [macs_u[i] for i in missing])
+                room = max(0, self._cache_size - len(table))
+                for i, value in zip(missing, fresh, strict=True):
+                    got[i] = value
+                    if room:
+                        table[macs_u[i]] = value
+                        room -= 1
+            out[sel] = np.array(got, dtype=np.uint64)[inverse.reshape(-1)]
         return out
 
 

@@ -1,0 +1,194 @@
+"""Calibration files: YAML with a format name and version, validated on load.
+
+Every problem names the file and the key, e.g.
+``cal.yaml: tables[0].psi: 40 values for a grid of 41``.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from rfsas_hw.config import from_mapping, read_yaml
+from rfsas_hw.df.calibration import (
+    FORMAT_NAME,
+    FORMAT_VERSION,
+    Calibration,
+    CalibrationTable,
+)
+from rfsas_hw.df.monopulse import Mode
+from rfsas_hw.errors import CalibrationError, ConfigError
+
+
+@dataclass
+class _ReceiverDoc:
+    step_db: float = 1.0
+    noise_floor_dbm: float = -90.89
+    saturation_dbm: float = -10.0
+
+
+@dataclass
+class _TableDoc:
+    k_d: float
+    fov_deg: tuple[float, float]
+    noise_db: float
+    grid_deg: list[float]
+    psi: list[float]
+    channel: int | None = None
+    samples: int = 0
+    residual_rms_deg: float | None = None
+
+
+@dataclass
+class _FileDoc:
+    format: str
+    version: int
+    mode: Mode
+    tables: list[_TableDoc]
+    created: str = ""
+    antenna: dict[str, Any] = field(default_factory=dict)
+    receiver: _ReceiverDoc = field(default_factory=_ReceiverDoc)
+
+
+def _check_table(doc: _TableDoc, where: str) -> CalibrationTable:
+    grid = np.asarray(doc.grid_deg, dtype=np.float64)
+    psi = np.asarray(doc.psi, dtype=np.float64)
+    if len(grid) < 2:
+        raise CalibrationError(f"{where}.grid_deg: needs at least 2 angles")
+    if not np.all(np.isfinite(grid)) or np.any(np.diff(grid) <= 0):
+        raise CalibrationError(f"{where}.grid_deg: angles must be finite and strictly increasing")
+    if len(psi) != len(grid):
+        raise CalibrationError(f"{where}.psi: {len(psi)} values for a grid of {len(grid)}")
+    if not np.all(np.isfinite(psi)):
+        raise CalibrationError(f"{where}.psi: values must be finite")
+    if not (math.isfinite(doc.k_d) and doc.k_d > 0):
+        raise CalibrationError(f"{where}.k_d: must be a positive number, got {doc.k_d}")
+    lo, hi = doc.fov_deg
+    if not (grid[0] - 1e-9 <= lo < hi <= grid[-1] + 1e-9):
+        raise CalibrationError(
+            f"{where}.fov_deg: [{lo:g}, {hi:g}] is not an interval inside the grid "
+            f"[{grid[0]:g}, {grid[-1]:g}]"
+        )
+    inside = (grid >= lo - 1e-9) & (grid <= hi + 1e-9)
+    d = np.diff(psi[inside])
+    if not (np.all(d > 0) or np.all(d < 0)):
+        raise CalibrationError(f"{where}.psi: not strictly monotonic inside fov_deg")
+    if not (math.isfinite(doc.noise_db) and doc.noise_db >= 0):
+        raise CalibrationError(f"{where}.noise_db: must be ≥ 0, got {doc.noise_db}")
+    rms = float("nan") if doc.residual_rms_deg is None else doc.residual_rms_deg
+    try:
+        return CalibrationTable(
+            doc.channel, doc.k_d, grid, psi, (lo, hi), doc.noise_db, doc.samples, rms
+        )
+    except CalibrationError as err:
+        raise CalibrationError(f"{where}: {err}") from err
+
+
+def calibration_from_mapping(data: Any, where: str = "calibration") -> Calibration:
+    """Validate a parsed calibration document and build the :class:`Calibration`.
+
+    Raises:
+        CalibrationError: wrong format or version, unknown or missing key,
+            wrong type, or inconsistent tables; the message names the key.
+    """
+    if not isinstance(data, Mapping):
+        raise CalibrationError(f"{where}: expected a mapping at the top level")
+    if data.get("format") != FORMAT_NAME:
+        raise CalibrationError(
+            f"{where}: format: expected {FORMAT_NAME!r}, got {data.get('format')!r}"
+        )
+    if data.get("version") != FORMAT_VERSION:
+        raise CalibrationError(
+            f"{where}: version: {data.get('version')!r} is not supported "
+            f"(this build reads {FORMAT_VERSION})"
+        )
+    try:
+        doc = from_mapping(_FileDoc, data, where)
+    except ConfigError as err:
+        raise CalibrationError(str(err)) from err
+    tables = tuple(_check_table(t, f"{where}: tables[{i}]") for i, t in enumerate(doc.tables))
+    try:
+        return Calibration(
+            mode=doc.mode,
+            tables=tables,
+            step_db=doc.receiver.step_db,
+            noise_floor_dbm=doc.receiver.noise_floor_dbm,
+            saturation_dbm=doc.receiver.saturation_dbm,
+            antenna=doc.antenna,
+            created=doc.created,
+        )
+    except CalibrationError as err:
+        raise CalibrationError(f"{where}: tables: {err}") from err
+
+
+def load_calibration(path: str | Path) -> Calibration:
+    """Read and validate a calibration YAML file.
+
+    Raises:
+        CalibrationError: unreadable file, invalid YAML, or invalid content (file and key named).
+    """
+    try:
+        data = read_yaml(path)
+    except ConfigError as err:
+        raise CalibrationError(str(err)) from err
+    return calibration_from_mapping(data, str(path))
+
+
+class _FlowList(list[float]):
+    """A list YAML writes on one line."""
+
+
+def _flow_list(dumper: yaml.SafeDumper, data: _FlowList) -> yaml.SequenceNode:
+    return dumper.represent_sequence("tag:yaml.org,2002:seq", data, flow_style=True)
+
+
+class _Dumper(yaml.SafeDumper):
+    pass
+
+
+_Dumper.add_representer(_FlowList, _flow_list)
+
+
+def calibration_to_mapping(cal: Calibration) -> dict[str, Any]:
+    """The YAML document of ``cal`` (plain types only)."""
+    tables = []
+    for t in cal.tables:
+        tables.append(
+            {
+                "channel": t.channel,
+                "k_d": float(f"{t.k_d:.9g}"),
+                "fov_deg": _FlowList([float(t.fov_deg[0]), float(t.fov_deg[1])]),
+                "noise_db": round(float(t.noise_db), 4),
+                "samples": int(t.samples),
+                "residual_rms_deg": None
+                if math.isnan(t.residual_rms_deg)
+                else round(float(t.residual_rms_deg), 4),
+                "grid_deg": _FlowList([round(float(v), 6) for v in t.grid_deg]),
+                "psi": _FlowList([float(f"{v:.9g}") for v in t.psi]),
+            }
+        )
+    return {
+        "format": FORMAT_NAME,
+        "version": FORMAT_VERSION,
+        "mode": cal.mode,
+        "created": cal.created,
+        "antenna": dict(cal.antenna),
+        "receiver": {
+            "step_db": cal.step_db,
+            "noise_floor_dbm": cal.noise_floor_dbm,
+            "saturation_dbm": cal.saturation_dbm,
+        },
+        "tables": tables,
+    }
+
+
+def save_calibration(cal: Calibration, path: str | Path) -> None:
+    """Write ``cal`` as YAML (round-trips through :func:`load_calibration`)."""
+    text = yaml.dump(calibration_to_mapping(cal), Dumper=_Dumper, sort_keys=False, width=100)
+    Path(path).write_text(text, encoding="utf-8")

@@ -1,0 +1,322 @@
+"""Calibration tables: fitting ψ_D(θ) from turntable samples (method.md §4).
+
+A :class:`Calibration` holds one :class:`CalibrationTable` per channel (or a
+single table for every channel, ``channel: None``). Each table stores K_D,
+the curve ψ_D on a regular angle grid, the unambiguous field of view (the
+interval around boresight where ψ_D is strictly monotonic) and the RSSI
+spread seen on the turntable.
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+from scipy.interpolate import make_smoothing_spline
+
+from rfsas_hw.df.monopulse import Mode, balance_k_d, ratio
+from rfsas_hw.errors import CalibrationError
+from rfsas_hw.rf.noise import quantisation_variance_db2
+from rfsas_hw.rf.synth import TurntableSamples
+
+Array = npt.NDArray[np.floating[Any]]
+FORMAT_NAME = "rfsas-calibration"
+FORMAT_VERSION = 1
+LUT_SIZE = 4096
+
+
+@dataclass(frozen=True)
+class CalibrationTable:
+    """ψ_D(θ) for one channel (or for all channels when ``channel`` is None)."""
+
+    channel: int | None
+    """IEEE channel this table is for; None for every channel."""
+    k_d: float
+    """Boresight balance constant K_D (mode-dependent, dimensionless)."""
+    grid_deg: Array
+    """Angle grid, degrees clockwise from boresight, strictly increasing."""
+    psi: Array
+    """ψ_D on the grid (dimensionless)."""
+    fov_deg: tuple[float, float]
+    """Unambiguous field of view, degrees (lower, upper), inside the grid."""
+    noise_db: float
+    """Per-chain RSSI spread on the turntable, dB (includes quantisation)."""
+    samples: int = 0
+    """Turntable samples the table was fitted from."""
+    residual_rms_deg: float = float("nan")
+    """RMS bearing error on the fitting samples inside the FoV, degrees."""
+    _inv_psi: Array = field(init=False, repr=False, compare=False)
+    _inv_deg: Array = field(init=False, repr=False, compare=False)
+    _slope: Array = field(init=False, repr=False, compare=False)
+    _lut_angle: Array = field(init=False, repr=False, compare=False)
+    _lut_inv_slope: Array = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        grid = np.asarray(self.grid_deg, dtype=np.float64)
+        psi = np.asarray(self.psi, dtype=np.float64)
+        object.__setattr__(self, "grid_deg", grid)
+        object.__setattr__(self, "psi", psi)
+        lo, hi = self.fov_deg
+        inside = (grid >= lo - 1e-9) & (grid <= hi + 1e-9)
+        g, p = grid[inside], psi[inside]
+        if len(g) < 2:
+            raise CalibrationError("field of view holds fewer than two grid points")
+        order = np.argsort(p)
+        object.__setattr__(self, "_inv_psi", np.ascontiguousarray(p[order]))
+        object.__setattr__(self, "_inv_deg", np.ascontiguousarray(g[order]))
+        object.__setattr__(self, "_slope", np.gradient(psi, grid))
+        # Uniform-in-ψ lookup tables: O(1) per frame instead of a binary search.
+        psi_u = np.linspace(self._inv_psi[0], self._inv_psi[-1], LUT_SIZE)
+        angle_u = np.interp(psi_u, self._inv_psi, self._inv_deg)
+        slope_u = np.abs(np.interp(angle_u, grid, self._slope))
+        object.__setattr__(self, "_lut_angle", angle_u.astype(np.float32))
+        object.__setattr__(
+            self, "_lut_inv_slope", (1.0 / np.maximum(slope_u, 1e-12)).astype(np.float32)
+        )
+
+    def lookup(self, psi: Array) -> tuple[Array, Array, npt.NDArray[np.bool_]]:
+        """ψ → (angle in degrees, 1/|dψ_D/dθ| in degrees, outside-FoV mask), vectorised.
+
+        Linear interpolation in a uniform table of ``LUT_SIZE`` points over the
+        FoV's ψ range; agrees with :meth:`angle_of` to well under 0.01°.
+        """
+        lo, hi = float(self._inv_psi[0]), float(self._inv_psi[-1])
+        u = (psi - np.float32(lo)) * np.float32((LUT_SIZE - 1) / (hi - lo))
+        outside = ~((u >= 0.0) & (u <= LUT_SIZE - 1))
+        np.clip(u, 0.0, LUT_SIZE - 1, out=u)
+        i = np.minimum(u.astype(np.intp), LUT_SIZE - 2)
+        frac = u - i
+        a0 = self._lut_angle[i]
+        angle = a0 + frac * (self._lut_angle[i + 1] - a0)
+        s0 = self._lut_inv_slope[i]
+        inv_slope = s0 + frac * (self._lut_inv_slope[i + 1] - s0)
+        return angle, inv_slope, outside
+
+    def angle_of(self, psi: Array) -> tuple[Array, npt.NDArray[np.bool_]]:
+        """Inverse interpolation ψ → θ inside the FoV; second value marks ψ outside the curve."""
+        outside = (psi < self._inv_psi[0]) | (psi > self._inv_psi[-1]) | ~np.isfinite(psi)
+        return np.interp(psi, self._inv_psi, self._inv_deg), outside
+
+    def slope_at(self, angle_deg: Array) -> Array:
+        """dψ_D/dθ at the given angles, per degree."""
+        out: Array = np.interp(angle_deg, self.grid_deg, self._slope)
+        return out
+
+    def search_angle(self, psi: Array) -> Array:
+        """The published estimator: θ minimising |ψ − ψ_D(θ)| over the FoV grid (brute force).
+
+        Slower than :meth:`angle_of` (O(n·grid)) and quantised to the grid;
+        kept as the reference that the fast path is tested against.
+        """
+        lo, hi = self.fov_deg
+        inside = (self.grid_deg >= lo - 1e-9) & (self.grid_deg <= hi + 1e-9)
+        g, p = self.grid_deg[inside], self.psi[inside]
+        best = np.argmin(np.abs(np.asarray(psi)[:, None] - p[None, :]), axis=1)
+        out: Array = g[best]
+        return out
+
+
+@dataclass(frozen=True)
+class Calibration:
+    """A calibration file: mode, receiver facts and one table per channel."""
+
+    mode: Mode
+    """Ratio mode the tables were fitted in: ``db`` or ``linear``."""
+    tables: tuple[CalibrationTable, ...]
+    """Tables, at most one per channel and at most one for every channel."""
+    step_db: float = 1.0
+    """RSSI reporting step of the receiver, dB (1 for monitor-mode cards)."""
+    noise_floor_dbm: float = -90.89
+    """Power that SNR is measured against, dBm."""
+    saturation_dbm: float = -10.0
+    """Readings at or above this are treated as saturated, dBm."""
+    antenna: Mapping[str, Any] = field(default_factory=dict)
+    """Free description of the antenna pair and board (model, squint, beamwidth…)."""
+    created: str = ""
+    """When the calibration was made, ISO 8601 UTC."""
+
+    def __post_init__(self) -> None:
+        seen: set[int | None] = set()
+        for table in self.tables:
+            if table.channel in seen:
+                raise CalibrationError(f"two tables for channel {table.channel}")
+            seen.add(table.channel)
+        if not self.tables:
+            raise CalibrationError("a calibration needs at least one table")
+
+    def table_for(self, channel: int | None) -> CalibrationTable | None:
+        """The table for ``channel``, else the all-channel table, else None."""
+        fallback = None
+        for table in self.tables:
+            if table.channel is not None and table.channel == channel:
+                return table
+            if table.channel is None:
+                fallback = table
+        return fallback
+
+    @property
+    def channels(self) -> list[int | None]:
+        """Channels with a table (None: all channels)."""
+        return [t.channel for t in self.tables]
+
+
+def _pooled_noise_db(uniq_inverse: npt.NDArray[np.intp], counts: Array, values: Array) -> float:
+    """Per-chain spread about the per-angle means, pooled over angles and chains."""
+    sums = np.zeros((len(counts), values.shape[1]))
+    np.add.at(sums, uniq_inverse, values)
+    means = sums / counts[:, None]
+    resid = values - means[uniq_inverse]
+    dof = float(np.sum(counts - 1)) * values.shape[1]
+    if dof > 0:
+        return float(np.sqrt(np.sum(resid**2) / dof))
+    # one reading per angle: second differences of neighbours estimate the spread
+    d2 = values[1:-1] - 0.5 * (values[:-2] + values[2:])
+    return float(np.sqrt(np.mean(d2**2) / 1.5)) if len(d2) else 0.0
+
+
+def _smooth(x: Array, y: Array, counts: npt.NDArray[np.intp], grid: Array) -> Array:
+    """Smoothing spline through per-angle means (GCV strength), evaluated on ``grid``."""
+    if len(x) < 5:
+        return np.interp(grid, x, y)
+    spline = make_smoothing_spline(x, y, w=counts.astype(np.float64))
+    out: Array = spline(grid)
+    return out
+
+
+def _monotonic_fov(grid: Array, psi: Array) -> tuple[int, int]:
+    """Index range around boresight where ψ is strictly monotonic in one direction."""
+    i0 = int(np.argmin(np.abs(grid)))
+    diffs = np.diff(psi)
+    left = diffs[i0 - 1] if i0 > 0 else diffs[i0]
+    right = diffs[i0] if i0 < len(diffs) else diffs[i0 - 1]
+    sign = np.sign(left + right)
+    if sign == 0:
+        return i0, i0
+    lo = i0
+    while lo > 0 and sign * diffs[lo - 1] > 0:
+        lo -= 1
+    hi = i0
+    while hi < len(diffs) and sign * diffs[hi] > 0:
+        hi += 1
+    return lo, hi
+
+
+def fit_table(
+    angle_deg: Array,
+    rssi1_dbm: Array,
+    rssi2_dbm: Array,
+    mode: Mode = "linear",
+    *,
+    channel: int | None = None,
+    grid_step_deg: float = 0.5,
+    min_fov_deg: float = 5.0,
+    step_db: float = 1.0,
+) -> CalibrationTable:
+    """Fit one table from turntable samples (angles in degrees clockwise from boresight).
+
+    Repeated samples at one angle are averaged (in dB); each antenna's
+    per-angle means are smoothed with a cubic smoothing spline whose strength
+    is chosen by generalised cross-validation (weights: samples per angle), so
+    the noise of the means does not break the monotonicity of ψ_D; ψ_D is
+    evaluated on a regular grid; K_D balances the smoothed curves at 0°.
+
+    Raises:
+        CalibrationError: fewer than 3 distinct angles, boresight not covered,
+            or no monotonic interval of at least ``min_fov_deg`` around 0°.
+    """
+    angle = np.asarray(angle_deg, dtype=np.float64)
+    values = np.column_stack([rssi1_dbm, rssi2_dbm]).astype(np.float64)
+    ok = np.isfinite(angle) & np.all(np.isfinite(values), axis=1)
+    angle, values = angle[ok], values[ok]
+    uniq, inverse, counts = np.unique(np.round(angle, 6), return_inverse=True, return_counts=True)
+    where = "all channels" if channel is None else f"channel {channel}"
+    if len(uniq) < 3:
+        raise CalibrationError(f"{where}: need samples at 3 or more angles, got {len(uniq)}")
+    if not uniq[0] <= 0.0 <= uniq[-1]:
+        raise CalibrationError(
+            f"{where}: samples span {uniq[0]:g}°..{uniq[-1]:g}° and do not cover boresight (0°)"
+        )
+    sums = np.zeros((len(uniq), 2))
+    np.add.at(sums, inverse, values)
+    means = sums / counts[:, None]
+    noise_db = _pooled_noise_db(inverse, counts.astype(np.float64), values)
+    noise_db = max(noise_db, float(np.sqrt(quantisation_variance_db2(step_db))))
+    start = np.ceil(uniq[0] / grid_step_deg) * grid_step_deg
+    grid = np.arange(start, uniq[-1] + 1e-9, grid_step_deg)
+    r1g, r2g = (_smooth(uniq, means[:, k], counts, grid) for k in (0, 1))
+    r1_0 = float(np.interp(0.0, grid, r1g))
+    r2_0 = float(np.interp(0.0, grid, r2g))
+    try:
+        k_d = balance_k_d(r1_0, r2_0, mode)
+    except ValueError as err:
+        raise CalibrationError(f"{where}: cannot balance at boresight: {err}") from err
+    psi = ratio(r1g, r2g, k_d, mode)
+    lo, hi = _monotonic_fov(grid, psi)
+    fov = (float(grid[lo]), float(grid[hi]))
+    if fov[1] - fov[0] < min_fov_deg:
+        raise CalibrationError(
+            f"{where}: ψ_D is not monotonic around boresight "
+            f"(usable field of view {fov[0]:g}°..{fov[1]:g}° is under {min_fov_deg:g}°)"
+        )
+    table = CalibrationTable(channel, k_d, grid, psi, fov, noise_db, samples=len(angle))
+    est, outside = table.angle_of(ratio(values[:, 0], values[:, 1], k_d, mode))
+    inside = ~outside & (angle >= fov[0]) & (angle <= fov[1])
+    rms = (
+        float(np.sqrt(np.mean((est[inside] - angle[inside]) ** 2)))
+        if inside.any()
+        else float("nan")
+    )
+    return CalibrationTable(channel, k_d, grid, psi, fov, noise_db, len(angle), rms)
+
+
+def fit_calibration(
+    samples: TurntableSamples,
+    mode: Mode = "linear",
+    *,
+    per_channel: bool = True,
+    grid_step_deg: float = 0.5,
+    min_fov_deg: float = 5.0,
+    step_db: float = 1.0,
+    noise_floor_dbm: float = -90.89,
+    antenna: Mapping[str, Any] | None = None,
+) -> Calibration:
+    """Fit a calibration: one table per channel found in the samples (channel 0 = unknown).
+
+    With ``per_channel=False``, or when no channel is recorded, one table
+    serves every channel.
+
+    Raises:
+        CalibrationError: as :func:`fit_table`, naming the channel.
+    """
+    channels = sorted({int(c) for c in samples.channel if int(c) != 0})
+    groups: list[tuple[int | None, npt.NDArray[np.bool_]]]
+    if per_channel and channels:
+        groups = [(ch, samples.channel == ch) for ch in channels]
+    else:
+        groups = [(None, np.ones(len(samples.angle_deg), dtype=bool))]
+    tables = tuple(
+        fit_table(
+            samples.angle_deg[mask],
+            samples.rssi1_dbm[mask],
+            samples.rssi2_dbm[mask],
+            mode,
+            channel=ch,
+            grid_step_deg=grid_step_deg,
+            min_fov_deg=min_fov_deg,
+            step_db=step_db,
+        )
+        for ch, mask in groups
+    )
+    created = dt.datetime.now(dt.UTC).replace(microsecond=0).isoformat().replace("+00:00", "Z")
+    return Calibration(
+        mode=mode,
+        tables=tables,
+        step_db=step_db,
+        noise_floor_dbm=noise_floor_dbm,
+        antenna=dict(antenna or {}),
+        created=created,
+    )

@@ -1,0 +1,500 @@
+"""Bearings-only location of emitters with their covariance, many fixes at once.
+
+N stations at ``(x_i, y_i)`` (metres east/north) measure compass azimuths
+``φ_i`` with one-sigma errors ``σ_i``. The estimate is Torrieri's linearised
+weighted least squares (method.md §5):
+
+1. a pseudo-linear start: every line of bearing is a linear equation
+   ``sin φ_i·x − cos φ_i·y = sin φ_i·x_i − cos φ_i·y_i``; solve them by
+   weighted least squares, once with weights ``1/σ_i²`` and once more with
+   ``1/(D_i·σ_i)²`` using the ranges of the first solution;
+2. damped Gauss-Newton on the wrapped azimuth residuals: the step
+   ``(GᵀWG)⁻¹GᵀW·wrap(φ − φ₀)`` is halved until the weighted cost drops,
+   with an iteration cap;
+3. the covariance ``(GᵀWG)⁻¹`` at the solution, in the closed form with
+   ``μ = Σ cos²φ₀ᵢ/(D₀ᵢ²σᵢ²)``, ``λ = Σ sin²φ₀ᵢ/(D₀ᵢ²σᵢ²)``,
+   ``ν = Σ sin φ₀ᵢ cos φ₀ᵢ/(D₀ᵢ²σᵢ²)``: ``σ_x² = μ/(μλ − ν²)``,
+   ``σ_y² = λ/(μλ − ν²)``, ``σ_xy = ν/(μλ − ν²)`` (math angles; the published
+   text prints μ in both variances, λ is right for σ_y²).
+
+A fix is never silently wrong: it carries a :class:`FixStatus` that is not
+``OK`` when the lines of bearing are nearly parallel (condition number of the
+information matrix), when the error ellipse is so large against the range that
+the linearisation does not hold, when the solution lies behind a sensor (its
+direction from the sensor differs from the measured bearing by more than 90°),
+when three or more bearings are mutually inconsistent (χ² test), or when the
+iterations did not converge.
+
+Everything is batched: arrays of shape ``(B, N, …)`` hold ``B`` independent
+problems with up to ``N`` bearings each; a NaN azimuth marks a missing bearing.
+"""
+
+from __future__ import annotations
+
+import enum
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+from scipy.special import chdtri
+
+from rfsas_hw.angles import compass_to_math_rad, wrap_rad_pi
+from rfsas_hw.errors import BackendError
+
+Array = npt.NDArray[np.float64]
+
+__all__ = [
+    "FixStatus",
+    "Triangulation",
+    "TriangulationBatch",
+    "TriangulationOptions",
+    "bearing_crb",
+    "triangulate",
+    "triangulate_batch",
+]
+
+
+class FixStatus(enum.IntEnum):
+    """Outcome of one triangulation; anything but ``OK`` means do not trust the fix."""
+
+    OK = 0
+    TOO_FEW_BEARINGS = 1
+    """Fewer than two usable bearings."""
+    ILL_CONDITIONED = 2
+    """Nearly parallel lines of bearing, or an error ellipse too large for the linearisation."""
+    BEHIND_SENSOR = 3
+    """The solution lies behind at least one sensor (residual beyond the limit)."""
+    INCONSISTENT = 4
+    """Three or more bearings do not meet in one point (χ² test on the residuals)."""
+    NOT_CONVERGED = 5
+    """Gauss-Newton hit its iteration cap before the step became small."""
+
+
+@dataclass(frozen=True, slots=True)
+class TriangulationOptions:
+    """Tuning of :func:`triangulate_batch`.
+
+    Args:
+        max_iterations: Gauss-Newton iteration cap (≥ 1).
+        tolerance_m: stop when the step is shorter than this, metres (> 0).
+        max_halvings: step halvings tried per iteration before giving up on it.
+        max_condition: largest accepted condition number of the information
+            matrix GᵀWG (ratio of the squared ellipse axes); two lines of bearing
+            crossing at angle α at equal range give ``(1 + cos α)/(1 − cos α)``,
+            so the default 1e4 rejects crossings below about 1.1°.
+        max_range_fraction: largest accepted ratio of the ellipse's one-sigma
+            major semi-axis to the shortest station range; beyond it the
+            linearisation (and therefore the covariance) is not trustworthy.
+        behind_deg: a residual larger than this (degrees) means the solution is
+            behind that sensor.
+        consistency_alpha: false-alarm probability of the χ² consistency test
+            on ``N − 2`` degrees of freedom (N ≥ 3); 0 disables it.
+
+    Raises:
+        BackendError: on a value outside its range.
+    """
+
+    max_iterations: int = 25
+    tolerance_m: float = 1e-4
+    max_halvings: int = 12
+    max_condition: float = 1e4
+    max_range_fraction: float = 0.1
+    behind_deg: float = 90.0
+    consistency_alpha: float = 1e-4
+
+    def __post_init__(self) -> None:
+        if self.max_iterations < 1:
+            raise BackendError(f"max_iterations must be ≥ 1, got {self.max_iterations}")
+        if not self.tolerance_m > 0:
+            raise BackendError(f"tolerance_m must be > 0, got {self.tolerance_m}")
+        if self.max_halvings < 0:
+            raise BackendError(f"max_halvings must be ≥ 0, got {self.max_halvings}")
+        if not self.max_condition > 1:
+            raise BackendError(f"max_condition must be > 1, got {self.max_condition}")
+        if not self.max_range_fraction > 0:
+            raise BackendError(f"max_range_fraction must be > 0, got {self.max_range_fraction}")
+        if not 0 < self.behind_deg <= 180:
+            raise BackendError(f"behind_deg must be in (0, 180], got {self.behind_deg}")
+        if not 0 <= self.consistency_alpha < 1:
+            raise BackendError(f"consistency_alpha must be in [0, 1), got {self.consistency_alpha}")
+
+
+DEFAULT_OPTIONS = TriangulationOptions()
+
+
+@dataclass(frozen=True, slots=True)
+class Triangulation:
+    """One fix: where the emitter is, how well that is known, and whether to trust it."""
+
+    position: Array
+    """Estimated emitter position ``(x_m, y_m)``, metres east/north; NaN if none exists."""
+    covariance: Array
+    """2×2 covariance of ``position``, m² (``[[σ_x², σ_xy], [σ_xy, σ_y²]]``); inf if singular."""
+    status: FixStatus
+    """Why the fix is or is not trustworthy."""
+    reason: str
+    """Human-readable explanation of ``status`` with the numbers behind it."""
+    gdop: float
+    """Position error ``√tr Σ`` over the RMS of ``D_i·σ_i``: geometry's dilution (√2 at 90°)."""
+    condition: float
+    """Condition number of the information matrix GᵀWG (1 = circular ellipse)."""
+    chi2: float
+    """Weighted sum of squared azimuth residuals at the solution (N − 2 degrees of freedom)."""
+    iterations: int
+    """Gauss-Newton iterations used."""
+    n_bearings: int
+    """Bearings that took part."""
+
+    @property
+    def ok(self) -> bool:
+        """True when the fix can be used (status ``OK``)."""
+        return self.status is FixStatus.OK
+
+
+@dataclass(frozen=True, slots=True)
+class TriangulationBatch:
+    """``B`` fixes as arrays; ``batch[i]`` gives the :class:`Triangulation` of row ``i``."""
+
+    position: Array
+    """Estimated positions, shape (B, 2), metres east/north."""
+    covariance: Array
+    """Covariances, shape (B, 2, 2), m²."""
+    status: npt.NDArray[np.uint8]
+    """:class:`FixStatus` values, shape (B,)."""
+    gdop: Array
+    """Geometric dilution of precision, shape (B,)."""
+    condition: Array
+    """Condition number of GᵀWG, shape (B,)."""
+    chi2: Array
+    """Weighted squared residual sum, shape (B,)."""
+    iterations: npt.NDArray[np.int32]
+    """Gauss-Newton iterations, shape (B,)."""
+    n_bearings: npt.NDArray[np.int32]
+    """Usable bearings per fix, shape (B,)."""
+    range_fraction: Array
+    """One-sigma major semi-axis over the shortest range, shape (B,)."""
+    max_residual_deg: Array
+    """Largest absolute azimuth residual at the solution, degrees, shape (B,)."""
+    chi2_limit: Array
+    """χ² threshold applied (inf when the test does not apply), shape (B,)."""
+
+    @property
+    def ok(self) -> npt.NDArray[np.bool_]:
+        """Boolean mask of trustworthy fixes, shape (B,)."""
+        return np.asarray(self.status == FixStatus.OK)
+
+    def __len__(self) -> int:
+        return int(self.status.shape[0])
+
+    def reason(self, i: int) -> str:
+        """Explanation of row ``i``'s status, with the numbers that decided it."""
+        status = FixStatus(int(self.status[i]))
+        n = int(self.n_bearings[i])
+        if status is FixStatus.OK:
+            return f"ok: {n} bearings, GDOP {self.gdop[i]:.3g}, condition {self.condition[i]:.3g}"
+        if status is FixStatus.TOO_FEW_BEARINGS:
+            return f"too few bearings: {n} usable, need 2"
+        if status is FixStatus.BEHIND_SENSOR:
+            return (
+                f"lines of bearing meet behind a sensor: the direction to the solution "
+                f"differs from a measured bearing by {self.max_residual_deg[i]:.1f}°"
+            )
+        if status is FixStatus.ILL_CONDITIONED:
+            cond = float(self.condition[i])
+            if not math.isfinite(cond):
+                return "ill-conditioned: lines of bearing are parallel (singular geometry)"
+            return (
+                f"ill-conditioned: near-parallel lines of bearing or too large an error "
+                f"ellipse (condition {cond:.3g}, 1σ major axis "
+                f"{self.range_fraction[i]:.2f} of the shortest range)"
+            )
+        if status is FixStatus.INCONSISTENT:
+            return (
+                f"inconsistent bearings: χ² {self.chi2[i]:.3g} > {self.chi2_limit[i]:.3g} "
+                f"on {n - 2} degrees of freedom"
+            )
+        return f"not converged after {int(self.iterations[i])} iterations"
+
+    def __getitem__(self, i: int) -> Triangulation:
+        status = FixStatus(int(self.status[i]))
+        return Triangulation(
+            position=self.position[i].copy(),
+            covariance=self.covariance[i].copy(),
+            status=status,
+            reason=self.reason(i),
+            gdop=float(self.gdop[i]),
+            condition=float(self.condition[i]),
+            chi2=float(self.chi2[i]),
+            iterations=int(self.iterations[i]),
+            n_bearings=int(self.n_bearings[i]),
+        )
+
+
+def _inputs(
+    stations_xy: Any, azimuths_deg: Any, sigmas_deg: Any
+) -> tuple[Array, Array, Array, npt.NDArray[np.bool_]]:
+    """Validate and broadcast to (B, N, 2), (B, N), (B, N) plus the usable mask."""
+    S = np.asarray(stations_xy, dtype=np.float64)
+    az = np.asarray(azimuths_deg, dtype=np.float64)
+    sg = np.asarray(sigmas_deg, dtype=np.float64)
+    if S.ndim != 3 or S.shape[-1] != 2:
+        raise BackendError(f"stations_xy must have shape (B, N, 2), got {S.shape}")
+    if sg.ndim == 1 and az.ndim == 2 and sg.shape[0] == az.shape[1]:
+        sg = np.broadcast_to(sg, az.shape)
+    if az.shape != S.shape[:2] or sg.shape != S.shape[:2]:
+        raise BackendError(
+            f"azimuths_deg {az.shape} and sigmas_deg {sg.shape} must match "
+            f"stations_xy {S.shape[:2]}"
+        )
+    valid = np.isfinite(az) & np.isfinite(sg) & np.isfinite(S).all(axis=-1)
+    bad_sigma = valid & ~(sg > 0)
+    if bad_sigma.any():
+        b, i = np.argwhere(bad_sigma)[0]
+        raise BackendError(f"sigma of bearing {i} in fix {b} must be > 0 degrees, got {sg[b, i]}")
+    return S, az, sg, valid
+
+
+def _lines_wls(S: Array, phi: Array, w: Array) -> Array:
+    """Weighted least-squares intersection of lines of bearing, shape (B, 2)."""
+    s, c = np.sin(phi), np.cos(phi)
+    rhs = s * S[..., 0] - c * S[..., 1]
+    a11 = np.sum(w * s * s, axis=1)
+    a12 = -np.sum(w * s * c, axis=1)
+    a22 = np.sum(w * c * c, axis=1)
+    b1 = np.sum(w * s * rhs, axis=1)
+    b2 = -np.sum(w * c * rhs, axis=1)
+    det = a11 * a22 - a12 * a12
+    # relative test: exactly parallel lines leave only round-off in det
+    det = np.where(det > 1e-12 * (a11 + a22) ** 2, det, np.nan)
+    return np.stack([(a22 * b1 - a12 * b2) / det, (a11 * b2 - a12 * b1) / det], axis=-1)
+
+
+def _geometry(p: Array, S: Array, phi: Array) -> tuple[Array, Array, Array, Array]:
+    """Predicted azimuth (math rad), squared range, wrapped residual, offset (B, N, 2)."""
+    d = p[:, None, :] - S
+    d2 = d[..., 0] ** 2 + d[..., 1] ** 2
+    phi0 = np.arctan2(d[..., 1], d[..., 0])
+    return phi0, d2, wrap_rad_pi(phi - phi0), d
+
+
+def _cost(p: Array, S: Array, phi: Array, w: Array) -> Array:
+    _, _, r, _ = _geometry(p, S, phi)
+    cost: Array = np.sum(w * r * r, axis=1)
+    return cost
+
+
+def _information(phi0: Array, d2: Array, w: Array) -> tuple[Array, Array, Array]:
+    """μ, λ, ν of method.md §5 (math angles), each shape (B,)."""
+    c, s = np.cos(phi0), np.sin(phi0)
+    wd = w / d2
+    mu = np.sum(wd * c * c, axis=1)
+    lam = np.sum(wd * s * s, axis=1)
+    nu = np.sum(wd * s * c, axis=1)
+    return mu, lam, nu
+
+
+def _closed_form_cov(mu: Array, lam: Array, nu: Array) -> tuple[Array, Array]:
+    """Covariance (B, 2, 2) from μ, λ, ν and the determinant μλ − ν²."""
+    det = mu * lam - nu * nu
+    safe = np.where(det > 0, det, np.nan)
+    cov = np.empty((*mu.shape, 2, 2))
+    cov[:, 0, 0] = mu / safe
+    cov[:, 1, 1] = lam / safe
+    cov[:, 0, 1] = cov[:, 1, 0] = nu / safe
+    cov[~(det > 0)] = np.inf
+    return cov, det
+
+
+def bearing_crb(stations_xy: Any, target_xy: Any, sigmas_deg: Any) -> Array:
+    """Cramér–Rao bound on the position error: (GᵀWG)⁻¹ at the true position.
+
+    Args:
+        stations_xy: station positions, shape (N, 2) or (B, N, 2), metres.
+        target_xy: true emitter position, shape (2,) or (B, 2), metres.
+        sigmas_deg: bearing one-sigma errors, shape (N,) or (B, N), degrees.
+
+    Returns:
+        Covariance bound, m², shape (2, 2) or (B, 2, 2); inf where singular.
+
+    Raises:
+        BackendError: on mismatched shapes or a non-positive sigma.
+    """
+    single = np.ndim(stations_xy) == 2
+    S = np.asarray(stations_xy, np.float64)
+    T = np.asarray(target_xy, np.float64)
+    sg = np.asarray(sigmas_deg, np.float64)
+    if single:
+        S, T, sg = S[None], T[None], sg[None]
+    if T.shape != (S.shape[0], 2):
+        raise BackendError(f"target_xy must have shape (B, 2) = ({S.shape[0]}, 2), got {T.shape}")
+    S, _, sg, valid = _inputs(S, np.zeros(S.shape[:2]), sg)
+    w = np.where(valid, 1.0 / np.deg2rad(np.where(valid, sg, 1.0)) ** 2, 0.0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        d = T[:, None, :] - S
+        phi0 = np.arctan2(d[..., 1], d[..., 0])
+        d2 = np.where(valid, np.sum(d * d, axis=-1), 1.0)
+        cov, _ = _closed_form_cov(*_information(phi0, d2, w))
+    return np.asarray(cov[0] if single else cov, np.float64)
+
+
+def triangulate_batch(
+    stations_xy: Any,
+    azimuths_deg: Any,
+    sigmas_deg: Any,
+    options: TriangulationOptions = DEFAULT_OPTIONS,
+) -> TriangulationBatch:
+    """Locate ``B`` emitters from their bearings, each with covariance and status.
+
+    Args:
+        stations_xy: station positions, shape (B, N, 2), metres east/north.
+        azimuths_deg: measured compass azimuths, shape (B, N), degrees clockwise
+            from north; NaN marks a missing bearing.
+        sigmas_deg: one-sigma bearing errors, shape (B, N) or (N,), degrees (> 0).
+        options: iteration and acceptance limits.
+
+    Returns:
+        The fixes; rows whose status is not ``OK`` still carry the best position
+        found (NaN when none exists) and the covariance there (inf when singular).
+
+    Raises:
+        BackendError: on mismatched shapes or a non-positive sigma.
+    """
+    S, az, sg, valid = _inputs(stations_xy, azimuths_deg, sigmas_deg)
+    B = S.shape[0]
+    n_valid = valid.sum(axis=1).astype(np.int32)
+    S = np.where(valid[..., None], S, 0.0)
+    phi = np.where(valid, compass_to_math_rad(np.where(valid, az, 0.0)), 0.0)
+    w = np.where(valid, 1.0 / np.deg2rad(np.where(valid, sg, 1.0)) ** 2, 0.0)
+    iterations = np.zeros(B, np.int32)
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        p = _lines_wls(S, phi, w)
+        d2 = np.sum((p[:, None, :] - S) ** 2, axis=-1)
+        refined = _lines_wls(S, phi, w / np.maximum(d2, 1e-6))
+        p = np.where(np.isfinite(refined), refined, p)
+        solvable = np.isfinite(p).all(axis=1) & (n_valid >= 2)
+        p = np.where(solvable[:, None], p, 0.0)
+        p_start = p.copy()
+        _, _, r_start, _ = _geometry(p, S, phi)
+        start_behind = solvable & (
+            np.max(np.where(valid, np.abs(r_start), 0.0), axis=1) > np.deg2rad(options.behind_deg)
+        )
+        # two lines that meet behind a sensor have no solution in front of both
+        converged = ~solvable | (start_behind & (n_valid == 2))
+        for _ in range(options.max_iterations):
+            active = ~converged
+            if not active.any():
+                break
+            iterations += active
+            phi0, d2, r, _ = _geometry(p, S, phi)
+            d2 = np.maximum(d2, 1e-12)
+            mu, lam, nu = _information(phi0, d2, w)
+            det = mu * lam - nu * nu
+            c, s = np.cos(phi0), np.sin(phi0)
+            # gradient Gᵀ W r with G rows [−sin φ₀/D, cos φ₀/D]
+            g1 = np.sum(w * (-s) * r / np.sqrt(d2), axis=1)
+            g2 = np.sum(w * c * r / np.sqrt(d2), axis=1)
+            det_safe = np.where(det > 0, det, np.nan)
+            step = np.stack([(mu * g1 + nu * g2) / det_safe, (nu * g1 + lam * g2) / det_safe], -1)
+            bad = ~np.isfinite(step).all(axis=1)
+            step[bad] = 0.0
+            cost0 = np.sum(w * r * r, axis=1)
+            alpha = np.ones(B)
+            accepted = np.zeros(B, bool) | ~active | bad
+            cand = p.copy()
+            for _ in range(options.max_halvings + 1):
+                trial = p + alpha[:, None] * step
+                better = ~accepted & (_cost(trial, S, phi, w) <= cost0 * (1 + 1e-12) + 1e-300)
+                cand[better] = trial[better]
+                accepted |= better
+                if accepted.all():
+                    break
+                alpha = np.where(accepted, alpha, alpha / 2)
+            moved = np.hypot(*(cand - p).T)
+            p = np.where(active[:, None], cand, p)
+            # a step that could not reduce the cost means we sit at the minimum
+            converged |= active & ((moved < options.tolerance_m) | ~accepted | bad)
+
+        phi0, d2, r, _ = _geometry(p, S, phi)
+        d2 = np.where(valid, np.maximum(d2, 1e-12), 1.0)
+        mu, lam, nu = _information(phi0, d2, w)
+        cov, det = _closed_form_cov(mu, lam, nu)
+        tr = mu + lam
+        disc = np.sqrt(np.maximum(tr * tr / 4 - det, 0.0))
+        e_max, e_min = tr / 2 + disc, tr / 2 - disc
+        condition = np.where(e_min > 0, e_max / e_min, np.inf)
+        major = np.where(e_min > 0, 1.0 / np.sqrt(e_min), np.inf)
+        d_min = np.sqrt(np.min(np.where(valid, d2, np.inf), axis=1))
+        range_fraction = major / d_min
+        chi2 = np.sum(w * r * r, axis=1)
+        abs_r = np.where(valid, np.abs(r), 0.0)
+        max_residual_deg = np.rad2deg(np.max(abs_r, axis=1, initial=0.0))
+        scale = np.sqrt(np.sum(np.where(valid, d2 / w, 0.0), axis=1) / np.maximum(n_valid, 1))
+        gdop = np.sqrt(cov[:, 0, 0] + cov[:, 1, 1]) / scale
+        dof = np.maximum(n_valid - 2, 1)
+        chi2_limit = np.full(B, np.inf)
+        if options.consistency_alpha > 0:
+            chi2_limit = np.where(n_valid >= 3, chdtri(dof, options.consistency_alpha), np.inf)
+
+    status = np.full(B, FixStatus.OK, np.uint8)
+    status[~converged] = FixStatus.NOT_CONVERGED
+    status[chi2 > chi2_limit] = FixStatus.INCONSISTENT
+    status[max_residual_deg > options.behind_deg] = FixStatus.BEHIND_SENSOR
+    ill = ~np.isfinite(condition) | (condition > options.max_condition)
+    ill |= ~(range_fraction <= options.max_range_fraction)
+    status[ill] = FixStatus.ILL_CONDITIONED
+    behind_start = start_behind & (ill | (max_residual_deg > options.behind_deg))
+    status[behind_start] = FixStatus.BEHIND_SENSOR
+    # report the residual that proves it: at the lines' intersection
+    start_resid_deg = np.rad2deg(np.max(np.where(valid, np.abs(r_start), 0.0), axis=1))
+    max_residual_deg = np.where(behind_start, start_resid_deg, max_residual_deg)
+    status[~solvable & (n_valid >= 2)] = FixStatus.ILL_CONDITIONED
+    status[n_valid < 2] = FixStatus.TOO_FEW_BEARINGS
+    position = np.where(behind_start[:, None], p_start, p)
+    position = np.where(solvable[:, None], position, np.nan)
+    cov[~solvable] = np.inf
+    return TriangulationBatch(
+        position=position,
+        covariance=cov,
+        status=status,
+        gdop=np.where(solvable, gdop, np.inf),
+        condition=np.where(solvable, condition, np.inf),
+        chi2=np.where(solvable, chi2, np.nan),
+        iterations=iterations,
+        n_bearings=n_valid,
+        range_fraction=np.where(solvable, range_fraction, np.inf),
+        max_residual_deg=np.where(solvable, max_residual_deg, np.nan),
+        chi2_limit=chi2_limit,
+    )
+
+
+def triangulate(
+    stations_xy: Any,
+    azimuths_deg: Any,
+    sigmas_deg: Any,
+    options: TriangulationOptions = DEFAULT_OPTIONS,
+) -> Triangulation:
+    """Locate one emitter from N ≥ 2 bearings.
+
+    Args:
+        stations_xy: station positions, shape (N, 2), metres east/north.
+        azimuths_deg: measured compass azimuths, shape (N,), degrees clockwise from north.
+        sigmas_deg: one-sigma bearing errors, shape (N,), degrees (> 0).
+        options: iteration and acceptance limits.
+
+    Returns:
+        The fix; check ``.ok`` (and ``.reason``) before using ``.position``.
+
+    Raises:
+        BackendError: on mismatched shapes or a non-positive sigma.
+    """
+    S = np.asarray(stations_xy, np.float64)
+    az = np.asarray(azimuths_deg, np.float64)
+    sg = np.asarray(sigmas_deg, np.float64)
+    if S.ndim != 2 or az.ndim != 1:
+        raise BackendError(
+            f"triangulate takes stations (N, 2) and azimuths (N,), got {S.shape} and {az.shape}"
+        )
+    sg = np.broadcast_to(sg, az.shape) if sg.ndim == 0 else sg
+    return triangulate_batch(S[None], az[None], sg[None], options)[0]

@@ -1,0 +1,290 @@
+"""The safety message: a versioned binary record of one sensor's bearings.
+
+Byte layout (big-endian; documented field by field in ``docs/protocol.md``)::
+
+    off   size  field
+    0     2     magic "RF" (0x52 0x46)
+    2     1     version = 1
+    3     1     type: 1 = safety message, 2 = nonce envelope (privacy.nonces)
+    4     1     flags, reserved, 0
+    5     1     L = sender id length, 1..32
+    6     L     sender id, ASCII [A-Za-z0-9._-]
+    6+L   8     generation time, UTC µs, int64
+    14+L  4     sequence number, uint32
+    18+L  8     nonce epoch, uint64
+    26+L  4     sender x, east, metres, float32
+    30+L  4     sender y, north, metres, float32
+    34+L  4     sender heading, compass degrees, float32
+    38+L  1     N = bearing count, 1..255
+    39+L  30·N  bearings, each:
+                  +0  8  capture time, UTC µs, int64
+                  +8  8  emitter id (keyed MAC hash), uint64
+                  +16 4  azimuth, compass degrees [0, 360), float32
+                  +20 4  sigma, degrees > 0, float32
+                  +24 4  SNR, dB, float32
+                  +28 2  channel number, uint16
+    end-64 64   ECDSA P-256 signature over every byte before it: r ‖ s, 32 bytes each
+
+The length of a valid message follows from L and N alone, so a receiver can
+reject a truncated, padded or oversized datagram before any cryptography.
+:func:`peek` does those cheap checks; :func:`decode` parses the rest
+(vectorised over the bearings) and checks every value.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+import struct
+from dataclasses import dataclass
+
+import numpy as np
+
+from rfsas_hw.errors import LinkError
+from rfsas_hw.records import BearingBatch, Pose
+
+MAGIC = b"RF"
+VERSION = 1
+TYPE_SAFETY = 1
+TYPE_NONCE = 2
+SIGNATURE_BYTES = 64
+MAX_SENDER_ID = 32
+MAX_BEARINGS = 255
+MAX_DATAGRAM = 1472
+"""Largest datagram the protocol allows: a 1500-byte Ethernet MTU minus IPv4 and UDP headers."""
+DEFAULT_DATAGRAM = 1200
+"""Default largest datagram a sender builds: fits any path with the IPv6 minimum MTU."""
+
+_PREFIX = struct.Struct(">2sBBBB")
+_FIXED = struct.Struct(">qIQfffB")
+BEARING_DTYPE = np.dtype(
+    [
+        ("t_us", ">i8"),
+        ("emitter", ">u8"),
+        ("azimuth_deg", ">f4"),
+        ("sigma_deg", ">f4"),
+        ("snr_db", ">f4"),
+        ("channel", ">u2"),
+    ]
+)
+BEARING_BYTES = BEARING_DTYPE.itemsize
+HEADER_BYTES = _PREFIX.size + _FIXED.size
+"""Header bytes besides the sender id."""
+_SENDER_RE = re.compile(rb"[A-Za-z0-9._-]{1,32}")
+_INT64_MAX = (1 << 63) - 1
+
+
+class MessageFormatError(LinkError):
+    """A datagram is not a well-formed message; ``reason`` says which check failed.
+
+    Reasons: ``truncated``, ``oversized``, ``bad_magic``, ``bad_version``,
+    ``bad_type``, ``malformed``.
+    """
+
+    def __init__(self, reason: str, detail: str) -> None:
+        super().__init__(f"{reason}: {detail}")
+        self.reason = reason
+
+
+@dataclass(frozen=True, slots=True)
+class SafetyMessage:
+    """One signed safety message, decoded.
+
+    ``bearings.t_ns`` carry µs resolution (the wire unit); ``relative_deg`` is
+    not sent and decodes as NaN.
+    """
+
+    sender_id: str
+    """Id of the sending sensor; its enrolled key verifies the signature."""
+    pose: Pose
+    """Sender position (east/north metres) and boresight heading (compass degrees)."""
+    t_gen_us: int
+    """Generation time, UTC microseconds."""
+    seq: int
+    """Sequence number, uint32, one per message per sender."""
+    epoch: int
+    """Nonce epoch the emitter ids were hashed in."""
+    bearings: BearingBatch
+    """The bearings; ``bearings.sensor_id == sender_id``."""
+
+
+@dataclass(frozen=True, slots=True)
+class Peeked:
+    """What :func:`peek` learns from a datagram without parsing the bearings."""
+
+    kind: int
+    """Message type (``TYPE_SAFETY`` or ``TYPE_NONCE``)."""
+    sender_id: str
+    """Sender id (empty for a nonce envelope; that type has its own layout)."""
+    n_bearings: int
+    """Declared bearing count (0 for a nonce envelope)."""
+
+
+def max_bearings(sender_id: str, max_datagram: int = DEFAULT_DATAGRAM) -> int:
+    """How many bearings fit one message of at most ``max_datagram`` bytes.
+
+    Raises:
+        LinkError: not even one bearing fits.
+    """
+    room = max_datagram - HEADER_BYTES - len(sender_id) - SIGNATURE_BYTES
+    n = min(MAX_BEARINGS, room // BEARING_BYTES)
+    if n < 1:
+        raise LinkError(f"a datagram of {max_datagram} bytes cannot hold one bearing")
+    return n
+
+
+def check_sender_id(sender_id: str) -> bytes:
+    """The wire form of a sender id.
+
+    Raises:
+        LinkError: the id is empty, longer than 32 characters or not [A-Za-z0-9._-].
+    """
+    raw = sender_id.encode("ascii", "replace")
+    if not _SENDER_RE.fullmatch(raw):
+        raise LinkError(
+            f"sender id {sender_id!r} must be 1-{MAX_SENDER_ID} characters of A-Z a-z 0-9 . _ -"
+        )
+    return raw
+
+
+def encode_body(msg: SafetyMessage) -> bytes:
+    """Every byte of ``msg`` that the signature covers (the datagram minus the signature).
+
+    Raises:
+        LinkError: a field is out of range (sender id, bearing count, non-finite
+            or out-of-range values, sequence or epoch overflow).
+    """
+    sender = check_sender_id(msg.sender_id)
+    b = msg.bearings
+    n = len(b)
+    if not 1 <= n <= MAX_BEARINGS:
+        raise LinkError(f"a message carries 1-{MAX_BEARINGS} bearings, got {n}")
+    if not 0 <= msg.seq < 1 << 32:
+        raise LinkError(f"sequence number {msg.seq} does not fit 32 bits")
+    if not 0 <= msg.epoch < 1 << 64:
+        raise LinkError(f"epoch {msg.epoch} does not fit 64 bits")
+    pose = (msg.pose.x_m, msg.pose.y_m, msg.pose.heading_deg)
+    if not all(math.isfinite(v) for v in pose):
+        raise LinkError(f"sender pose must be finite, got {msg.pose}")
+    if np.any(b.channel < 0):
+        raise LinkError("channel numbers must not be negative")
+    rows = np.empty(n, BEARING_DTYPE)
+    rows["t_us"] = b.t_ns // 1000
+    rows["emitter"] = b.emitter
+    # float32 rounds 359.99999 up to 360.0, which is 0 on the compass
+    az32 = b.azimuth_deg.astype(np.float32)
+    rows["azimuth_deg"] = np.where(az32 >= np.float32(360.0), np.float32(0.0), az32)
+    rows["sigma_deg"] = b.sigma_deg
+    rows["snr_db"] = b.snr_db
+    rows["channel"] = b.channel
+    _check_rows(rows, LinkError)
+    head = _PREFIX.pack(MAGIC, VERSION, TYPE_SAFETY, 0, len(sender)) + sender
+    fixed = _FIXED.pack(msg.t_gen_us, msg.seq, msg.epoch, *pose, n)
+    return head + fixed + rows.tobytes()
+
+
+def _check_rows(rows: np.ndarray, error: type[LinkError]) -> None:
+    az = rows["azimuth_deg"]
+    sigma = rows["sigma_deg"]
+    if not np.all((az >= 0.0) & (az < 360.0)):
+        raise _raise(error, "azimuth outside [0, 360) degrees")
+    if not np.all(np.isfinite(sigma) & (sigma > 0.0)):
+        raise _raise(error, "sigma must be finite and positive")
+    if not np.all(np.isfinite(rows["snr_db"])):
+        raise _raise(error, "SNR must be finite")
+    if np.any(rows["t_us"] < 0):
+        raise _raise(error, "capture time before 1970")
+    if np.any(rows["channel"] > 0x7FFF):
+        raise _raise(error, "channel number above 32767")
+
+
+def _raise(error: type[LinkError], detail: str) -> LinkError:
+    if error is MessageFormatError:
+        return MessageFormatError("malformed", detail)
+    return error(f"bad bearing: {detail}")
+
+
+def peek(datagram: bytes, max_datagram: int = MAX_DATAGRAM) -> Peeked:
+    """Cheap structural checks: size, magic, version, type, sender id, exact length.
+
+    Raises:
+        MessageFormatError: with ``reason`` naming the failed check.
+    """
+    size = len(datagram)
+    if size > max_datagram:
+        raise MessageFormatError("oversized", f"{size} bytes > {max_datagram}")
+    if size < _PREFIX.size:
+        raise MessageFormatError("truncated", f"{size} bytes, header needs {_PREFIX.size}")
+    magic, version, kind, flags, sender_len = _PREFIX.unpack_from(datagram)
+    if magic != MAGIC:
+        raise MessageFormatError("bad_magic", f"starts with {bytes(datagram[:2])!r}")
+    if version != VERSION:
+        raise MessageFormatError("bad_version", f"version {version}, this reader speaks {VERSION}")
+    if kind == TYPE_NONCE:
+        return Peeked(TYPE_NONCE, "", 0)
+    if kind != TYPE_SAFETY:
+        raise MessageFormatError("bad_type", f"message type {kind}")
+    if flags != 0:
+        raise MessageFormatError("malformed", f"reserved flags {flags:#04x} set")
+    fixed_at = _PREFIX.size + sender_len
+    if size < fixed_at + _FIXED.size:
+        raise MessageFormatError("truncated", f"{size} bytes, header needs {fixed_at + 33}")
+    sender = bytes(datagram[_PREFIX.size : fixed_at])
+    if not _SENDER_RE.fullmatch(sender):
+        raise MessageFormatError("malformed", f"sender id {sender!r} is not [A-Za-z0-9._-]{{1,32}}")
+    n = datagram[fixed_at + _FIXED.size - 1]
+    if n == 0:
+        raise MessageFormatError("malformed", "no bearings")
+    want = fixed_at + _FIXED.size + n * BEARING_BYTES + SIGNATURE_BYTES
+    if size < want:
+        raise MessageFormatError("truncated", f"{size} bytes, {n} bearings need {want}")
+    if size > want:
+        raise MessageFormatError("oversized", f"{size} bytes, {n} bearings need {want}")
+    return Peeked(TYPE_SAFETY, sender.decode("ascii"), n)
+
+
+def decode(datagram: bytes, max_datagram: int = MAX_DATAGRAM) -> SafetyMessage:
+    """Parse a safety message and check every value (the signature is not checked here).
+
+    Raises:
+        MessageFormatError: structure or values are invalid (``reason`` says which).
+    """
+    head = peek(datagram, max_datagram)
+    if head.kind != TYPE_SAFETY:
+        raise MessageFormatError("bad_type", "a nonce envelope, not a safety message")
+    fixed_at = _PREFIX.size + len(head.sender_id)
+    t_gen_us, seq, epoch, x_m, y_m, heading_deg, _ = _FIXED.unpack_from(datagram, fixed_at)
+    if not (math.isfinite(x_m) and math.isfinite(y_m) and 0.0 <= heading_deg < 360.0):
+        raise MessageFormatError("malformed", "sender pose not finite or heading outside [0, 360)")
+    if t_gen_us < 0:
+        raise MessageFormatError("malformed", "generation time before 1970")
+    if epoch > _INT64_MAX:
+        raise MessageFormatError("malformed", f"epoch {epoch} out of range")
+    rows = np.frombuffer(
+        datagram, BEARING_DTYPE, count=head.n_bearings, offset=fixed_at + _FIXED.size
+    )
+    _check_rows(rows, MessageFormatError)
+    if np.any(rows["t_us"] > _INT64_MAX // 1000):
+        raise MessageFormatError("malformed", "capture time out of range")
+    bearings = BearingBatch(
+        sensor_id=head.sender_id,
+        t_ns=rows["t_us"].astype(np.int64) * 1000,
+        azimuth_deg=rows["azimuth_deg"].astype(np.float64),
+        sigma_deg=rows["sigma_deg"].astype(np.float64),
+        snr_db=rows["snr_db"].astype(np.float64),
+        channel=rows["channel"].astype(np.int16),
+        emitter=rows["emitter"].astype(np.uint64),
+    )
+    return SafetyMessage(
+        sender_id=head.sender_id,
+        pose=Pose(x_m, y_m, heading_deg),
+        t_gen_us=t_gen_us,
+        seq=seq,
+        epoch=epoch,
+        bearings=bearings,
+    )
+
+
+def signed_part(datagram: bytes) -> tuple[bytes, bytes]:
+    """Split a datagram into (signed bytes, 64-byte signature)."""
+    return datagram[:-SIGNATURE_BYTES], datagram[-SIGNATURE_BYTES:]

@@ -1,0 +1,365 @@
+"""Receiving safety messages: verify, check relevance, refuse replays, watch latency.
+
+API (for a backend)::
+
+    from rfsas_hw.link import Receiver, ReceiverConfig, TrustedKeys
+    rx = Receiver(trust, nonces=None, config=ReceiverConfig())
+    verified = rx.feed(datagram, t_recv_ns)   # VerifiedMessage | None, never raises
+    rx.stats                                  # ReceiverStats: counts by rejection reason
+    rx.latency                                # LatencyWatch: per-sender state (ok/late/silent)
+
+    rx = Receiver.listen("udp://127.0.0.1:47000", trust)
+    for msg in rx.receive(timeout=0.1): ...   # everything that arrived, verified
+
+``trust`` is anything with ``signing_key(sender_id)`` (:class:`TrustedKeys`, or
+the trust directory of a key store). ``nonces`` (optional) takes nonce
+envelopes that arrive on the same port (see :mod:`rfsas_hw.privacy.nonces`).
+
+Checks run cheapest first and in this order; the first failure decides the
+reason a datagram is counted under:
+
+1. structure (no cryptography): ``oversized``, ``truncated``, ``bad_magic``,
+   ``bad_version``, ``bad_type``, ``malformed``; then ``unknown_sender``;
+2. signature with the sender's enrolled key: ``bad_signature``;
+3. relevance: ``stale`` (older than ``max_age_s``), ``future`` (generated more
+   than ``max_future_s`` ahead of the receiver's clock), ``too_far`` (sender
+   farther than ``max_range_m`` from the receiver's position), ``wrong_epoch``
+   (the nonce epoch is not one the receiver accepts now, or a bearing was
+   captured outside it);
+4. replay: ``replay`` (sequence number already seen inside the window).
+
+Value checks on the bearings (``malformed``) run only on authenticated bytes.
+A bug in a check is counted as ``internal_error`` and logged; :meth:`Receiver.feed`
+never raises into the caller's loop.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from collections import Counter
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Protocol
+
+import numpy as np
+
+from rfsas_hw.errors import LinkError, LinkSecurityError
+from rfsas_hw.link.latency import LatencyConfig, LatencyWatch
+from rfsas_hw.link.message import (
+    MAX_DATAGRAM,
+    TYPE_NONCE,
+    MessageFormatError,
+    SafetyMessage,
+    decode,
+    peek,
+    signed_part,
+)
+from rfsas_hw.link.replay import ReplayGuard
+from rfsas_hw.link.signing import SenderKeys, verify
+from rfsas_hw.link.transport import Transport, open_transport
+from rfsas_hw.privacy.epochs import DEFAULT_EPOCH_S, DEFAULT_GRACE_S, EpochSchedule
+from rfsas_hw.records import BearingBatch
+
+log = logging.getLogger(__name__)
+
+NS_PER_US = 1000
+US_PER_S = 1_000_000
+
+REASONS = (
+    "oversized",
+    "truncated",
+    "bad_magic",
+    "bad_version",
+    "bad_type",
+    "malformed",
+    "unknown_sender",
+    "bad_signature",
+    "stale",
+    "future",
+    "too_far",
+    "wrong_epoch",
+    "replay",
+    "nonce_rejected",
+    "nonce_unexpected",
+    "internal_error",
+)
+"""Every reason a datagram can be rejected for, in check order."""
+
+
+@dataclass(frozen=True, slots=True)
+class ReceiverConfig:
+    """Relevance and replay thresholds of a receiver.
+
+    Raises:
+        ValueError: on a non-positive age, skew or range.
+    """
+
+    max_age_s: float = 1.0
+    """Messages generated longer ago than this are ``stale``, seconds."""
+    max_future_s: float = 0.2
+    """Allowed clock skew: messages generated further ahead are ``future``, seconds."""
+    max_range_m: float = 2000.0
+    """Senders farther than this from the receiver's position are ``too_far``, metres
+    (checked only when the receiver knows its position)."""
+    check_epoch: bool = True
+    """Refuse messages whose nonce epoch the receiver does not accept now. Turn off
+    to feed a receiver recorded messages from the past."""
+    epoch_s: float = DEFAULT_EPOCH_S
+    """Nonce epoch length, seconds (as the deployment's sensors use)."""
+    grace_s: float = DEFAULT_GRACE_S
+    """Grace period at an epoch boundary, seconds."""
+    max_datagram: int = MAX_DATAGRAM
+    """Largest datagram accepted, bytes."""
+    replay_capacity: int = 4096
+    """Most sequence numbers remembered per sender."""
+    latency: LatencyConfig = field(default_factory=LatencyConfig)
+    """Latency watch thresholds."""
+
+    def __post_init__(self) -> None:
+        if self.max_age_s <= 0 or self.max_future_s < 0 or self.max_range_m <= 0:
+            raise ValueError("max_age_s and max_range_m must be positive, max_future_s >= 0")
+
+    @property
+    def schedule(self) -> EpochSchedule:
+        """The nonce epoch schedule."""
+        return EpochSchedule(self.epoch_s, self.grace_s)
+
+
+@dataclass(frozen=True, slots=True)
+class VerifiedMessage:
+    """A message that passed every check."""
+
+    message: SafetyMessage
+    """The decoded message."""
+    t_recv_ns: int
+    """When it was received, UTC ns (receiver clock)."""
+    age_s: float
+    """Generation → verified, seconds (negative when the sender's clock runs ahead)."""
+
+    @property
+    def sender_id(self) -> str:
+        """Id of the verified sender."""
+        return self.message.sender_id
+
+    @property
+    def bearings(self) -> BearingBatch:
+        """The message's bearings (``sensor_id`` is the sender id)."""
+        return self.message.bearings
+
+
+@dataclass(slots=True)
+class ReceiverStats:
+    """What a receiver has seen: datagrams, verified messages, rejections by reason."""
+
+    datagrams: int = 0
+    verified: int = 0
+    bearings: int = 0
+    nonces: int = 0
+    """Nonce envelopes accepted."""
+    rejected: Counter[str] = field(default_factory=Counter)
+
+    @property
+    def rejected_total(self) -> int:
+        """All rejections together."""
+        return sum(self.rejected.values())
+
+    def as_dict(self) -> dict[str, int]:
+        """Flat counters, for a table or a JSON status line."""
+        out = {
+            "datagrams": self.datagrams,
+            "verified": self.verified,
+            "bearings": self.bearings,
+            "nonces": self.nonces,
+        }
+        out.update({f"rejected.{k}": v for k, v in sorted(self.rejected.items())})
+        return out
+
+
+class EnvelopeSink(Protocol):
+    """Takes nonce envelopes (``rfsas_hw.privacy.nonces.NonceStore`` is one)."""
+
+    def accept_envelope(self, datagram: bytes, now_ns: int) -> int:
+        """Open and keep the nonce in ``datagram``; return its epoch.
+
+        Raises:
+            LinkSecurityError: the envelope is not for us, not authentic, or not wanted now.
+        """
+        ...
+
+
+class _RejectError(Exception):
+    def __init__(self, reason: str, detail: str = "") -> None:
+        super().__init__(reason)
+        self.reason = reason
+        self.detail = detail
+
+
+class Receiver:
+    """Verifies safety messages from enrolled senders (see the module docstring).
+
+    Args:
+        trust: enrolled signing keys, looked up by sender id.
+        nonces: where nonce envelopes arriving on the link go (None: count them as
+            ``nonce_unexpected``).
+        config: thresholds.
+        position: returns the receiver's own (x_m, y_m), or None when unknown;
+            without it the ``too_far`` check is skipped.
+        transport: where :meth:`receive` reads datagrams from.
+        clock: UTC time in ns, for datagrams fed without a receive time.
+    """
+
+    def __init__(
+        self,
+        trust: SenderKeys,
+        nonces: EnvelopeSink | None = None,
+        config: ReceiverConfig | None = None,
+        *,
+        position: Callable[[], tuple[float, float] | None] | None = None,
+        transport: Transport | None = None,
+        clock: Callable[[], int] = time.time_ns,
+    ) -> None:
+        self.trust = trust
+        self.nonces = nonces
+        self.config = config or ReceiverConfig()
+        self.position = position
+        self.transport = transport
+        self.clock = clock
+        self.schedule = self.config.schedule
+        self.stats = ReceiverStats()
+        self.latency = LatencyWatch(self.config.latency)
+        window_us = int((self.config.max_age_s + self.config.max_future_s) * US_PER_S)
+        self.replay = ReplayGuard(window_us, self.config.replay_capacity)
+
+    @classmethod
+    def listen(
+        cls,
+        url: str,
+        trust: SenderKeys,
+        nonces: EnvelopeSink | None = None,
+        config: ReceiverConfig | None = None,
+        **kwargs: object,
+    ) -> Receiver:
+        """A receiver reading from the transport ``url`` names (e.g. ``udp://127.0.0.1:47000``).
+
+        Raises:
+            LinkError: the URL is bad or the socket cannot be bound.
+        """
+        transport = open_transport(url, "recv")
+        return cls(trust, nonces, config, transport=transport, **kwargs)  # type: ignore[arg-type]
+
+    def feed(self, datagram: bytes, t_recv_ns: int | None = None) -> VerifiedMessage | None:
+        """Check one datagram received at ``t_recv_ns`` (UTC ns; default: the clock).
+
+        Returns the verified message, or None (rejected and counted, or a nonce
+        envelope consumed). Never raises.
+        """
+        now_ns = self.clock() if t_recv_ns is None else int(t_recv_ns)
+        self.stats.datagrams += 1
+        try:
+            verified = self._check(bytes(datagram), now_ns)
+        except _RejectError as rej:
+            self.stats.rejected[rej.reason] += 1
+            if log.isEnabledFor(logging.DEBUG):
+                log.debug("rejected %d-byte datagram: %s %s", len(datagram), rej.reason, rej.detail)
+            return None
+        except Exception:
+            self.stats.rejected["internal_error"] += 1
+            if self.stats.rejected["internal_error"] == 1:
+                log.exception("receiver check failed on a %d-byte datagram", len(datagram))
+            return None
+        if verified is not None:
+            self.stats.verified += 1
+            self.stats.bearings += len(verified.message.bearings)
+            self.latency.observe(verified.sender_id, verified.age_s, now_ns)
+        return verified
+
+    def _check(self, datagram: bytes, now_ns: int) -> VerifiedMessage | None:
+        cfg = self.config
+        try:
+            head = peek(datagram, cfg.max_datagram)
+        except MessageFormatError as err:
+            raise _RejectError(err.reason, str(err)) from None
+        if head.kind == TYPE_NONCE:
+            self._envelope(datagram, now_ns)
+            return None
+        key = self.trust.signing_key(head.sender_id)
+        if key is None:
+            raise _RejectError("unknown_sender", head.sender_id)
+        body, signature = signed_part(datagram)
+        if not verify(key, body, signature):
+            raise _RejectError("bad_signature", head.sender_id)
+        try:
+            msg = decode(datagram, cfg.max_datagram)
+        except MessageFormatError as err:
+            raise _RejectError(err.reason, str(err)) from None
+        now_us = now_ns // NS_PER_US
+        age_us = now_us - msg.t_gen_us
+        if age_us > cfg.max_age_s * US_PER_S:
+            raise _RejectError("stale", f"{msg.sender_id} age {age_us / 1e3:.1f} ms")
+        if -age_us > cfg.max_future_s * US_PER_S:
+            raise _RejectError("future", f"{msg.sender_id} {-age_us / 1e3:.1f} ms ahead")
+        self._check_range(msg)
+        if cfg.check_epoch:
+            self._check_epoch(msg, now_ns)
+        if not self.replay.check_and_record(msg.sender_id, msg.seq, msg.t_gen_us, now_us):
+            raise _RejectError("replay", f"{msg.sender_id} seq {msg.seq}")
+        return VerifiedMessage(msg, now_ns, age_us / US_PER_S)
+
+    def _check_range(self, msg: SafetyMessage) -> None:
+        if self.position is None:
+            return
+        here = self.position()
+        if here is None:
+            return
+        dist_m = math.hypot(msg.pose.x_m - here[0], msg.pose.y_m - here[1])
+        if dist_m > self.config.max_range_m:
+            raise _RejectError("too_far", f"{msg.sender_id} at {dist_m:.0f} m")
+
+    def _check_epoch(self, msg: SafetyMessage, now_ns: int) -> None:
+        if not self.schedule.accepts(msg.epoch, now_ns):
+            raise _RejectError("wrong_epoch", f"{msg.sender_id} epoch {msg.epoch}")
+        epochs = msg.bearings.t_ns // self.schedule.epoch_ns
+        if np.any(epochs != msg.epoch):
+            raise _RejectError("wrong_epoch", f"{msg.sender_id}: bearing outside epoch {msg.epoch}")
+
+    def _envelope(self, datagram: bytes, now_ns: int) -> None:
+        if self.nonces is None:
+            raise _RejectError("nonce_unexpected")
+        try:
+            self.nonces.accept_envelope(datagram, now_ns)
+        except (LinkSecurityError, LinkError) as err:
+            raise _RejectError("nonce_rejected", str(err)) from None
+        self.stats.nonces += 1
+
+    def receive(
+        self, timeout: float | None = None, max_datagrams: int = 4096
+    ) -> list[VerifiedMessage]:
+        """Wait up to ``timeout`` seconds for datagrams, then drain what is queued
+        (at most ``max_datagrams``); return the verified messages. Also updates the
+        latency watch's silence detection.
+
+        Raises:
+            LinkError: the receiver has no transport.
+        """
+        if self.transport is None:
+            raise LinkError("this receiver has no transport; use Receiver.listen(url, ...)")
+        out: list[VerifiedMessage] = []
+        datagram = self.transport.recv(timeout)
+        count = 0
+        while datagram is not None:
+            verified = self.feed(datagram, self.clock())
+            if verified is not None:
+                out.append(verified)
+            count += 1
+            if count >= max_datagrams:
+                break
+            datagram = self.transport.recv(0)
+        self.latency.poll(self.clock())
+        return out
+
+    def close(self) -> None:
+        """Close the transport, if any; idempotent."""
+        if self.transport is not None:
+            self.transport.close()

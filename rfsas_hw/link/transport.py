@@ -1,0 +1,223 @@
+"""Datagram transports for the link: a small interface, UDP unicast and multicast.
+
+A transport moves opaque datagrams; it knows nothing of message formats, so
+another carrier (a broker, a radio) can be added behind the same interface.
+
+URLs::
+
+    udp://127.0.0.1:47000              unicast (send to / listen on that address)
+    udp://239.255.42.1:47000           multicast group, on the loopback interface
+    udp://239.255.42.1:47000?iface=192.168.1.10&ttl=4
+                                       multicast on another interface, TTL 4
+
+Multicast defaults to the loopback interface with TTL 1, so nothing leaves
+the machine unless asked for.
+"""
+
+from __future__ import annotations
+
+import ipaddress
+import select
+import socket
+from abc import ABC, abstractmethod
+from dataclasses import dataclass
+from types import TracebackType
+from typing import Literal
+from urllib.parse import parse_qs, urlsplit
+
+from rfsas_hw.errors import LinkError
+
+RECV_BUFFER = 65_536
+"""Bytes read per datagram: the largest UDP payload, so oversized datagrams are seen whole."""
+
+
+@dataclass(frozen=True, slots=True)
+class UdpEndpoint:
+    """A parsed ``udp://HOST:PORT[?iface=ADDR&ttl=N]`` URL."""
+
+    host: str
+    port: int
+    iface: str = "127.0.0.1"
+    """Interface address for multicast (ignored for unicast)."""
+    ttl: int = 1
+    """Multicast TTL (ignored for unicast)."""
+
+    @property
+    def multicast(self) -> bool:
+        """True when ``host`` is an IPv4 multicast group."""
+        try:
+            return ipaddress.IPv4Address(self.host).is_multicast
+        except ValueError:
+            return False
+
+    def url(self) -> str:
+        """The URL form."""
+        if self.multicast:
+            return f"udp://{self.host}:{self.port}?iface={self.iface}&ttl={self.ttl}"
+        return f"udp://{self.host}:{self.port}"
+
+
+def parse_url(url: str) -> UdpEndpoint:
+    """Parse a transport URL.
+
+    Raises:
+        LinkError: unknown scheme, missing host or port, bad port, bad query.
+    """
+    parts = urlsplit(url)
+    if parts.scheme != "udp":
+        raise LinkError(
+            f"{url!r}: unsupported transport {parts.scheme!r}, expected udp://HOST:PORT"
+        )
+    try:
+        port = parts.port
+    except ValueError as err:
+        raise LinkError(f"{url!r}: bad port: {err}") from err
+    if not parts.hostname or port is None:
+        raise LinkError(f"{url!r}: expected udp://HOST:PORT")
+    query = parse_qs(parts.query, strict_parsing=False)
+    unknown = set(query) - {"iface", "ttl"}
+    if unknown:
+        raise LinkError(f"{url!r}: unknown option(s) {', '.join(sorted(unknown))}; use iface, ttl")
+    iface = query.get("iface", ["127.0.0.1"])[-1]
+    try:
+        ttl = int(query.get("ttl", ["1"])[-1])
+        ipaddress.IPv4Address(iface)
+    except ValueError as err:
+        raise LinkError(f"{url!r}: bad iface or ttl: {err}") from err
+    if not 0 <= ttl <= 255:
+        raise LinkError(f"{url!r}: ttl {ttl} outside 0-255")
+    return UdpEndpoint(parts.hostname, port, iface, ttl)
+
+
+class Transport(ABC):
+    """Moves whole datagrams. ``send`` for publishers, ``recv`` for receivers."""
+
+    @abstractmethod
+    def send(self, datagram: bytes) -> None:
+        """Send one datagram.
+
+        Raises:
+            LinkError: the datagram could not be sent.
+        """
+
+    @abstractmethod
+    def recv(self, timeout: float | None = None) -> bytes | None:
+        """Next datagram, or None after ``timeout`` seconds (None: wait forever, 0: poll)."""
+
+    @abstractmethod
+    def close(self) -> None:
+        """Release the socket; idempotent."""
+
+    def __enter__(self) -> Transport:
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self.close()
+
+
+class UdpTransport(Transport):
+    """UDP unicast or multicast on a real socket.
+
+    Args:
+        endpoint: where to send to, or what to listen on.
+        mode: ``send`` (connect-less sender) or ``recv`` (bound listener).
+        rcvbuf: receive buffer to ask the kernel for, bytes (listeners only).
+
+    Raises:
+        LinkError: the socket cannot be created, bound, or join its group.
+    """
+
+    def __init__(
+        self, endpoint: UdpEndpoint, mode: Literal["send", "recv"], rcvbuf: int = 4 << 20
+    ) -> None:
+        self.endpoint = endpoint
+        self.mode = mode
+        self._closed = False
+        self.sent = 0
+        self.send_errors = 0
+        sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        try:
+            if mode == "recv":
+                self._setup_recv(sock, rcvbuf)
+            else:
+                self._setup_send(sock)
+        except OSError as err:
+            sock.close()
+            raise LinkError(f"{endpoint.url()}: cannot open for {mode}: {err}") from err
+        self._sock = sock
+
+    def _setup_recv(self, sock: socket.socket, rcvbuf: int) -> None:
+        ep = self.endpoint
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, rcvbuf)
+        if ep.multicast:
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+            sock.bind((ep.host, ep.port))
+            membership = socket.inet_aton(ep.host) + socket.inet_aton(ep.iface)
+            sock.setsockopt(socket.IPPROTO_IP, socket.IP_ADD_MEMBERSHIP, membership)
+        else:
+            sock.bind((ep.host, ep.port))
+        sock.setblocking(False)
+
+    def _setup_send(self, sock: socket.socket) -> None:
+        ep = self.endpoint
+        if ep.multicast:
+            sock.setsockopt(socket.IPPROTO_IP, socket.IP_MULTICAST_IF, socket.inet_aton(ep.iface))
+            sock.setsockopt(socket.IPPROTO_IP, socket.IP_MULTICAST_TTL, ep.ttl)
+            sock.setsockopt(socket.IPPROTO_IP, socket.IP_MULTICAST_LOOP, 1)
+
+    @property
+    def address(self) -> tuple[str, int]:
+        """The socket's own (host, port); for a listener on port 0, the port it got."""
+        host, port = self._sock.getsockname()[:2]
+        return str(host), int(port)
+
+    def send(self, datagram: bytes) -> None:
+        """Send one datagram to the endpoint.
+
+        Raises:
+            LinkError: the kernel refused it (too large, no route).
+        """
+        try:
+            self._sock.sendto(datagram, (self.endpoint.host, self.endpoint.port))
+        except OSError as err:
+            self.send_errors += 1
+            raise LinkError(
+                f"{self.endpoint.url()}: cannot send {len(datagram)} bytes: {err}"
+            ) from err
+        self.sent += 1
+
+    def recv(self, timeout: float | None = None) -> bytes | None:
+        """Next datagram (whole, up to 64 KiB), or None after ``timeout`` seconds."""
+        try:
+            return self._sock.recv(RECV_BUFFER)
+        except BlockingIOError:
+            pass
+        if timeout is not None and timeout <= 0:
+            return None
+        ready, _, _ = select.select([self._sock], [], [], timeout)
+        if not ready:
+            return None
+        try:
+            return self._sock.recv(RECV_BUFFER)
+        except BlockingIOError:
+            return None
+
+    def close(self) -> None:
+        """Close the socket; idempotent."""
+        if not self._closed:
+            self._closed = True
+            self._sock.close()
+
+
+def open_transport(url: str, mode: Literal["send", "recv"]) -> UdpTransport:
+    """Open the transport a URL names, for sending or receiving.
+
+    Raises:
+        LinkError: bad URL or socket failure.
+    """
+    return UdpTransport(parse_url(url), mode)

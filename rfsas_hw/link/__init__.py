@@ -10,6 +10,7 @@ from rfsas_hw.link.message import (
     encode_body,
     max_bearings,
 )
+from rfsas_hw.link.publisher import Publisher, PublisherStats
 from rfsas_hw.link.receiver import (
     REASONS,
     Receiver,
@@ -28,6 +29,8 @@ __all__ = [
     "LatencyWatch",
     "LinkState",
     "MessageFormatError",
+    "Publisher",
+    "PublisherStats",
     "Receiver",
     "ReceiverConfig",
     "ReceiverStats",

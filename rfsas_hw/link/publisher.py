@@ -1,0 +1,174 @@
+"""Publishing bearings: a bearing-stream listener that sends signed safety messages.
+
+Each batch is split by nonce epoch (a message names one epoch) and then into
+chunks that fit the datagram size; every chunk becomes one signed message with
+the next sequence number. Sequence numbers start at a random value, so a
+restarted sensor does not collide with what receivers remember of its last run.
+
+Only hashed emitter ids reach this stage (a :class:`~rfsas_hw.records.BearingBatch`
+cannot hold a raw MAC); nothing here logs bearing contents.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import secrets
+import time
+from collections import Counter
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from rfsas_hw.angles import wrap_deg_360
+from rfsas_hw.errors import LinkError
+from rfsas_hw.link.message import DEFAULT_DATAGRAM, MAX_DATAGRAM, SafetyMessage, max_bearings
+from rfsas_hw.link.signing import Signer
+from rfsas_hw.link.transport import Transport, open_transport
+from rfsas_hw.privacy.epochs import DEFAULT_EPOCH_S, NS_PER_S
+from rfsas_hw.records import BearingBatch, Pose
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(slots=True)
+class PublisherStats:
+    """What a publisher sent and dropped."""
+
+    messages: int = 0
+    bearings: int = 0
+    bytes: int = 0
+    dropped: Counter[str] = field(default_factory=Counter)
+    """Bearings not sent, by reason (``invalid`` values, ``send_error``)."""
+
+    def as_dict(self) -> dict[str, int]:
+        """Flat counters."""
+        out = {"messages": self.messages, "bearings": self.bearings, "bytes": self.bytes}
+        out.update({f"dropped.{k}": v for k, v in sorted(self.dropped.items())})
+        return out
+
+
+class Publisher:
+    """Signs bearing batches into safety messages and sends them (a ``BearingListener``).
+
+    Args:
+        signer: the sensor's signing identity; its id is the sender id on the wire.
+        transport: where datagrams go.
+        pose: the sensor's pose, or a function returning the current one.
+        epoch_s: nonce epoch length, seconds (as the hasher uses).
+        max_datagram: largest datagram to build, bytes (≤ 1472).
+        clock: UTC time in ns, for generation times.
+        first_seq: first sequence number (default: random).
+        own_transport: close the transport when the publisher closes.
+
+    Raises:
+        LinkError: ``max_datagram`` is outside what the protocol allows.
+    """
+
+    def __init__(
+        self,
+        signer: Signer,
+        transport: Transport,
+        pose: Pose | Callable[[], Pose],
+        *,
+        epoch_s: float = DEFAULT_EPOCH_S,
+        max_datagram: int = DEFAULT_DATAGRAM,
+        clock: Callable[[], int] = time.time_ns,
+        first_seq: int | None = None,
+        own_transport: bool = True,
+    ) -> None:
+        if not 0 < max_datagram <= MAX_DATAGRAM:
+            raise LinkError(f"max datagram {max_datagram} bytes outside 1-{MAX_DATAGRAM}")
+        self.signer = signer
+        self.transport = transport
+        self._pose = pose
+        self.epoch_ns = int(epoch_s * NS_PER_S)
+        self.chunk = max_bearings(signer.sender_id, max_datagram)
+        self.clock = clock
+        self.seq = secrets.randbelow(1 << 32) if first_seq is None else first_seq % (1 << 32)
+        self.own_transport = own_transport
+        self.stats = PublisherStats()
+        self._closed = False
+
+    @classmethod
+    def to_url(
+        cls, url: str, signer: Signer, pose: Pose | Callable[[], Pose], **kwargs: object
+    ) -> Publisher:
+        """A publisher sending to ``url`` (e.g. ``udp://127.0.0.1:47000``).
+
+        Raises:
+            LinkError: bad URL or socket failure.
+        """
+        return cls(signer, open_transport(url, "send"), pose, **kwargs)  # type: ignore[arg-type]
+
+    @property
+    def pose(self) -> Pose:
+        """The sensor pose that goes into the next message."""
+        return self._pose() if callable(self._pose) else self._pose
+
+    def on_bearings(self, batch: BearingBatch) -> None:
+        """Send ``batch`` as one or more signed messages; bad rows are dropped and counted."""
+        if len(batch) == 0:
+            return
+        ok = (
+            np.isfinite(batch.azimuth_deg)
+            & np.isfinite(batch.sigma_deg)
+            & (batch.sigma_deg > 0)
+            & np.isfinite(batch.snr_db)
+            & (batch.channel >= 0)
+            & (batch.t_ns >= 0)
+        )
+        if not ok.all():
+            self.stats.dropped["invalid"] += int(np.count_nonzero(~ok))
+            batch = batch.select(ok)
+            if len(batch) == 0:
+                return
+        epochs = batch.t_ns // self.epoch_ns
+        for epoch in np.unique(epochs).tolist():
+            rows = batch.select(epochs == epoch) if epochs[0] != epochs[-1] else batch
+            for start in range(0, len(rows), self.chunk):
+                self._send(int(epoch), rows.select(slice(start, start + self.chunk)))
+
+    def _send(self, epoch: int, rows: BearingBatch) -> None:
+        pose = self.pose
+        if not all(math.isfinite(v) for v in (pose.x_m, pose.y_m, pose.heading_deg)):
+            self.stats.dropped["no_pose"] += len(rows)
+            return
+        if not 0.0 <= pose.heading_deg < 360.0:
+            pose = Pose(pose.x_m, pose.y_m, wrap_deg_360(pose.heading_deg))
+        msg = SafetyMessage(
+            sender_id=self.signer.sender_id,
+            pose=pose,
+            t_gen_us=self.clock() // 1000,
+            seq=self.seq,
+            epoch=epoch,
+            bearings=rows,
+        )
+        datagram = self.signer.encode(msg)
+        self.seq = (self.seq + 1) % (1 << 32)
+        try:
+            self.transport.send(datagram)
+        except LinkError as err:
+            self.stats.dropped["send_error"] += len(rows)
+            if self.stats.dropped["send_error"] == len(rows):
+                log.warning("%s; later send errors are only counted", err)
+            return
+        self.stats.messages += 1
+        self.stats.bearings += len(rows)
+        self.stats.bytes += len(datagram)
+        if log.isEnabledFor(logging.DEBUG):
+            log.debug(
+                "sent seq %d: %d bearings, epoch %d, %d bytes",
+                msg.seq,
+                len(rows),
+                epoch,
+                len(datagram),
+            )
+
+    def close(self) -> None:
+        """Close the transport if the publisher owns it; idempotent."""
+        if not self._closed:
+            self._closed = True
+            if self.own_transport:
+                self.transport.close()

@@ -1,0 +1,164 @@
+"""Transports and the publisher over real loopback sockets (unicast and multicast)."""
+
+from __future__ import annotations
+
+import socket
+
+import numpy as np
+import pytest
+from linkhelp import NOW_NS, SCHEDULE, bearings
+
+from rfsas_hw.errors import LinkError
+from rfsas_hw.link import (
+    Publisher,
+    Receiver,
+    ReceiverConfig,
+    Signer,
+    TrustedKeys,
+    UdpTransport,
+    VerifiedMessage,
+    open_transport,
+    parse_url,
+)
+from rfsas_hw.records import Pose
+
+POSE = Pose(5.0, 6.0, 370.0)
+
+
+def free_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def drain(rx: Receiver, want: int, rounds: int = 50) -> list[VerifiedMessage]:
+    got: list[VerifiedMessage] = []
+    for _ in range(rounds):
+        got += rx.receive(timeout=0.1)
+        if len(got) >= want:
+            break
+    return got
+
+
+@pytest.mark.parametrize(
+    ("url", "host", "port", "multicast"),
+    [
+        ("udp://127.0.0.1:47000", "127.0.0.1", 47000, False),
+        ("udp://localhost:1", "localhost", 1, False),
+        ("udp://239.255.42.1:5000", "239.255.42.1", 5000, True),
+        ("udp://239.255.42.1:5000?iface=127.0.0.1&ttl=3", "239.255.42.1", 5000, True),
+    ],
+)
+def test_parse_url(url: str, host: str, port: int, multicast: bool) -> None:
+    ep = parse_url(url)
+    assert (ep.host, ep.port, ep.multicast) == (host, port, multicast)
+
+
+@pytest.mark.parametrize(
+    ("url", "match"),
+    [
+        ("tcp://127.0.0.1:1", "unsupported transport"),
+        ("udp://127.0.0.1", "HOST:PORT"),
+        ("udp://127.0.0.1:99999", "bad port"),
+        ("udp://239.1.1.1:5?hops=2", "unknown option"),
+        ("udp://239.1.1.1:5?ttl=x", "bad iface or ttl"),
+        ("udp://239.1.1.1:5?ttl=300", "outside 0-255"),
+    ],
+)
+def test_bad_urls(url: str, match: str) -> None:
+    with pytest.raises(LinkError, match=match):
+        parse_url(url)
+
+
+def test_unicast_publish_split_by_size_and_epoch(signer: Signer, trust: TrustedKeys) -> None:
+    port = free_port()
+    url = f"udp://127.0.0.1:{port}"
+    rx = Receiver.listen(url, trust, config=ReceiverConfig(check_epoch=False), clock=lambda: NOW_NS)
+    batch = bearings("ignored-name", 100, NOW_NS)
+    k = SCHEDULE.epoch_of(NOW_NS)
+    # the last 10 bearings were captured in the previous epoch
+    batch.t_ns[-10:] = SCHEDULE.start_ns(k) - 1_000_000
+    batch.azimuth_deg[0] = np.nan  # an invalid row is dropped, not sent
+    pub = Publisher.to_url(url, signer, POSE, max_datagram=600, clock=lambda: NOW_NS)
+    try:
+        pub.on_bearings(batch)
+        pub.on_bearings(batch.select(slice(0, 0)))
+        assert pub.stats.dropped == {"invalid": 1}
+        got = drain(rx, pub.stats.messages)
+    finally:
+        pub.close()
+        rx.close()
+    per_msg = (600 - 39 - 5 - 64) // 30
+    assert pub.stats.messages == -(-89 // per_msg) + 1
+    assert len(got) == pub.stats.messages and rx.stats.rejected_total == 0
+    assert {m.message.epoch for m in got} == {k, k - 1}
+    assert all(len(m.bearings) <= per_msg for m in got)
+    assert sorted(m.message.seq for m in got) == [
+        (got[0].message.seq + i) % 2**32 for i in range(len(got))
+    ]
+    assert all(m.message.pose == Pose(5.0, 6.0, 10.0) for m in got)
+    sent = np.sort(np.concatenate([m.bearings.emitter for m in got]))
+    np.testing.assert_array_equal(sent, np.sort(batch.emitter[1:]))
+
+
+def test_multicast_on_loopback_reaches_two_receivers(signer: Signer, trust: TrustedKeys) -> None:
+    url = f"udp://239.255.77.{np.random.default_rng().integers(1, 250)}:{free_port()}"
+    receivers = [
+        Receiver.listen(url, trust, config=ReceiverConfig(check_epoch=False), clock=lambda: NOW_NS)
+    ]
+    receivers.append(
+        Receiver.listen(url, trust, config=ReceiverConfig(check_epoch=False), clock=lambda: NOW_NS)
+    )
+    pub = Publisher.to_url(url, signer, POSE, clock=lambda: NOW_NS)
+    try:
+        pub.on_bearings(bearings("x", 5, NOW_NS))
+        for rx in receivers:
+            (msg,) = drain(rx, 1)
+            assert len(msg.bearings) == 5
+    finally:
+        pub.close()
+        for rx in receivers:
+            rx.close()
+
+
+def test_send_error_is_counted_and_the_publisher_goes_on(signer: Signer) -> None:
+    class Refusing(UdpTransport):
+        def send(self, datagram: bytes) -> None:
+            raise LinkError("no route")
+
+    pub = Publisher(signer, Refusing(parse_url("udp://127.0.0.1:9"), "send"), POSE)
+    pub.on_bearings(bearings("x", 3, NOW_NS))
+    pub.on_bearings(bearings("x", 2, NOW_NS))
+    assert pub.stats.dropped == {"send_error": 5} and pub.stats.messages == 0
+    pub.close()
+    pub.close()
+
+
+def test_kernel_refuses_an_impossible_datagram() -> None:
+    with open_transport("udp://127.0.0.1:9", "send") as tx:
+        with pytest.raises(LinkError, match="cannot send 70000 bytes"):
+            tx.send(bytes(70000))
+        assert tx.send_errors == 1
+
+
+def test_recv_returns_whole_oversized_datagrams_and_none_on_timeout(trust: TrustedKeys) -> None:
+    port = free_port()
+    rx = Receiver.listen(f"udp://127.0.0.1:{port}", trust)
+    with open_transport(f"udp://127.0.0.1:{port}", "send") as tx:
+        tx.send(b"RF" + bytes(3000))
+        assert drain(rx, 1, rounds=3) == []
+    assert rx.stats.rejected == {"oversized": 1}
+    assert rx.receive(timeout=0.01) == []
+    rx.close()
+    with pytest.raises(LinkError, match="no transport"):
+        Receiver(trust).receive(0)
+
+
+def test_binding_a_taken_port_is_a_link_error(trust: TrustedKeys) -> None:
+    port = free_port()
+    first = open_transport(f"udp://127.0.0.1:{port}", "recv")
+    try:
+        with pytest.raises(LinkError, match="cannot open for recv"):
+            open_transport(f"udp://127.0.0.1:{port}", "recv")
+    finally:
+        first.close()

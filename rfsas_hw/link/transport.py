@@ -22,7 +22,7 @@ import socket
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
 from types import TracebackType
-from typing import Literal
+from typing import Literal, Self
 from urllib.parse import parse_qs, urlsplit
 
 from rfsas_hw.errors import LinkError
@@ -108,7 +108,7 @@ class Transport(ABC):
     def close(self) -> None:
         """Release the socket; idempotent."""
 
-    def __enter__(self) -> Transport:
+    def __enter__(self) -> Self:
         return self
 
     def __exit__(

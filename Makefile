@@ -28,7 +28,9 @@ $(RL_STAMP): $(STAMP)
 rl: $(RL_STAMP)
 
 demo: $(STAMP)
-	$(VENV)/bin/rfsas demo
+	mkdir -p out
+	$(VENV)/bin/rfsas calibrate calibration/example_turntable.csv -o out/example_cal.yaml --plot out/example_cal.png
+	$(VENV)/bin/rfsas calibrate --check out/example_cal.yaml calibration/example_turntable_check.csv
 
 lint: $(STAMP)
 	$(VENV)/bin/ruff check .

@@ -61,3 +61,7 @@ class BackendError(RfsasError):
 
 class SimulationError(RfsasError):
     """A scenario or simulation run is invalid."""
+
+
+class MissingDependencyError(RfsasError):
+    """An optional dependency is not installed; the message names the install command."""

@@ -20,13 +20,13 @@ from scipy.interpolate import make_smoothing_spline
 
 from rfsas_hw.df.monopulse import Mode, balance_k_d, ratio
 from rfsas_hw.errors import CalibrationError
-from rfsas_hw.rf.noise import quantisation_variance_db2
+from rfsas_hw.rf.noise import THERMAL_K_DB, quantisation_variance_db2
 from rfsas_hw.rf.synth import TurntableSamples
 
 Array = npt.NDArray[np.floating[Any]]
 FORMAT_NAME = "rfsas-calibration"
 FORMAT_VERSION = 1
-LUT_SIZE = 4096
+LUT_SIZE = 16384
 
 
 @dataclass(frozen=True)
@@ -44,7 +44,7 @@ class CalibrationTable:
     fov_deg: tuple[float, float]
     """Unambiguous field of view, degrees (lower, upper), inside the grid."""
     noise_db: float
-    """Per-chain RSSI spread on the turntable, dB (includes quantisation)."""
+    """Per-chain RSSI spread of the receiver at high SNR, dB (includes quantisation)."""
     samples: int = 0
     """Turntable samples the table was fitted from."""
     residual_rms_deg: float = float("nan")
@@ -87,7 +87,9 @@ class CalibrationTable:
         lo, hi = float(self._inv_psi[0]), float(self._inv_psi[-1])
         u = (psi - np.float32(lo)) * np.float32((LUT_SIZE - 1) / (hi - lo))
         outside = ~((u >= 0.0) & (u <= LUT_SIZE - 1))
-        np.clip(u, 0.0, LUT_SIZE - 1, out=u)
+        # fmin/fmax (unlike clip) map NaN to a bound, so the cast below is defined
+        np.fmin(u, np.float32(LUT_SIZE - 1), out=u)
+        np.fmax(u, np.float32(0.0), out=u)
         i = np.minimum(u.astype(np.intp), LUT_SIZE - 2)
         frac = u - i
         a0 = self._lut_angle[i]
@@ -215,6 +217,7 @@ def fit_table(
     grid_step_deg: float = 0.5,
     min_fov_deg: float = 5.0,
     step_db: float = 1.0,
+    noise_floor_dbm: float = -90.89,
 ) -> CalibrationTable:
     """Fit one table from turntable samples (angles in degrees clockwise from boresight).
 
@@ -243,8 +246,14 @@ def fit_table(
     sums = np.zeros((len(uniq), 2))
     np.add.at(sums, inverse, values)
     means = sums / counts[:, None]
-    noise_db = _pooled_noise_db(inverse, counts.astype(np.float64), values)
-    noise_db = max(noise_db, float(np.sqrt(quantisation_variance_db2(step_db))))
+    # The spread seen on the turntable holds the thermal term of the weaker
+    # angles; the estimator adds that term back per frame from its SNR, so
+    # only the receiver's own floor is stored.
+    spread_db = _pooled_noise_db(inverse, counts.astype(np.float64), values)
+    snr_lin = np.power(10.0, (values - noise_floor_dbm) / 10.0)
+    thermal_var = float(np.mean(THERMAL_K_DB**2 / np.maximum(snr_lin, 1e-12)))
+    floor_var = max(spread_db**2 - thermal_var, quantisation_variance_db2(step_db))
+    noise_db = float(np.sqrt(floor_var))
     start = np.ceil(uniq[0] / grid_step_deg) * grid_step_deg
     grid = np.arange(start, uniq[-1] + 1e-9, grid_step_deg)
     r1g, r2g = (_smooth(uniq, means[:, k], counts, grid) for k in (0, 1))
@@ -308,6 +317,7 @@ def fit_calibration(
             grid_step_deg=grid_step_deg,
             min_fov_deg=min_fov_deg,
             step_db=step_db,
+            noise_floor_dbm=noise_floor_dbm,
         )
         for ch, mask in groups
     )

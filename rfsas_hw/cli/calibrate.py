@@ -1,0 +1,157 @@
+"""``rfsas calibrate``: fit a calibration table from turntable samples, or check one."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import click
+from rich.console import Console
+from rich.table import Table
+
+from rfsas_hw.df import MODES, fit_calibration, load_calibration, read_samples_csv, save_calibration
+from rfsas_hw.df.calibration import Calibration
+from rfsas_hw.df.check import CONSISTENT_RATIO, CheckReport, check_calibration
+from rfsas_hw.df.plot import plot_calibration
+
+
+def _fmt(value: float, unit: str = "", digits: int = 2) -> str:
+    return "—" if math.isnan(value) else f"{value:.{digits}f}{unit}"
+
+
+def _summary(cal: Calibration, out: Path) -> Table:
+    table = Table(title=f"Calibration written to {out} ({cal.mode} mode)")
+    for col in ("channel", "samples", "K_D", "field of view", "RSSI noise", "residual RMS"):
+        table.add_column(col, justify="right")
+    for t in cal.tables:
+        table.add_row(
+            "all" if t.channel is None else str(t.channel),
+            str(t.samples),
+            f"{t.k_d:.4f}",
+            f"{t.fov_deg[0]:+.1f}° … {t.fov_deg[1]:+.1f}°",
+            _fmt(t.noise_db, " dB"),
+            _fmt(t.residual_rms_deg, "°"),
+        )
+    return table
+
+
+def _check_table(report: CheckReport, cal_path: Path, samples_path: Path) -> Table:
+    table = Table(title=f"Check of {cal_path} on {samples_path}")
+    table.add_column("quantity")
+    table.add_column("value", justify="right")
+    table.add_row("samples", str(report.samples))
+    table.add_row("inside field of view", str(report.inside_fov))
+    table.add_row("valid bearings", str(report.valid))
+    for reason, count in sorted(report.rejected.items()):
+        table.add_row(f"  rejected: {reason}", str(count))
+    table.add_row("RMS bearing error", _fmt(report.rms_error_deg, "°"))
+    table.add_row("RMS predicted σ", _fmt(report.rms_sigma_deg, "°"))
+    table.add_row("error / σ", _fmt(report.ratio, "", 3))
+    table.add_row("max |error|", _fmt(report.max_abs_error_deg, "°"))
+    verdict = "consistent" if report.consistent else "NOT consistent"
+    table.add_row("σ honest within 1.2×", f"{verdict} (limit {CONSISTENT_RATIO}×)")
+    return table
+
+
+@click.command()
+@click.argument("inputs", nargs=-1, type=click.Path(path_type=Path))
+@click.option(
+    "-o",
+    "--output",
+    type=click.Path(dir_okay=False, path_type=Path),
+    help="Calibration YAML to write.",
+)
+@click.option(
+    "--plot",
+    "plot_path",
+    type=click.Path(dir_okay=False, path_type=Path),
+    help="Draw ψ_D and the samples to this PNG.",
+)
+@click.option("--check", "check", is_flag=True, help="Check: INPUTS are CAL.yaml SAMPLES.csv.")
+@click.option(
+    "--mode",
+    type=click.Choice(MODES),
+    default="linear",
+    show_default=True,
+    help="Ratio on linear power or on dBm values (the published form).",
+)
+@click.option(
+    "--grid-step",
+    type=float,
+    default=0.5,
+    show_default=True,
+    help="Angle grid step of ψ_D, degrees.",
+)
+@click.option(
+    "--single-table",
+    is_flag=True,
+    help="One table for every channel even if channels are recorded.",
+)
+@click.option(
+    "--step-db",
+    type=float,
+    default=1.0,
+    show_default=True,
+    help="RSSI reporting step of the receiver, dB.",
+)
+@click.option(
+    "--noise-floor",
+    type=float,
+    default=-90.89,
+    show_default=True,
+    help="Power SNR is measured against, dBm.",
+)
+@click.option(
+    "--antenna", default="", help="Free description of the antenna pair/board, stored in the file."
+)
+def calibrate(
+    inputs: tuple[Path, ...],
+    output: Path | None,
+    plot_path: Path | None,
+    check: bool,
+    mode: str,
+    grid_step: float,
+    single_table: bool,
+    step_db: float,
+    noise_floor: float,
+    antenna: str,
+) -> None:
+    """Fit a monopulse calibration from a turntable CSV (angle_deg,rssi1_dbm,rssi2_dbm[,channel]).
+
+    \b
+    rfsas calibrate samples.csv -o cal.yaml --plot cal.png
+    rfsas calibrate --check cal.yaml heldback.csv
+    """
+    console = Console()
+    if check:
+        if len(inputs) != 2:
+            raise click.UsageError("--check takes CAL.yaml SAMPLES.csv")
+        cal = load_calibration(inputs[0])
+        samples = read_samples_csv(inputs[1])
+        report = check_calibration(cal, samples)
+        console.print(_check_table(report, inputs[0], inputs[1]))
+        if plot_path is not None:
+            plot_calibration(cal, samples, plot_path)
+            console.print(f"plot written to {plot_path}")
+        return
+    if len(inputs) != 1:
+        raise click.UsageError("give one samples CSV (or --check CAL.yaml SAMPLES.csv)")
+    if output is None:
+        raise click.UsageError("-o/--output CAL.yaml is required")
+    samples = read_samples_csv(inputs[0])
+    cal = fit_calibration(
+        samples,
+        mode,  # type: ignore[arg-type]
+        per_channel=not single_table,
+        grid_step_deg=grid_step,
+        step_db=step_db,
+        noise_floor_dbm=noise_floor,
+        antenna={"description": antenna, "source": inputs[0].name}
+        if antenna
+        else {"source": inputs[0].name},
+    )
+    save_calibration(cal, output)
+    console.print(_summary(cal, output))
+    if plot_path is not None:
+        plot_calibration(cal, samples, plot_path)
+        console.print(f"plot written to {plot_path}")

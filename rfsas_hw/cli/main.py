@@ -22,6 +22,7 @@ EXIT_BAD_INPUT = 2
 # "module:attribute" of every subcommand, imported when the CLI starts.
 COMMANDS: list[str] = [
     "rfsas_hw.cli.calibrate:calibrate",
+    "rfsas_hw.cli.keys:keys",
 ]
 
 

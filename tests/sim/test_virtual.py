@@ -1,0 +1,64 @@
+"""``virtual:`` specs, poses of moving sensors, and bearings through the real pipeline."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from rfsas_hw.angles import wrap_deg_180
+from rfsas_hw.df import load_calibration
+from rfsas_hw.errors import ConfigError
+from rfsas_hw.pipeline import SensorPipeline
+from rfsas_hw.privacy.hashing import FixedNonce, MacHasher
+from rfsas_hw.sim.turntable import turntable_calibration
+from rfsas_hw.sources import open_source
+
+from .conftest import EXAMPLE
+
+
+def test_spec_names_the_sensor() -> None:
+    with pytest.raises(ConfigError, match="name the sensor"):
+        open_source(f"virtual:{EXAMPLE}")
+    with pytest.raises(ConfigError, match="no sensor 'nope'"):
+        open_source(f"virtual:{EXAMPLE}#nope")
+    with pytest.raises(ConfigError, match="cannot read"):
+        open_source("virtual:/nonexistent/scenario.yaml#a")
+
+
+def test_on_board_pose_follows_the_car(example) -> None:
+    with open_source(f"virtual:{EXAMPLE}#car-obu") as src:
+        p0 = src.pose_at(src.world.t0_ns)
+        p1 = src.pose_at(src.world.t0_ns + 2_000_000_000)
+    assert (p0.x_m, p0.y_m) == pytest.approx((1.75, -165.0))
+    assert p1.y_m - p0.y_m == pytest.approx(40.0)
+    assert p1.heading_deg == pytest.approx(15.0)  # north + the 15° mounting offset
+
+
+def test_bundled_calibrations_are_the_simulated_turntable_runs(example) -> None:
+    for sensor in ("rsu-sw", "car-obu"):
+        path = example.calibration_path(sensor)
+        assert path is not None
+        bundled = load_calibration(path)
+        fresh = turntable_calibration(example, sensor)
+        assert bundled.mode == fresh.mode == "linear"
+        np.testing.assert_allclose(bundled.tables[0].psi, fresh.tables[0].psi, atol=1e-6)
+
+
+def test_roadside_bearings_are_within_their_sigma(example) -> None:
+    """Twin → real DF: bearing errors are consistent with the σ the pipeline reports."""
+    path = example.calibration_path("rsu-sw")
+    assert path is not None
+    with open_source(f"virtual:{EXAMPLE}#rsu-sw") as src:
+        rec = src.world.receptions("rsu-sw")
+        pipe = SensorPipeline(
+            load_calibration(path), MacHasher(FixedNonce(b"k" * 16)), "rsu-sw", src.pose_at(0)
+        )
+        out = [pipe.process(b) for b in src]
+    az = np.concatenate([b.azimuth_deg for b in out])
+    sigma = np.concatenate([b.sigma_deg for b in out])
+    t_ns = np.concatenate([b.t_ns for b in out])
+    truth = rec.true_azimuth_deg[np.searchsorted(rec.capture_ns[:, 0], t_ns)]
+    z = wrap_deg_180(az - truth) / sigma
+    assert len(z) > 100
+    assert 0.7 < np.std(z) < 1.4
+    assert np.mean(np.abs(z) < 3) > 0.97

@@ -41,12 +41,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from rfsas_hw.errors import LinkError
+from rfsas_hw.privacy.nonces import TYPE_NONCE as TYPE_NONCE
 from rfsas_hw.records import BearingBatch, Pose
 
 MAGIC = b"RF"
 VERSION = 1
 TYPE_SAFETY = 1
-TYPE_NONCE = 2
 SIGNATURE_BYTES = 64
 MAX_SENDER_ID = 32
 MAX_BEARINGS = 255

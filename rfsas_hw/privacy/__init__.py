@@ -10,6 +10,7 @@ from rfsas_hw.privacy.hashing import (
     epoch_of,
     hash_mac,
 )
+from rfsas_hw.privacy.nonces import NonceAuthority, NonceEnvelopeError, NonceStore
 
 __all__ = [
     "DEFAULT_EPOCH_S",
@@ -17,6 +18,9 @@ __all__ = [
     "EpochSchedule",
     "FixedNonce",
     "MacHasher",
+    "NonceAuthority",
+    "NonceEnvelopeError",
+    "NonceStore",
     "NonceProvider",
     "NonceUnavailableError",
     "epoch_of",

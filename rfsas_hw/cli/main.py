@@ -21,6 +21,8 @@ EXIT_BAD_INPUT = 2
 
 # "module:attribute" of every subcommand, imported when the CLI starts.
 COMMANDS: list[str] = [
+    "rfsas_hw.cli.sim:sim",
+    "rfsas_hw.cli.plan:plan",
     "rfsas_hw.cli.calibrate:calibrate",
     "rfsas_hw.cli.keys:keys",
 ]

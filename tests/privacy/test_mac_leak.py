@@ -104,7 +104,7 @@ def known_frames(t0_ns: int) -> ObservationBatch:
         freq_mhz=np.full(n, 2437),
         channel=np.full(n, 6),
         rssi_dbm=np.stack([rssi1, rssi1 + rng.uniform(-4, 4, n)], axis=1),
-        seq=rng.integers(0, 4096, n),
+        seq=rng.integers(0, 4096, n).astype(np.int32),
     )
 
 
@@ -122,7 +122,7 @@ def test_library_sensor_leaks_no_mac(tmp_path: Path) -> None:
     listener = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     listener.bind(("127.0.0.1", 0))
     listener.settimeout(0.05)
-    url = "udp://127.0.0.1:%d" % listener.getsockname()[1]
+    url = f"udp://127.0.0.1:{listener.getsockname()[1]}"
     capture = Capture()
     root = logging.getLogger()
     old_level = root.level

@@ -58,9 +58,8 @@ def capture(scenario: Path, out_dir: Path, fmt: str, detail: str | None) -> None
     for sensor_id, files in result.files.items():
         for path, frames in zip(files, result.frames[sensor_id], strict=True):
             table.add_row(sensor_id, str(path), str(frames))
-    for s in world.scenario.spec.sensors:
-        if s.receiver == "serial-board":
-            table.add_row(s.id, "(serial board: use the virtual source)", "—")
+    for sensor_id, path in result.board_streams.items():
+        table.add_row(sensor_id, str(path), str(result.frames[sensor_id][0]))
     if result.truth is not None:
         table.add_row("ground truth", str(result.truth), "")
     Console().print(table)

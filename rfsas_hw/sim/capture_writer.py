@@ -27,6 +27,7 @@ from scapy.utils import RawPcapNgWriter, RawPcapWriter
 
 from rfsas_hw.errors import DataFormatError, SimulationError
 from rfsas_hw.records import mac_to_int
+from rfsas_hw.sim.board_stream import board_stream
 from rfsas_hw.sim.frames import RadiotapInfo, dot11_frame, radiotap_header, rate_for, with_fcs
 from rfsas_hw.sim.world import CHAIN_PRESENT, CHAIN_SENTINEL, Receptions, World
 
@@ -139,12 +140,15 @@ class CaptureSet:
     """The ground-truth JSONL file."""
     board_streams: dict[str, Path] = field(default_factory=dict)
     """Serial-board byte streams per sensor id."""
+    board_boot_utc_ns: dict[str, int] = field(default_factory=dict)
+    """UTC time of board time 0 of each serial-board stream, ns."""
 
 
 def write_captures(world: World, directory: str | Path, fmt: CaptureFormat = "pcap") -> CaptureSet:
     """Write every radiotap sensor's captures and the ground truth into ``directory``.
 
-    Serial-board sensors are skipped here (see :mod:`rfsas_hw.sim.board_stream`).
+    Serial-board sensors get ``ID.board.bin``: the board-protocol byte stream
+    (:mod:`rfsas_hw.sim.board_stream`).
 
     Raises:
         SimulationError: the directory or a file cannot be written.
@@ -157,6 +161,15 @@ def write_captures(world: World, directory: str | Path, fmt: CaptureFormat = "pc
     result = CaptureSet(directory=out)
     for s in world.scenario.spec.sensors:
         if s.receiver == "serial-board":
+            data, info = board_stream(world, s.id)
+            path = out / f"{s.id}.board.bin"
+            try:
+                path.write_bytes(data)
+            except OSError as err:
+                raise SimulationError(f"{path}: cannot write: {err.strerror or err}") from err
+            result.board_streams[s.id] = path
+            result.board_boot_utc_ns[s.id] = info.boot_utc_ns
+            result.frames[s.id] = [info.measurements]
             continue
         rec = world.receptions(s.id)
         names = card_file_names(s.id, rec.n_cards, fmt)
@@ -235,6 +248,9 @@ def truth_lines(world: World, captures: CaptureSet | None = None) -> Iterator[di
             if k == 0:
                 row["receiver"] = s.receiver
                 row["files"] = files
+                if captures and s.id in captures.board_streams:
+                    row["files"] = [captures.board_streams[s.id].name]
+                    row["board_boot_utc_ns"] = captures.board_boot_utc_ns[s.id]
             yield row
 
 

@@ -190,3 +190,43 @@ def test_virtual_source_yields_what_the_capture_holds(tmp_path: Path) -> None:
     np.testing.assert_array_equal(live.mac, from_file.mac)
     np.testing.assert_array_equal(live.rssi_dbm, from_file.rssi_dbm)
     assert len(batches) > 10  # streamed in 0.1 s slices, not in one block
+
+
+def test_serial_board_stream_decodes_to_the_world(tmp_path: Path) -> None:
+    """The board stream goes through the board protocol reader and gives back every reading."""
+    import io
+
+    from rfsas_hw.board import FrameReader
+    from rfsas_hw.board.messages import Heartbeat, Info, MeasurementBatch
+
+    data = small_mapping()
+    data["sensors"][0]["receiver"] = "serial-board"
+    data["emitters"].append(
+        {
+            "id": "tag",
+            "mac": "02:00:00:00:00:0c",
+            "tech": "ble",
+            "position": [5.0, 2.0],
+            "traffic": [{"model": "ble-adv", "interval_s": 0.1}],
+        }
+    )
+    data["sensors"][0]["scan"] = {"channels": [6, 37], "dwell_ms": 250}
+    world = World(small(**{k: v for k, v in data.items() if k != "version"}, version=1))
+    out = write_captures(world, tmp_path)
+    path = out.board_streams["rsu"]
+    reader = FrameReader(io.BytesIO(path.read_bytes()), errors="raise")
+    msgs = [m for _, m in reader]
+    assert isinstance(msgs[0], Info) and msgs[0].n_antennas == 2
+    assert sum(isinstance(m, Heartbeat) for m in msgs) == 3
+    meas = [x for m in msgs if isinstance(m, MeasurementBatch) for x in m.measurements]
+    rec = world.receptions("rsu")
+    assert len(meas) == len(rec) == out.frames["rsu"][0]
+    assert {int(c) for c in rec.channel} == {6, 37}  # Wi-Fi and BLE, by the scan plan
+    assert out.truth is not None
+    assert f'"board_boot_utc_ns": {out.board_boot_utc_ns["rsu"]}' in out.truth.read_text()
+    t_ns = np.array([m.t_us for m in meas]) * 1000 + out.board_boot_utc_ns["rsu"]
+    np.testing.assert_array_equal(t_ns // 1000, rec.capture_ns[:, 0] // 1000)
+    got = np.array([[np.nan if v is None else v for v in m.rssi_dbm[:2]] for m in meas])
+    np.testing.assert_array_equal(got, rec.chain_dbm)
+    assert [m.mac for m in meas] == rec.mac.tolist()
+    assert reader.stats.as_dict()["errors"] == []

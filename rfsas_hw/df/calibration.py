@@ -26,7 +26,6 @@ from rfsas_hw.rf.synth import TurntableSamples
 Array = npt.NDArray[np.floating[Any]]
 FORMAT_NAME = "rfsas-calibration"
 FORMAT_VERSION = 1
-LUT_SIZE = 16384
 
 
 @dataclass(frozen=True)
@@ -52,8 +51,8 @@ class CalibrationTable:
     _inv_psi: Array = field(init=False, repr=False, compare=False)
     _inv_deg: Array = field(init=False, repr=False, compare=False)
     _slope: Array = field(init=False, repr=False, compare=False)
-    _lut_angle: Array = field(init=False, repr=False, compare=False)
-    _lut_inv_slope: Array = field(init=False, repr=False, compare=False)
+    cache: dict[str, Any] = field(init=False, repr=False, compare=False, default_factory=dict)
+    """Derived lookup tables, built on first use (see :mod:`rfsas_hw.df.lut`)."""
 
     def __post_init__(self) -> None:
         grid = np.asarray(self.grid_deg, dtype=np.float64)
@@ -69,34 +68,6 @@ class CalibrationTable:
         object.__setattr__(self, "_inv_psi", np.ascontiguousarray(p[order]))
         object.__setattr__(self, "_inv_deg", np.ascontiguousarray(g[order]))
         object.__setattr__(self, "_slope", np.gradient(psi, grid))
-        # Uniform-in-ψ lookup tables: O(1) per frame instead of a binary search.
-        psi_u = np.linspace(self._inv_psi[0], self._inv_psi[-1], LUT_SIZE)
-        angle_u = np.interp(psi_u, self._inv_psi, self._inv_deg)
-        slope_u = np.abs(np.interp(angle_u, grid, self._slope))
-        object.__setattr__(self, "_lut_angle", angle_u.astype(np.float32))
-        object.__setattr__(
-            self, "_lut_inv_slope", (1.0 / np.maximum(slope_u, 1e-12)).astype(np.float32)
-        )
-
-    def lookup(self, psi: Array) -> tuple[Array, Array, npt.NDArray[np.bool_]]:
-        """ψ → (angle in degrees, 1/|dψ_D/dθ| in degrees, outside-FoV mask), vectorised.
-
-        Linear interpolation in a uniform table of ``LUT_SIZE`` points over the
-        FoV's ψ range; agrees with :meth:`angle_of` to well under 0.01°.
-        """
-        lo, hi = float(self._inv_psi[0]), float(self._inv_psi[-1])
-        u = (psi - np.float32(lo)) * np.float32((LUT_SIZE - 1) / (hi - lo))
-        outside = ~((u >= 0.0) & (u <= LUT_SIZE - 1))
-        # fmin/fmax (unlike clip) map NaN to a bound, so the cast below is defined
-        np.fmin(u, np.float32(LUT_SIZE - 1), out=u)
-        np.fmax(u, np.float32(0.0), out=u)
-        i = np.minimum(u.astype(np.intp), LUT_SIZE - 2)
-        frac = u - i
-        a0 = self._lut_angle[i]
-        angle = a0 + frac * (self._lut_angle[i + 1] - a0)
-        s0 = self._lut_inv_slope[i]
-        inv_slope = s0 + frac * (self._lut_inv_slope[i + 1] - s0)
-        return angle, inv_slope, outside
 
     def angle_of(self, psi: Array) -> tuple[Array, npt.NDArray[np.bool_]]:
         """Inverse interpolation ψ → θ inside the FoV; second value marks ψ outside the curve."""

@@ -23,6 +23,7 @@ import numpy as np
 import numpy.typing as npt
 
 from rfsas_hw.df.calibration import Calibration, CalibrationTable
+from rfsas_hw.df.lut import lut_for
 from rfsas_hw.df.monopulse import ratio, ratio_gradient
 from rfsas_hw.rf.noise import THERMAL_K_DB, quantisation_variance_db2
 
@@ -69,20 +70,27 @@ class DfResult:
 def _estimate_table(
     cal: Calibration, table: CalibrationTable, r1: Array, r2: Array
 ) -> tuple[Array, Array, npt.NDArray[np.bool_]]:
-    psi = ratio(r1, r2, table.k_d, cal.mode)
-    angle, inv_slope, outside = table.lookup(psi)
-    base_var = max(table.noise_db**2, quantisation_variance_db2(cal.step_db))
+    lut = lut_for(table, cal.mode)
+    base_var = np.float32(max(table.noise_db**2, quantisation_variance_db2(cal.step_db)))
     # (10/ln10)²/SNR = K²·exp(−(r − floor)·ln10/10)
-    thermal = THERMAL_K_DB**2 * math.exp(cal.noise_floor_dbm * _LN10_10)
-    var1 = np.exp(r1 * np.float32(-_LN10_10)) * np.float32(thermal) + np.float32(base_var)
-    var2 = np.exp(r2 * np.float32(-_LN10_10)) * np.float32(thermal) + np.float32(base_var)
+    thermal = np.float32(THERMAL_K_DB**2 * math.exp(cal.noise_floor_dbm * _LN10_10))
+    var1 = np.exp(r1 * np.float32(-_LN10_10))
+    var1 *= thermal
+    var1 += base_var
+    var2 = np.exp(r2 * np.float32(-_LN10_10))
+    var2 *= thermal
+    var2 += base_var
     if cal.mode == "linear":
-        g = np.float32(0.5 * _LN10_10) * (np.float32(1.0) - psi * psi)
-        sigma_psi = np.abs(g) * np.sqrt(var1 + var2)
-    else:
-        g1, g2 = ratio_gradient(r1, r2, table.k_d, cal.mode)
-        sigma_psi = np.sqrt(g1 * g1 * var1 + g2 * g2 * var2)
-    return angle, sigma_psi * inv_slope, outside
+        # angle and |∂ψ/∂RSSI|/|dψ_D/dθ| are functions of the difference alone
+        angle, factor, outside = lut(r1 - r2)
+        var1 += var2
+        sigma = np.sqrt(var1)
+        sigma *= factor
+        return angle, sigma, outside
+    psi = ratio(r1, r2, table.k_d, cal.mode)
+    angle, inv_slope, outside = lut(psi)
+    g1, g2 = ratio_gradient(r1, r2, table.k_d, cal.mode)
+    return angle, np.sqrt(g1 * g1 * var1 + g2 * g2 * var2) * inv_slope, outside
 
 
 def estimate(
@@ -112,26 +120,32 @@ def estimate(
         low = ~(snr >= min_snr_db) & ~missing
         flags |= low.view(np.uint8) * np.uint8(DfFlag.LOW_SNR)
     if channel is None or (len(cal.tables) == 1 and cal.tables[0].channel is None):
-        table = cal.table_for(None)
-        if table is None:
-            flags |= np.uint8(DfFlag.NO_TABLE)
-            angle, sigma = np.full(n, np.nan), np.full(n, np.nan)
-        else:
-            angle, sigma, outside = _estimate_table(cal, table, r1, r2)
-            flags |= outside.view(np.uint8) * np.uint8(DfFlag.OUTSIDE_FOV)
+        groups: list[tuple[int | None, npt.NDArray[np.bool_] | None]] = [(None, None)]
     else:
-        angle, sigma = np.full(n, np.nan), np.full(n, np.nan)
         ch = np.asarray(channel, dtype=np.int64)
-        for c in np.unique(ch):
-            mask = ch == c
-            table = cal.table_for(int(c))
+        uniq = np.unique(ch)
+        groups = [(int(uniq[0]), None)] if len(uniq) == 1 else [(int(c), ch == c) for c in uniq]
+    angle = sigma = None
+    for c, mask in groups:
+        table = cal.table_for(c)
+        if mask is None:  # every frame uses this table: no gathers or scatters
             if table is None:
-                flags[mask] |= np.uint8(DfFlag.NO_TABLE)
-                continue
-            a, s, outside = _estimate_table(cal, table, r1[mask], r2[mask])
-            angle[mask] = a
-            sigma[mask] = s
-            flags[mask] |= outside.view(np.uint8) * np.uint8(DfFlag.OUTSIDE_FOV)
+                flags |= np.uint8(DfFlag.NO_TABLE)
+            else:
+                angle, sigma, outside = _estimate_table(cal, table, r1, r2)
+                flags |= outside.view(np.uint8) * np.uint8(DfFlag.OUTSIDE_FOV)
+            continue
+        if angle is None or sigma is None:
+            angle, sigma = np.full(n, np.nan, np.float32), np.full(n, np.nan, np.float32)
+        if table is None:
+            flags[mask] |= np.uint8(DfFlag.NO_TABLE)
+            continue
+        a, s, outside = _estimate_table(cal, table, r1[mask], r2[mask])
+        angle[mask] = a
+        sigma[mask] = s
+        flags[mask] |= outside.view(np.uint8) * np.uint8(DfFlag.OUTSIDE_FOV)
+    if angle is None or sigma is None:
+        angle, sigma = np.full(n, np.nan, np.float32), np.full(n, np.nan, np.float32)
     bad = flags != 0
     np.putmask(angle, bad, np.nan)
     np.putmask(sigma, bad, np.nan)

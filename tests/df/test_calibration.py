@@ -18,6 +18,7 @@ from rfsas_hw.df import (
 )
 from rfsas_hw.df.calfile import calibration_to_mapping
 from rfsas_hw.df.check import check_calibration
+from rfsas_hw.df.lut import lut_for
 from rfsas_hw.errors import CalibrationError
 from rfsas_hw.rf import GaussianBeamPair, ReceiverModel, turntable_sweep
 
@@ -69,7 +70,7 @@ def test_lookup_table_agrees_with_exact_inverse_interpolation(sweep) -> None:  #
     (table,) = fit_calibration(sweep, "linear").tables
     psi = np.linspace(table.psi.min(), table.psi.max(), 50_001)
     exact, outside = table.angle_of(psi)
-    fast, _, outside_fast = table.lookup(psi.astype(np.float32))
+    fast, _, outside_fast = lut_for(table, "db")(psi.astype(np.float32))
     inside = ~outside & ~outside_fast
     diff = np.abs(fast[inside] - exact[inside])
     # where ψ_D still has a usable slope (≥ 10 % of boresight's) they agree to 0.01°;

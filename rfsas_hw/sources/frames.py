@@ -18,7 +18,9 @@ larger than the per-frame walk below ``vector_min`` frames.
 
 from __future__ import annotations
 
+import struct
 from collections import Counter
+from collections.abc import Sequence
 from dataclasses import dataclass, field, fields
 from typing import Any
 
@@ -55,6 +57,12 @@ F_NO_SIGNAL = "no signal at all"
 F_EXTRA_CHAIN = "chain index beyond n_antennas"
 
 _PAD = bytes(64)
+_EMPTY: dict[int, FrameTable] = {}
+_U16 = struct.Struct("<H").unpack_from
+_U32 = struct.Struct("<I").unpack_from
+_U64 = struct.Struct("<Q").unpack_from
+# it_len, TSFT µs, flags, frequency MHz, combined dBm, per-chain (antenna, dBm)
+_RtValues = tuple[int, int | None, int, int, int | None, Sequence[tuple[int, int]]]
 
 
 @dataclass(slots=True)
@@ -93,6 +101,14 @@ class FrameTable:
     @classmethod
     def allocate(cls, n: int, width: int) -> FrameTable:
         """A table of ``n`` rows with neutral values (NaN signals, no TSFT)."""
+        signal = np.empty(n, np.float32)
+        signal.fill(np.nan)
+        chains = np.empty((n, width), np.float32)
+        chains.fill(np.nan)
+        seq = np.empty(n, np.int32)
+        seq.fill(NO_SEQ)
+        frag = np.empty(n, np.int16)
+        frag.fill(-1)
         return cls(
             frame_no=np.zeros(n, np.int64),
             t_ns=np.zeros(n, np.int64),
@@ -100,14 +116,14 @@ class FrameTable:
             has_tsft=np.zeros(n, bool),
             rt_flags=np.zeros(n, np.uint8),
             freq_mhz=np.zeros(n, np.int32),
-            signal_dbm=np.full(n, np.nan, np.float32),
-            chain_dbm=np.full((n, width), np.nan, np.float32),
+            signal_dbm=signal,
+            chain_dbm=chains,
             ftype=np.zeros(n, np.uint8),
             subtype=np.zeros(n, np.uint8),
             retry=np.zeros(n, bool),
             mac=np.zeros(n, np.uint64),
-            seq=np.full(n, NO_SEQ, np.int32),
-            frag=np.full(n, -1, np.int16),
+            seq=seq,
+            frag=frag,
         )
 
     def __len__(self) -> int:
@@ -244,20 +260,26 @@ class FrameDecoder:
             raise ValueError(f"n_antennas must be at least 1, got {n_antennas}")
         self.width = n_antennas
         self.vector_min = vector_min
+        _EMPTY.setdefault(n_antennas, FrameTable.allocate(0, n_antennas))
         self._layouts: dict[tuple[int, ...], radiotap.Layout | None] = {}
 
     # -- entry point --------------------------------------------------------------
 
     def decode(self, buf: bytes, spans: FrameSpans) -> DecodeResult:
         """Decode every frame in ``spans`` (offsets into ``buf``)."""
-        result = DecodeResult(FrameTable.allocate(0, self.width))
+        result = DecodeResult(_EMPTY.get(self.width) or FrameTable.allocate(0, self.width))
         if len(spans) == 0:
             return result
         padded = bytes(buf) + _PAD
         tables: list[tuple[npt.NDArray[np.int64], FrameTable]] = []
-        for lt in np.unique(spans.linktype).tolist():
-            rows = np.flatnonzero(spans.linktype == lt)
-            part = spans.select(rows)
+        first = int(spans.linktype[0])
+        single = bool((spans.linktype == first).all())
+        for lt in [first] if single else np.unique(spans.linktype).tolist():
+            if single:
+                rows, part = np.arange(len(spans)), spans
+            else:
+                rows = np.flatnonzero(spans.linktype == lt)
+                part = spans.select(rows)
             if lt == LINKTYPE_RADIOTAP:
                 table = self._decode_group(padded, part, True, result)
             elif lt == LINKTYPE_IEEE802_11:
@@ -309,18 +331,27 @@ class FrameDecoder:
         reason = R_RADIOTAP
         try:
             if is_radiotap:
-                info = radiotap.parse_at(buf, start, avail)
-                rt_len = info.length
-                fcs = info.fcs_at_end
-                flags = info.flags or 0
-                if info.tsft_us is not None:
-                    table.tsft_us[i] = info.tsft_us
+                got = self._quick_radiotap(buf, start, avail)
+                if got is None:
+                    info = radiotap.parse_at(buf, start, avail)
+                    got = (
+                        info.length,
+                        info.tsft_us,
+                        info.flags or 0,
+                        info.channel_mhz or 0,
+                        info.signal_dbm,
+                        info.chains,
+                    )
+                rt_len, tsft, flags, freq, signal, chains = got
+                fcs = bool(flags & radiotap.FLAG_FCS_AT_END)
+                if tsft is not None:
+                    table.tsft_us[i] = tsft
                     table.has_tsft[i] = True
                 table.rt_flags[i] = flags
-                table.freq_mhz[i] = info.channel_mhz or 0
-                if info.signal_dbm is not None:
-                    table.signal_dbm[i] = info.signal_dbm
-                for ant, dbm in info.chains:
+                table.freq_mhz[i] = freq
+                if signal is not None:
+                    table.signal_dbm[i] = signal
+                for ant, dbm in chains:
                     if ant < self.width:
                         table.chain_dbm[i, ant] = dbm
                     else:
@@ -353,6 +384,48 @@ class FrameDecoder:
         if hdr.seq is not None:
             table.seq[i] = hdr.seq
             table.frag[i] = hdr.frag if hdr.frag is not None else -1
+
+    def _quick_radiotap(self, buf: bytes, start: int, avail: int) -> _RtValues | None:
+        """The fields of one well-formed header through its cached layout; None to walk it."""
+        if avail < radiotap.MIN_HEADER_LEN or buf[start]:
+            return None
+        it_len = _U16(buf, start + 2)[0]
+        if it_len < radiotap.MIN_HEADER_LEN or it_len > avail:
+            return None
+        words = []
+        off = 4
+        while True:
+            if off + 4 > it_len:
+                return None
+            word = _U32(buf, start + off)[0]
+            words.append(word)
+            off += 4
+            if not word >> 31:
+                break
+        present = tuple(words)
+        layout = self._layouts.get(present)
+        if layout is None:
+            layout = self._layout(buf, present, start, avail)
+        if layout is None or not layout.vectorisable or layout.vendor_skip_at >= 0:
+            return None
+        if it_len < layout.min_len:
+            return None
+        chains = []
+        for ant_off, sig_off in layout.chains:
+            sig = buf[start + sig_off]
+            chains.append((buf[start + ant_off], sig - 256 if sig > 127 else sig))
+        signal = None
+        if layout.signal >= 0:
+            sig = buf[start + layout.signal]
+            signal = sig - 256 if sig > 127 else sig
+        return (
+            it_len,
+            _U64(buf, start + layout.tsft)[0] if layout.tsft >= 0 else None,
+            buf[start + layout.flags] if layout.flags >= 0 else 0,
+            _U16(buf, start + layout.channel)[0] if layout.channel >= 0 else 0,
+            signal,
+            chains,
+        )
 
     # -- vectorised path -----------------------------------------------------------
 

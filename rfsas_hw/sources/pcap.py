@@ -201,13 +201,13 @@ class PcapSource(Source[ObservationBatch]):
         pairing: dict[str, Any] | None = None,
         **base: Any,
     ) -> None:
-        super().__init__(**base)
         if not path:
             raise SourceError("pcap source needs a path: pcap:FILE, pcap:- or pcap:A.pcap+B.pcap")
         self.path = path
         self.n_antennas = n_antennas
         self._paired: Any = None
         self._stream: FrameStream | None = None
+        # Open the input before the base class exists: a failed open leaves nothing to close.
         parts = path.split("+") if path != "-" and not Path(path).exists() else [path]
         if len(parts) == 2 and all(parts):
             from rfsas_hw.sources.pairing import OfflinePairing, PairingConfig
@@ -218,6 +218,7 @@ class PcapSource(Source[ObservationBatch]):
             raise SourceError(f"pcap:{path}: pair at most two captures (A.pcap+B.pcap)")
         else:
             self._stream = FrameStream(path, n_antennas, vector_min, stream)
+        super().__init__(**base)
         flagged: Counter[str] = Counter()
         self.stats.extra["flagged"] = flagged
         self.stats.extra["bytes_read"] = 0

@@ -460,6 +460,7 @@ class CaptureParser:
             pos = found
             self._resync_from = None
         head = struct.Struct(self._endian + "II")
+        tail = struct.Struct(self._endian + "I")
         while len(frames) < max_frames and pos + 12 <= end:
             if struct.unpack_from("<I", buf, pos)[0] == PCAPNG_SHB:
                 if frames:
@@ -485,6 +486,7 @@ class CaptureParser:
                         )
                     break
                 head = struct.Struct(self._endian + "II")
+                tail = struct.Struct(self._endian + "I")
                 pos += blen
                 continue
             btype, blen = head.unpack_from(buf, pos)
@@ -497,7 +499,7 @@ class CaptureParser:
                 bad = (
                     f"pcapng block truncated: {blen} bytes announced, {end - pos} left in the file"
                 )
-            elif head.unpack_from(buf, pos + blen - 4)[0] != blen:
+            elif tail.unpack_from(buf, pos + blen - 4)[0] != blen:
                 bad = f"pcapng block type 0x{btype:08x}: trailing length does not match {blen}"
             if bad is not None:
                 reason = R_TRUNCATED if "truncated" in bad else R_BAD_BLOCK

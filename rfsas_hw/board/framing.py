@@ -48,6 +48,8 @@ class FrameError(BoardProtocolError):
     def __init__(self, kind: str, message: str) -> None:
         super().__init__(message)
         self.kind = kind
+        self.offset: int | None = None
+        """Stream offset of the segment, bytes, when a stream decoder raised it."""
 
 
 ERROR_KINDS = ("cobs", "short", "magic", "incompatible", "length", "unknown_type", "crc")

@@ -97,6 +97,7 @@ class FrameDecoder:
         """Errors raised by the last :meth:`feed` (for a raise-on-error policy)."""
 
     def _note(self, err: FrameError, offset: int) -> None:
+        err.offset = offset
         self.new_errors.append(err)
         if len(self.stats.errors) < MAX_KEPT_ERRORS:
             self.stats.errors.append(f"byte {offset}: {err}")
@@ -234,7 +235,8 @@ class FrameReader:
 
     def _check(self) -> None:
         if self.errors == "raise" and self.decoder.new_errors:
-            raise BoardProtocolError(f"{self.name}: {self.stats.errors[-1]}")
+            err = self.decoder.new_errors[0]
+            raise BoardProtocolError(f"{self.name}: byte {err.offset}: {err}") from err
 
     def __iter__(self) -> Iterator[tuple[bytes, Message]]:
         decoder = self.decoder

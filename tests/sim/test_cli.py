@@ -23,11 +23,11 @@ def runner() -> CliRunner:
 def test_sim_capture_writes_files_and_truth(runner: CliRunner, tmp_path: Path) -> None:
     res = runner.invoke(cli, ["sim", "capture", str(EXAMPLE), "-o", str(tmp_path)])
     assert res.exit_code == 0, res.output
-    assert (tmp_path / "rsu-sw.pcap").stat().st_size > 1000
+    assert (tmp_path / "rsu-nw.pcap").stat().st_size > 1000
     assert (tmp_path / "car-obu.pcap").stat().st_size > 1000
     truth = read_truth(tmp_path / "truth.jsonl")
     assert set(truth.tracks) == {"pedestrian", "car"}
-    assert "rsu-sw" in res.output and "frames" in res.output
+    assert "rsu-nw" in res.output and "frames" in res.output
 
 
 def test_plan_json(runner: CliRunner) -> None:

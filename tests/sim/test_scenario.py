@@ -22,8 +22,8 @@ from .conftest import EXAMPLE, small_mapping
 def test_example_loads_with_its_parts(example) -> None:
     spec = example.spec
     assert spec.version == SCHEMA_VERSION
-    assert {s.id for s in spec.sensors} == {"rsu-sw", "car-obu"}
-    assert example.calibration_path("rsu-sw") == EXAMPLE.parent / "calibration" / "rsu-sw.yaml"
+    assert {s.id for s in spec.sensors} == {"rsu-nw", "car-obu"}
+    assert example.calibration_path("rsu-nw") == EXAMPLE.parent / "calibration" / "rsu-nw.yaml"
     assert example.mover("car").waypoints[0].speed_mps == 20.0
     assert example.t0_ns == 1_767_268_800 * 10**9
 

@@ -1,0 +1,184 @@
+"""A constant-velocity Kalman filter per emitter over successive fixes.
+
+State ``[x_m, y_m, vx_mps, vy_mps]`` (east/north). Between fixes the state
+moves at constant velocity with white-noise acceleration of one-sigma
+``accel_sigma_mps2`` (the discretised Wiener model); a fix is a position
+measurement whose noise is the fix's own covariance. A fix that falls outside
+the gate (Mahalanobis distance above ``gate_chi2``) restarts the track rather
+than dragging it across the map; tracks without a fix for ``drop_after_s`` are
+dropped.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+
+import numpy as np
+import numpy.typing as npt
+
+from rfsas_hw.errors import BackendError
+
+Array = npt.NDArray[np.float64]
+NS_PER_S = 1_000_000_000
+
+__all__ = ["Track", "Tracker", "TrackerConfig", "TrackerStats"]
+
+_H = np.array([[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0]])
+
+
+@dataclass(frozen=True, slots=True)
+class TrackerConfig:
+    """Motion model and track management.
+
+    Args:
+        accel_sigma_mps2: one-sigma white-noise acceleration, m/s² (1 suits
+            pedestrians and cyclists; use 3 for cars).
+        initial_speed_sigma_mps: one-sigma speed of a new track per axis, m/s.
+        gate_chi2: Mahalanobis² above which a fix restarts the track (default:
+            the 99.99 % point of χ² with 2 degrees of freedom).
+        drop_after_s: seconds without a fix after which a track is dropped.
+
+    Raises:
+        BackendError: a non-positive value.
+    """
+
+    accel_sigma_mps2: float = 1.0
+    initial_speed_sigma_mps: float = 3.0
+    gate_chi2: float = 18.42
+    drop_after_s: float = 10.0
+
+    def __post_init__(self) -> None:
+        for name in ("accel_sigma_mps2", "initial_speed_sigma_mps", "gate_chi2", "drop_after_s"):
+            if not getattr(self, name) > 0:
+                raise BackendError(f"tracker {name} must be > 0, got {getattr(self, name)}")
+
+
+@dataclass(slots=True)
+class Track:
+    """The filtered state of one emitter."""
+
+    emitter: int
+    """Emitter id (64-bit keyed hash)."""
+    state: Array
+    """``[x_m, y_m, vx_mps, vy_mps]`` at ``t_ns``."""
+    cov: Array
+    """4×4 state covariance at ``t_ns`` (m², m²/s, m²/s²)."""
+    t_ns: int
+    """Time of the last fix applied, UTC ns."""
+    updates: int = 1
+    """Fixes applied since the track (re)started."""
+    sensors: tuple[str, ...] = ()
+    """Sensors whose bearings made the last fix."""
+
+    def predict(self, t_ns: int, accel_sigma_mps2: float) -> tuple[Array, Array]:
+        """State and covariance extrapolated to ``t_ns`` (not stored)."""
+        dt = max(t_ns - self.t_ns, 0) / NS_PER_S
+        F = np.eye(4)
+        F[0, 2] = F[1, 3] = dt
+        q = accel_sigma_mps2**2
+        Q = np.zeros((4, 4))
+        Q[0, 0] = Q[1, 1] = q * dt**4 / 4
+        Q[0, 2] = Q[2, 0] = Q[1, 3] = Q[3, 1] = q * dt**3 / 2
+        Q[2, 2] = Q[3, 3] = q * dt**2
+        return F @ self.state, F @ self.cov @ F.T + Q
+
+    @property
+    def position(self) -> Array:
+        """``(x_m, y_m)`` at ``t_ns``."""
+        return self.state[:2].copy()
+
+    @property
+    def position_cov(self) -> Array:
+        """2×2 position covariance at ``t_ns``, m²."""
+        return self.cov[:2, :2].copy()
+
+    @property
+    def velocity(self) -> Array:
+        """``(vx_mps, vy_mps)``."""
+        return self.state[2:].copy()
+
+
+@dataclass(slots=True)
+class TrackerStats:
+    """Counts of what the tracker did with the fixes it was given."""
+
+    started: int = 0
+    updated: int = 0
+    restarted: int = 0
+    """Fixes outside the gate that restarted their track."""
+    out_of_order: int = 0
+    """Fixes older than their track, ignored."""
+    dropped: int = 0
+
+
+@dataclass(slots=True)
+class Tracker:
+    """One :class:`Track` per emitter, updated with fixes (position + covariance)."""
+
+    config: TrackerConfig = field(default_factory=TrackerConfig)
+    tracks: dict[int, Track] = field(default_factory=dict)
+    stats: TrackerStats = field(default_factory=TrackerStats)
+
+    def _start(
+        self, emitter: int, t_ns: int, z: Array, R: Array, sensors: tuple[str, ...]
+    ) -> Track:
+        cov = np.zeros((4, 4))
+        cov[:2, :2] = R
+        cov[2, 2] = cov[3, 3] = self.config.initial_speed_sigma_mps**2
+        track = Track(emitter, np.array([z[0], z[1], 0.0, 0.0]), cov, t_ns, 1, sensors)
+        self.tracks[emitter] = track
+        return track
+
+    def update(
+        self, emitter: int, t_ns: int, position: Array, cov: Array, sensors: tuple[str, ...] = ()
+    ) -> Track:
+        """Apply one fix of ``emitter`` taken at ``t_ns``; return its track.
+
+        Raises:
+            BackendError: a non-finite position or covariance.
+        """
+        z = np.asarray(position, np.float64)
+        R = np.asarray(cov, np.float64)
+        finite = bool(np.isfinite(z).all() and np.isfinite(R).all())
+        if z.shape != (2,) or R.shape != (2, 2) or not finite:
+            raise BackendError(f"fix of emitter {emitter:016x} is not a finite position/covariance")
+        track = self.tracks.get(emitter)
+        if track is None:
+            self.stats.started += 1
+            return self._start(emitter, t_ns, z, R, sensors)
+        if t_ns < track.t_ns:
+            self.stats.out_of_order += 1
+            return track
+        x, P = track.predict(t_ns, self.config.accel_sigma_mps2)
+        S = _H @ P @ _H.T + R
+        innov = z - x[:2]
+        d2 = float(innov @ np.linalg.solve(S, innov))
+        if d2 > self.config.gate_chi2:
+            self.stats.restarted += 1
+            return self._start(emitter, t_ns, z, R, sensors)
+        K = P @ _H.T @ np.linalg.inv(S)
+        IKH = np.eye(4) - K @ _H
+        # Joseph form keeps P symmetric positive definite
+        track.cov = IKH @ P @ IKH.T + K @ R @ K.T
+        track.state = x + K @ innov
+        track.t_ns = t_ns
+        track.updates += 1
+        track.sensors = sensors
+        self.stats.updated += 1
+        return track
+
+    def prune(self, now_ns: int) -> list[int]:
+        """Drop tracks without a fix for ``drop_after_s``; return their emitter ids."""
+        limit = now_ns - int(self.config.drop_after_s * NS_PER_S)
+        gone = [e for e, t in self.tracks.items() if t.t_ns < limit]
+        for emitter in gone:
+            del self.tracks[emitter]
+        self.stats.dropped += len(gone)
+        return gone
+
+    def __iter__(self) -> Iterator[Track]:
+        return iter(list(self.tracks.values()))
+
+    def __len__(self) -> int:
+        return len(self.tracks)

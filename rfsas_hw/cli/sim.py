@@ -2,15 +2,19 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
+from typing import cast
 
 import click
 from rich.console import Console
 from rich.table import Table
 
 from rfsas_hw.df import save_calibration
+from rfsas_hw.errors import ConfigError
+from rfsas_hw.sim.braking import BrakingCase, plot_braking, run_braking
 from rfsas_hw.sim.capture_writer import write_captures
-from rfsas_hw.sim.scenario import load_scenario
+from rfsas_hw.sim.scenario import Detail, load_scenario
 from rfsas_hw.sim.turntable import turntable_calibration
 from rfsas_hw.sim.world import World
 
@@ -93,3 +97,94 @@ def turntable(scenario: Path, sensors: tuple[str, ...], mode: str) -> None:
             f"{s.id}: {path} (FoV {t.fov_deg[0]:+.1f}°…{t.fov_deg[1]:+.1f}°, "
             f"residual {t.residual_rms_deg:.2f}°)"
         )
+
+
+@sim.command()
+@click.option(
+    "--speed", "speed_mps", type=float, default=20.0, show_default=True, help="Initial speed, m/s."
+)
+@click.option(
+    "--start",
+    "start_m",
+    type=float,
+    default=-100.0,
+    show_default=True,
+    help="Vehicle centre at t = 0, metres north of the intersection centre.",
+)
+@click.option(
+    "--delay",
+    "delay_s",
+    type=float,
+    default=1.5,
+    show_default=True,
+    help="Reaction delay before braking (scan + message + computation), s.",
+)
+@click.option(
+    "--detail",
+    type=click.Choice(["low", "medium", "high"]),
+    default="high",
+    show_default=True,
+    help="Level of detail of the twin that locates the pedestrian.",
+)
+@click.option("--seed", type=int, default=0, show_default=True, help="Scenario seed.")
+@click.option(
+    "--plot",
+    "plot_path",
+    type=click.Path(dir_okay=False, path_type=Path),
+    help="Draw gap, speed and P_coll over time to this PNG.",
+)
+@click.option("--json", "as_json", is_flag=True, help="Print one JSON object.")
+def braking(
+    speed_mps: float,
+    start_m: float,
+    delay_s: float,
+    detail: str,
+    seed: int,
+    plot_path: Path | None,
+    as_json: bool,
+) -> None:
+    """The paper's braking case: brake at 0.47 g after the delay, against a located pedestrian."""
+    try:
+        case = BrakingCase(
+            speed_mps=speed_mps,
+            start_m=start_m,
+            delay_s=delay_s,
+            detail=cast(Detail, detail),
+            seed=seed,
+        )
+    except ValueError as err:
+        raise ConfigError(f"braking case: {err}") from err
+    result = run_braking(case)
+    if plot_path is not None:
+        plot_braking(result, str(plot_path))
+    summary = result.summary()
+    if as_json:
+        click.echo(json.dumps(summary))
+        return
+    table = Table(
+        title=f"Braking at 0.47 g: {speed_mps:g} m/s from {start_m:g} m, delay {delay_s:g} s"
+    )
+    table.add_column("quantity")
+    table.add_column("value", justify="right")
+    table.add_row("stops before the pedestrian", "yes" if result.stopped else "no")
+    table.add_row(
+        "gap at rest" if result.stopped else "distance short", f"{abs(result.gap_at_rest_m):.1f} m"
+    )
+    table.add_row(
+        "impact speed",
+        f"{result.impact_speed_mps:.2f} m/s ({result.impact_speed_mps * 3.6:.1f} km/h)",
+    )
+    table.add_row("P_collision", f"{result.p_collision:.4f}")
+    table.add_row("P_fatality", f"{result.p_fatality:.4f}")
+    table.add_row("risk", f"{result.risk:.5f}")
+    fx, fy = summary["fix_xy_m"]
+    sx, sy = summary["fix_sigma_m"]
+    table.add_row(
+        "pedestrian located at",
+        f"({fx:.1f}, {fy:.1f}) m ± ({sx:.1f}, {sy:.1f}) m [{summary['fix_status']}]",
+    )
+    ox, oy = summary["obstacle_xy_m"]
+    table.add_row("pedestrian truly at", f"({ox:.1f}, {oy:.1f}) m")
+    if plot_path is not None:
+        table.add_row("plot", str(plot_path))
+    Console().print(table)

@@ -365,3 +365,125 @@ class BearingBatch:
     def __iter__(self) -> Iterator[Bearing]:
         for i in range(len(self)):
             yield self.row(i)
+
+
+def _json_value(value: Any) -> Any:
+    """NaN and ±inf become None (JSON has no such numbers); tuples become lists."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    if isinstance(value, tuple):
+        return [_json_value(v) for v in value]
+    return value
+
+
+@dataclass(frozen=True, slots=True)
+class Fix:
+    """One emitter position triangulated from associated bearings, with its covariance.
+
+    Carries the emitter id (a keyed hash), never a MAC address.
+    """
+
+    t_ns: int
+    """Capture time of the newest bearing used, UTC nanoseconds."""
+    emitter: str
+    """Emitter id: 16 hex digits of the keyed hash of the MAC for the nonce epoch."""
+    x_m: float
+    """East position in the local frame, metres (NaN when no solution exists)."""
+    y_m: float
+    """North position in the local frame, metres (NaN when no solution exists)."""
+    cov_xx_m2: float
+    """Variance of ``x_m``, m² (inf when the geometry is singular)."""
+    cov_xy_m2: float
+    """Covariance of ``x_m`` and ``y_m``, m²."""
+    cov_yy_m2: float
+    """Variance of ``y_m``, m²."""
+    ok: bool
+    """True when the fix can be trusted (the geometry and the bearings passed every check)."""
+    status: str
+    """Why it can or cannot be trusted: ``ok``, ``too_few_bearings``, ``ill_conditioned``,
+    ``behind_sensor``, ``inconsistent`` or ``not_converged``."""
+    reason: str
+    """Human-readable explanation of ``status`` with its numbers."""
+    sensors: tuple[str, ...]
+    """Ids of the sensors whose bearings were used."""
+    gdop: float
+    """Geometric dilution of precision: √(σ_x² + σ_y²) over the RMS of range × bearing sigma."""
+    condition: float
+    """Condition number of the information matrix (1: circular error ellipse)."""
+
+    @property
+    def position(self) -> npt.NDArray[np.float64]:
+        """``(x_m, y_m)`` as an array."""
+        return np.array([self.x_m, self.y_m])
+
+    @property
+    def covariance(self) -> npt.NDArray[np.float64]:
+        """2×2 covariance of ``position``, m²."""
+        return np.array([[self.cov_xx_m2, self.cov_xy_m2], [self.cov_xy_m2, self.cov_yy_m2]])
+
+    def as_dict(self) -> dict[str, Any]:
+        """JSON-ready mapping of every field (non-finite numbers as None)."""
+        return {name: _json_value(getattr(self, name)) for name in self.__dataclass_fields__}
+
+
+@dataclass(frozen=True, slots=True)
+class Assessment:
+    """The backend's judgement of one emitter against the vehicle at one moment.
+
+    Position and velocity come from the emitter's track (filtered fixes);
+    risk numbers are NaN when no vehicle state is known.
+    """
+
+    t_ns: int
+    """Time the assessment refers to, UTC nanoseconds."""
+    emitter: str
+    """Emitter id: 16 hex digits of the keyed hash of the MAC for the nonce epoch."""
+    x_m: float
+    """Tracked east position at ``t_ns``, metres."""
+    y_m: float
+    """Tracked north position at ``t_ns``, metres."""
+    cov_xx_m2: float
+    """Variance of ``x_m``, m²."""
+    cov_xy_m2: float
+    """Covariance of ``x_m`` and ``y_m``, m²."""
+    cov_yy_m2: float
+    """Variance of ``y_m``, m²."""
+    vx_mps: float
+    """Tracked east velocity, m/s."""
+    vy_mps: float
+    """Tracked north velocity, m/s."""
+    age_s: float
+    """Seconds since the newest bearing of the latest fix."""
+    sensors: tuple[str, ...]
+    """Sensors whose bearings made the latest fix."""
+    fix_ok: bool
+    """Whether the latest fix was trustworthy."""
+    fix_reason: str
+    """Explanation of the latest fix's status."""
+    p_collision: float
+    """Probability that the vehicle's and the emitter's boxes overlap at closest approach."""
+    t_closest_s: float
+    """Seconds from ``t_ns`` to the closest approach."""
+    distance_to_contact_m: float
+    """Along-track gap from the vehicle's front to the emitter's box, metres (inf: behind)."""
+    impact_speed_mps: float
+    """Speed at contact if the vehicle brakes now, m/s (0: it stops in time)."""
+    fatality_risk: float
+    """Rosen's pedestrian fatality probability at ``impact_speed_mps``."""
+    risk: float
+    """``p_collision · fatality_risk``."""
+    advisory: str
+    """``brake``, ``caution``, ``clear``, or ``none`` when no vehicle state is known."""
+    reasons: tuple[str, ...]
+    """Why the advisory is what it is, with numbers."""
+    link_alarm: bool
+    """Whether the link's latency watch was alarmed."""
+
+    @property
+    def covariance(self) -> npt.NDArray[np.float64]:
+        """2×2 position covariance, m²."""
+        return np.array([[self.cov_xx_m2, self.cov_xy_m2], [self.cov_xy_m2, self.cov_yy_m2]])
+
+    def as_dict(self) -> dict[str, Any]:
+        """JSON-ready mapping of every field (non-finite numbers as None)."""
+        return {name: _json_value(getattr(self, name)) for name in self.__dataclass_fields__}

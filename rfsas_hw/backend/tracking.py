@@ -44,7 +44,7 @@ class TrackerConfig:
     """
 
     accel_sigma_mps2: float = 1.0
-    initial_speed_sigma_mps: float = 3.0
+    initial_speed_sigma_mps: float = 2.0
     gate_chi2: float = 18.42
     drop_after_s: float = 10.0
 

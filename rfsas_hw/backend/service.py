@@ -1,0 +1,464 @@
+"""The backend service: verified bearings in, fixes and risk assessments out.
+
+Each verified safety message hands the sender's pose and bearings to the
+:class:`~rfsas_hw.backend.association.Associator`. Every step (``step_s``):
+
+1. groups of bearings of one emitter from at least two sensors are
+   triangulated together (:func:`~rfsas_hw.backend.triangulation.triangulate_batch`),
+   each giving a :class:`~rfsas_hw.records.Fix`;
+2. trustworthy fixes update the emitter's constant-velocity track;
+   flagged fixes are reported, never used as positions;
+3. every live track is judged against the vehicle state (if one is known),
+   giving an :class:`~rfsas_hw.records.Assessment` with P(collision), impact
+   speed, risk and the advisory;
+4. fixes and assessments go to the sinks (a JSONL file, a live table, a map).
+
+The vehicle state comes from a file, a UDP feed (:class:`VehicleFeed`), or a
+simulator calling :meth:`BackendService.set_vehicle`. The link's latency alarm
+is part of every assessment.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+import time
+from collections import Counter
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import IO, Any, Protocol
+
+import numpy as np
+
+from rfsas_hw.backend.association import AssociationConfig, Associator
+from rfsas_hw.backend.encounter import EncounterConfig, assess_encounter
+from rfsas_hw.backend.risk import Advisory
+from rfsas_hw.backend.tracking import Tracker, TrackerConfig
+from rfsas_hw.backend.triangulation import FixStatus, TriangulationOptions, triangulate_batch
+from rfsas_hw.backend.vehicle import VehicleFeed, VehicleState
+from rfsas_hw.errors import BackendError
+from rfsas_hw.records import Assessment, BearingBatch, Fix, Pose, emitter_hex
+
+log = logging.getLogger(__name__)
+
+NS_PER_S = 1_000_000_000
+
+__all__ = [
+    "BackendConfig",
+    "BackendService",
+    "BackendStats",
+    "JsonlSink",
+    "MessageSource",
+    "ResultSink",
+]
+
+
+@dataclass(frozen=True, slots=True)
+class BackendConfig:
+    """Everything the backend service can be tuned with.
+
+    Args:
+        association: time window, epoch length, ageing, sensors per group.
+        triangulation: iteration and acceptance limits of the fixes.
+        tracker: motion model and track management.
+        encounter: threat kind, horizon, reaction delay, advisory thresholds.
+        step_s: period of triangulation and assessment in :meth:`BackendService.run`, s.
+
+    Raises:
+        BackendError: a non-positive step.
+    """
+
+    association: AssociationConfig = field(default_factory=AssociationConfig)
+    triangulation: TriangulationOptions = field(default_factory=TriangulationOptions)
+    tracker: TrackerConfig = field(default_factory=TrackerConfig)
+    encounter: EncounterConfig = field(default_factory=EncounterConfig)
+    step_s: float = 0.1
+
+    def __post_init__(self) -> None:
+        if not self.step_s > 0:
+            raise BackendError(f"step_s must be > 0, got {self.step_s}")
+
+
+@dataclass(slots=True)
+class BackendStats:
+    """What the service did: messages, bearings, fixes by status, assessments by advisory."""
+
+    messages: int = 0
+    bearings: int = 0
+    steps: int = 0
+    fixes: Counter[str] = field(default_factory=Counter)
+    """Fixes by status (``ok``, ``ill_conditioned``, …)."""
+    assessments: Counter[str] = field(default_factory=Counter)
+    """Assessments by advisory."""
+
+    def as_dict(self) -> dict[str, int]:
+        """Flat counters."""
+        out = {"messages": self.messages, "bearings": self.bearings, "steps": self.steps}
+        out.update({f"fixes.{k}": v for k, v in sorted(self.fixes.items())})
+        out.update({f"assessments.{k}": v for k, v in sorted(self.assessments.items())})
+        return out
+
+
+class ResultSink(Protocol):
+    """Receives what each step produced (a file writer, a live table, a map)."""
+
+    def on_results(self, fixes: Sequence[Fix], assessments: Sequence[Assessment]) -> None:
+        """Handle one step's fixes and assessments."""
+        ...
+
+    def close(self) -> None:
+        """Flush and release resources."""
+        ...
+
+
+class VerifiedLike(Protocol):
+    """What the service needs of a verified safety message."""
+
+    @property
+    def bearings(self) -> BearingBatch:
+        """The message's bearings; ``sensor_id`` is the sender."""
+        ...
+
+    @property
+    def message(self) -> Any:
+        """The decoded message; ``.pose`` is the sender's :class:`Pose`."""
+        ...
+
+
+class MessageSource(Protocol):
+    """Where verified messages come from (a :class:`rfsas_hw.link.Receiver`)."""
+
+    def receive(self, timeout: float | None = None) -> Sequence[VerifiedLike]:
+        """Verified messages that arrived within ``timeout`` seconds."""
+        ...
+
+    @property
+    def latency(self) -> Any:
+        """The latency watch; ``.alarm`` is True when a sender is late or silent."""
+        ...
+
+    @property
+    def stats(self) -> Any:
+        """Counters; ``.as_dict()`` gives them flat (verified, rejected by reason)."""
+        ...
+
+
+class JsonlSink:
+    """Writes every fix and assessment as one JSON object per line.
+
+    Each line has ``"record": "fix"`` or ``"assessment"`` followed by the
+    record's fields (non-finite numbers as null); :meth:`write_stats` adds a
+    ``"record": "stats"`` line.
+
+    Raises:
+        BackendError: the file cannot be opened.
+    """
+
+    def __init__(self, path: str | Path) -> None:
+        self.path = Path(path)
+        try:
+            self._file: IO[str] | None = self.path.open("w", encoding="utf-8")
+        except OSError as err:
+            raise BackendError(f"{self.path}: cannot write: {err.strerror or err}") from err
+        self.lines = 0
+
+    def _write(self, kind: str, data: dict[str, Any]) -> None:
+        if self._file is None:
+            raise BackendError(f"{self.path}: writer is closed")
+        self._file.write(json.dumps({"record": kind, **data}, allow_nan=False) + "\n")
+        self.lines += 1
+
+    def on_results(self, fixes: Sequence[Fix], assessments: Sequence[Assessment]) -> None:
+        """Append one step's records and flush."""
+        for fix in fixes:
+            self._write("fix", fix.as_dict())
+        for assessment in assessments:
+            self._write("assessment", assessment.as_dict())
+        if self._file is not None:
+            self._file.flush()
+
+    def write_stats(self, stats: dict[str, int]) -> None:
+        """Append a line of counters."""
+        self._write("stats", dict(stats))
+
+    def close(self) -> None:
+        """Close the file; idempotent."""
+        if self._file is not None:
+            self._file.close()
+            self._file = None
+
+
+def _fix_record(
+    emitter: int,
+    t_ns: int,
+    sensors: tuple[str, ...],
+    position: Any,
+    cov: Any,
+    status: FixStatus,
+    reason: str,
+    gdop: float,
+    condition: float,
+) -> Fix:
+    return Fix(
+        t_ns=t_ns,
+        emitter=emitter_hex(emitter),
+        x_m=float(position[0]),
+        y_m=float(position[1]),
+        cov_xx_m2=float(cov[0, 0]),
+        cov_xy_m2=float(cov[0, 1]),
+        cov_yy_m2=float(cov[1, 1]),
+        ok=status is FixStatus.OK,
+        status=status.name.lower(),
+        reason=reason,
+        sensors=sensors,
+        gdop=float(gdop),
+        condition=float(condition),
+    )
+
+
+class BackendService:
+    """Associates, triangulates, tracks and judges risk (see the module docstring).
+
+    Args:
+        config: the service's settings.
+        vehicle: the vehicle state to judge risk against (None: risk not computed).
+        sinks: where each step's fixes and assessments go.
+        link_alarm: returns True while the link's latency watch is alarmed.
+        clock: UTC time in ns.
+    """
+
+    def __init__(
+        self,
+        config: BackendConfig | None = None,
+        *,
+        vehicle: VehicleState | None = None,
+        sinks: Iterable[ResultSink] = (),
+        link_alarm: Callable[[], bool] | None = None,
+        clock: Callable[[], int] = time.time_ns,
+    ) -> None:
+        self.config = config or BackendConfig()
+        self.vehicle = vehicle
+        self.sinks = list(sinks)
+        self.link_alarm = link_alarm
+        self.clock = clock
+        self.associator = Associator(self.config.association)
+        self.tracker = Tracker(self.config.tracker)
+        self.stats = BackendStats()
+        self.stations: dict[str, Pose] = {}
+        """Latest pose of every sensor heard, by sensor id."""
+        self.fixes: dict[int, Fix] = {}
+        """Latest fix of every emitter, by emitter id."""
+        self.assessments: dict[int, Assessment] = {}
+        """Latest assessment of every live emitter, by emitter id."""
+        self.link_stats: Callable[[], dict[str, int]] | None = None
+        """Counters of the link (verified, rejected by reason), merged into :meth:`all_stats`."""
+
+    def set_vehicle(self, vehicle: VehicleState | None) -> None:
+        """Use ``vehicle`` as the vehicle state from now on (None: stop judging risk)."""
+        self.vehicle = vehicle
+
+    def on_bearings(self, bearings: BearingBatch, pose: Pose) -> None:
+        """Take the bearings sensor ``bearings.sensor_id`` measured from ``pose``."""
+        self.stations[bearings.sensor_id] = pose
+        self.stats.bearings += len(bearings)
+        self.associator.add(bearings, pose)
+
+    def on_verified(self, message: VerifiedLike) -> None:
+        """Take a verified safety message (``rfsas_hw.link.VerifiedMessage``)."""
+        self.stats.messages += 1
+        self.on_bearings(message.bearings, message.message.pose)
+
+    def step(self, now_ns: int | None = None) -> list[Assessment]:
+        """Triangulate new groups, update tracks, judge every live emitter; feed the sinks.
+
+        Returns:
+            This step's assessments, highest risk first.
+        """
+        now = self.clock() if now_ns is None else int(now_ns)
+        self.stats.steps += 1
+        fixes = self._triangulate(now)
+        self.tracker.prune(now)
+        keep = now - int(self.config.tracker.drop_after_s * NS_PER_S)
+        for emitter in [e for e, f in self.fixes.items() if f.t_ns < keep]:
+            del self.fixes[emitter]
+        assessments = self._assess(now)
+        self.assessments = {int(a.emitter, 16): a for a in assessments}
+        for sink in self.sinks:
+            try:
+                sink.on_results(fixes, assessments)
+            except Exception:
+                log.exception("result sink %s failed", type(sink).__name__)
+        return assessments
+
+    def _triangulate(self, now: int) -> list[Fix]:
+        groups = self.associator.groups(now)
+        if len(groups) == 0:
+            return []
+        tri = triangulate_batch(
+            groups.stations_xy, groups.azimuth_deg, groups.sigma_deg, self.config.triangulation
+        )
+        out = []
+        for i in range(len(groups)):
+            emitter = int(groups.emitter[i])
+            status = FixStatus(int(tri.status[i]))
+            fix = _fix_record(
+                emitter,
+                int(groups.t_ns[i]),
+                groups.sensors[i],
+                tri.position[i],
+                tri.covariance[i],
+                status,
+                tri.reason(i),
+                tri.gdop[i],
+                tri.condition[i],
+            )
+            self.stats.fixes[fix.status] += 1
+            self.fixes[emitter] = fix
+            out.append(fix)
+            if fix.ok:
+                self.tracker.update(
+                    emitter, fix.t_ns, tri.position[i], tri.covariance[i], fix.sensors
+                )
+        return out
+
+    def _vehicle_at(self, now: int) -> VehicleState | None:
+        v = self.vehicle
+        if v is None or v.t_ns == 0:
+            return v
+        dt = max(now - v.t_ns, 0) / NS_PER_S
+        pos = v.position + v.velocity * dt
+        return replace(v, x_m=float(pos[0]), y_m=float(pos[1]), t_ns=now)
+
+    def _assess(self, now: int) -> list[Assessment]:
+        vehicle = self._vehicle_at(now)
+        alarm = bool(self.link_alarm()) if self.link_alarm is not None else False
+        out = []
+        nan = math.nan
+        for emitter, fix in self.fixes.items():
+            track = self.tracker.tracks.get(emitter)
+            if track is not None:
+                state, cov = track.predict(now, self.config.tracker.accel_sigma_mps2)
+                age_s = (now - track.t_ns) / NS_PER_S
+                sensors = track.sensors
+            else:
+                state, cov = np.array([fix.x_m, fix.y_m, nan, nan]), np.full((4, 4), nan)
+                age_s = (now - fix.t_ns) / NS_PER_S
+                sensors = fix.sensors
+            risk: dict[str, Any] = {
+                "p_collision": nan,
+                "t_closest_s": nan,
+                "distance_to_contact_m": nan,
+                "impact_speed_mps": nan,
+                "fatality_risk": nan,
+                "risk": nan,
+                "advisory": "none",
+                "reasons": ("no vehicle state",),
+            }
+            if vehicle is not None and track is not None:
+                enc = assess_encounter(
+                    vehicle,
+                    state,
+                    cov,
+                    self.config.encounter,
+                    fix_ok=fix.ok,
+                    fix_reason=fix.reason,
+                    link_alarm=alarm,
+                )
+                risk = {
+                    "p_collision": enc.p_collision,
+                    "t_closest_s": enc.t_closest_s,
+                    "distance_to_contact_m": enc.distance_to_contact_m,
+                    "impact_speed_mps": enc.impact_speed_mps,
+                    "fatality_risk": enc.fatality_risk,
+                    "risk": enc.risk,
+                    "advisory": enc.advisory.value,
+                    "reasons": enc.reasons,
+                }
+            elif vehicle is not None:
+                th = self.config.encounter.thresholds
+                unlocated = ("emitter not located: " + fix.reason,)
+                caution = th.caution_on_bad_fix or (alarm and th.caution_on_link_alarm)
+                risk["advisory"] = (Advisory.CAUTION if caution else Advisory.CLEAR).value
+                risk["reasons"] = unlocated + (("link latency alarm",) if alarm else ())
+            self.stats.assessments[risk["advisory"]] += 1
+            out.append(
+                Assessment(
+                    t_ns=now,
+                    emitter=fix.emitter,
+                    x_m=float(state[0]),
+                    y_m=float(state[1]),
+                    cov_xx_m2=float(cov[0, 0]),
+                    cov_xy_m2=float(cov[0, 1]),
+                    cov_yy_m2=float(cov[1, 1]),
+                    vx_mps=float(state[2]),
+                    vy_mps=float(state[3]),
+                    age_s=age_s,
+                    sensors=sensors,
+                    fix_ok=fix.ok,
+                    fix_reason=fix.reason,
+                    link_alarm=alarm,
+                    **risk,
+                )
+            )
+        out.sort(key=lambda a: -a.risk if math.isfinite(a.risk) else 1.0)
+        return out
+
+    def run(
+        self,
+        source: MessageSource,
+        *,
+        duration_s: float | None = None,
+        vehicle_feed: VehicleFeed | None = None,
+        on_step: Callable[[list[Assessment]], None] | None = None,
+        should_stop: Callable[[], bool] | None = None,
+    ) -> None:
+        """Receive, associate and judge until ``duration_s`` passes or ``should_stop()``.
+
+        Args:
+            source: verified messages (a ``rfsas_hw.link.Receiver`` listening on UDP).
+            duration_s: how long to run, seconds (None: until stopped).
+            vehicle_feed: a UDP feed of vehicle states, polled every step.
+            on_step: called with each step's assessments (e.g. to redraw a table).
+            should_stop: polled between receives; True ends the loop.
+        """
+        if self.link_alarm is None:
+            self.link_alarm = lambda: bool(source.latency.alarm)
+        if self.link_stats is None:
+            self.link_stats = lambda: dict(source.stats.as_dict())
+        start = time.monotonic()
+        step_s = self.config.step_s
+        next_step = start + step_s
+        while True:
+            now_mono = time.monotonic()
+            if duration_s is not None and now_mono - start >= duration_s:
+                break
+            if should_stop is not None and should_stop():
+                break
+            for message in source.receive(timeout=max(next_step - now_mono, 0.0)):
+                self.on_verified(message)
+            if time.monotonic() >= next_step:
+                next_step += step_s * max(1, math.ceil((time.monotonic() - next_step) / step_s))
+                if vehicle_feed is not None:
+                    self.set_vehicle(vehicle_feed.poll(0.0) or self.vehicle)
+                assessments = self.step()
+                if on_step is not None:
+                    on_step(assessments)
+
+    def all_stats(self) -> dict[str, int]:
+        """The service's counters and the link's (prefixed ``link.``), flat."""
+        out = self.stats.as_dict()
+        if self.link_stats is not None:
+            out.update({f"link.{k}": v for k, v in self.link_stats().items()})
+        return out
+
+    def close(self) -> None:
+        """Close every sink (a JSONL sink gets a final stats line first)."""
+        for sink in self.sinks:
+            try:
+                if isinstance(sink, JsonlSink):
+                    sink.write_stats(self.all_stats())
+                sink.close()
+            except Exception:
+                log.exception("closing result sink %s failed", type(sink).__name__)

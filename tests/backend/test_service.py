@@ -1,0 +1,185 @@
+"""The backend service end to end: signed bearings over real UDP to fixes and risk."""
+
+from __future__ import annotations
+
+import json
+import socket
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from cryptography.hazmat.primitives.asymmetric import ec
+
+from rfsas_hw.angles import math_rad_to_compass
+from rfsas_hw.backend.association import AssociationConfig
+from rfsas_hw.backend.service import BackendConfig, BackendService, JsonlSink
+from rfsas_hw.backend.triangulation import bearing_crb
+from rfsas_hw.backend.vehicle import VehicleFeed, VehicleState, load_vehicle
+from rfsas_hw.errors import ConfigError
+from rfsas_hw.link import (
+    Publisher,
+    Receiver,
+    SafetyMessage,
+    Signer,
+    TrustedKeys,
+    UdpTransport,
+    open_transport,
+)
+from rfsas_hw.privacy.epochs import EpochSchedule
+from rfsas_hw.records import BearingBatch, Pose
+
+S = 1_000_000_000
+EMITTER = 0x5EED_0000_0000_0001
+OTHER = 0x5EED_0000_0000_0002
+SIGMA_DEG = 1.0
+TARGET = np.array([4.0, 15.0])
+STATIONS = {"rsu-a": Pose(-30.0, 0.0, 45.0), "rsu-b": Pose(30.0, 0.0, 315.0)}
+
+
+def true_azimuth(pose: Pose, target: np.ndarray) -> float:
+    return float(math_rad_to_compass(np.arctan2(target[1] - pose.y_m, target[0] - pose.x_m)))
+
+
+def bearing_batch(sensor: str, t_ns: int, az: list[float], emitters: list[int]) -> BearingBatch:
+    n = len(az)
+    return BearingBatch(
+        sensor_id=sensor,
+        t_ns=np.full(n, t_ns, np.int64),
+        azimuth_deg=np.array(az),
+        sigma_deg=np.full(n, SIGMA_DEG),
+        snr_db=np.full(n, 25.0),
+        channel=np.full(n, 6, np.int16),
+        emitter=np.array(emitters, np.uint64),
+    )
+
+
+def test_two_sensors_over_udp_give_the_fix_and_forgeries_and_replays_are_counted(
+    tmp_path: Path,
+) -> None:
+    rng = np.random.default_rng(60)
+    keys = {sid: ec.generate_private_key(ec.SECP256R1()) for sid in STATIONS}
+    trust = TrustedKeys({sid: k.public_key() for sid, k in keys.items()})
+    rx = Receiver.listen("udp://127.0.0.1:0", trust)
+    assert isinstance(rx.transport, UdpTransport)
+    url = f"udp://127.0.0.1:{rx.transport.address[1]}"
+    out = tmp_path / "backend.jsonl"
+    service = BackendService(
+        BackendConfig(association=AssociationConfig(window_s=0.5)), sinks=[JsonlSink(out)]
+    )
+    publishers = {
+        sid: Publisher.to_url(url, Signer(sid, keys[sid]), pose) for sid, pose in STATIONS.items()
+    }
+    raw = open_transport(url, "send")
+    now = time.time_ns()
+    try:
+        # three rounds of honest bearings, 50 ms apart
+        for k in range(3):
+            t = now - (3 - k) * 50_000_000
+            for sid, pose in STATIONS.items():
+                az = true_azimuth(pose, TARGET) + SIGMA_DEG * rng.standard_normal()
+                publishers[sid].on_bearings(bearing_batch(sid, t, [az], [EMITTER]))
+        # a forgery: rsu-a's id, an unenrolled key, a bearing that would move the fix far away
+        forged_az = true_azimuth(STATIONS["rsu-a"], np.array([-20.0, 60.0]))
+        forged = bearing_batch("rsu-a", now, [forged_az], [EMITTER])
+        epoch = EpochSchedule().epoch_of(now)
+        msg = SafetyMessage("rsu-a", STATIONS["rsu-a"], now // 1000, 1, epoch, forged)
+        raw.send(Signer("rsu-a", ec.generate_private_key(ec.SECP256R1())).encode(msg))
+        # a replay: a genuinely signed message about another emitter, sent twice
+        genuine = SafetyMessage(
+            "rsu-b", STATIONS["rsu-b"], now // 1000, 12345, epoch,
+            bearing_batch("rsu-b", now, [10.0], [OTHER]),
+        )  # fmt: skip
+        datagram = Signer("rsu-b", keys["rsu-b"]).encode(genuine)
+        raw.send(datagram)
+        raw.send(datagram)
+        service.run(rx, duration_s=0.4)
+    finally:
+        raw.close()
+        for pub in publishers.values():
+            pub.close()
+        rx.close()
+        service.close()
+
+    records = [json.loads(line) for line in out.read_text().splitlines()]
+    fixes = [r for r in records if r["record"] == "fix" and r["emitter"] == f"{EMITTER:016x}"]
+    assert fixes and all(f["ok"] for f in fixes), fixes
+    last = fixes[-1]
+    assert set(last["sensors"]) == {"rsu-a", "rsu-b"}
+    err = np.array([last["x_m"], last["y_m"]]) - TARGET
+    cov = np.array([[last["cov_xx_m2"], last["cov_xy_m2"]], [last["cov_xy_m2"], last["cov_yy_m2"]]])
+    # the reported covariance is the bound for this geometry, and covers the error
+    stations_xy = np.array([[p.x_m, p.y_m] for p in STATIONS.values()])
+    crb = bearing_crb(stations_xy, TARGET, [SIGMA_DEG, SIGMA_DEG])
+    np.testing.assert_allclose(cov, crb, rtol=0.1, atol=0.05)
+    assert float(err @ np.linalg.solve(cov, err)) < 13.8  # χ²₂ 99.9 %
+    assert np.hypot(*err) < 4 * np.sqrt(np.trace(crb))
+    # the forged bearing was not used: no fix near where it points, only one sensor for OTHER
+    assert not any(r["record"] == "fix" and r["emitter"] == f"{OTHER:016x}" for r in records)
+    stats = next(r for r in records if r["record"] == "stats")
+    assert stats["link.rejected.bad_signature"] == 1
+    assert stats["link.rejected.replay"] == 1
+    assert stats["link.verified"] == 3 * 2 + 1
+    assert stats["messages"] == 7 and stats["bearings"] == 7
+    assessments = [r for r in records if r["record"] == "assessment"]
+    assert assessments and assessments[-1]["advisory"] == "none"  # no vehicle given
+
+
+def test_service_judges_a_pedestrian_in_the_vehicle_path() -> None:
+    now = 1_763_800_030 * S
+    # the vehicle state is 1 s old: the service extrapolates it to x = -20 m
+    car = VehicleState(x_m=-32.0, y_m=15.0, heading_deg=90.0, speed_mps=12.0, t_ns=now - S)
+    service = BackendService(vehicle=car, clock=lambda: now)
+    # a standing pedestrian seen for 2 s: the track learns that it does not move
+    for k in range(11):
+        t = now - (10 - k) * S // 5
+        for sid, pose in STATIONS.items():
+            service.on_bearings(
+                bearing_batch(sid, t, [true_azimuth(pose, TARGET)], [EMITTER]), pose
+            )
+        service.set_vehicle(None if k < 10 else car)
+        (a,) = service.step(t)
+    assert a.advisory == "brake" and a.fix_ok and a.p_collision > 0.2, a
+    assert (a.x_m, a.y_m) == pytest.approx(tuple(TARGET), abs=1e-6)
+    assert service.tracker.tracks[EMITTER].updates == 11
+    assert a.distance_to_contact_m == pytest.approx(24.0 - 2.25 - 0.25, abs=1e-6)
+    assert service.stats.fixes["ok"] == 11
+    # once the car has driven past, the pedestrian is no threat
+    service.set_vehicle(VehicleState(x_m=30.0, y_m=15.0, heading_deg=90.0, speed_mps=12.0))
+    (b,) = service.step(now + S // 10)
+    assert b.advisory == "clear" and b.impact_speed_mps == 0.0
+    # parallel lines of bearing: a flagged fix, caution, no position used
+    lone = BackendService(vehicle=car, clock=lambda: now)
+    for sid, pose in STATIONS.items():
+        lone.on_bearings(bearing_batch(sid, now, [0.0], [OTHER]), pose)
+    (c,) = lone.step(now)
+    assert not c.fix_ok and c.advisory == "caution" and "parallel" in c.reasons[0]
+    assert len(lone.tracker) == 0
+
+
+def test_vehicle_state_from_a_file_and_a_udp_feed(tmp_path: Path) -> None:
+    path = tmp_path / "vehicle.yaml"
+    path.write_text("x_m: -40\ny_m: 0\nheading_deg: 90\nspeed_mps: 10\n")
+    assert load_vehicle(path) == VehicleState(-40.0, 0.0, 90.0, 10.0)
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("x_m: -40\ny_m: 0\nheading_deg: 90\nspeed_mps: 10\nspeed_kmh: 36\n")
+    with pytest.raises(ConfigError, match=r"bad\.yaml: unknown key 'speed_kmh'"):
+        load_vehicle(bad)
+    feed = VehicleFeed.listen("udp://127.0.0.1:0")
+    try:
+        sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        assert isinstance(feed.transport, UdpTransport)
+        addr = feed.transport.address
+        sock.sendto(b"not json", addr)
+        sock.sendto(b'{"x_m": 1, "y_m": 2}', addr)  # missing heading and speed
+        sock.sendto(b'{"x_m": 1, "y_m": 2, "heading_deg": 0, "speed_mps": 3}', addr)
+        sock.close()
+        state = feed.poll(1.0)
+        for _ in range(20):
+            if feed.received + sum(feed.rejected.values()) == 3:
+                break
+            state = feed.poll(0.05)
+    finally:
+        feed.close()
+    assert state == VehicleState(1.0, 2.0, 0.0, 3.0)
+    assert feed.rejected == {"not_json": 1, "bad_state": 1}

@@ -6,7 +6,9 @@ watch keeps the ages (generation → verified) of its last ``window`` messages
 and a state:
 
 - ``ok``: the budget is being met;
-- ``late``: at least ``enter_fraction`` of the window missed the budget. The
+- ``late``: at least ``enter_fraction`` of the window missed the budget (a
+  message lost on the way, seen as a gap in the sender's sequence numbers,
+  counts as one that missed it). The
   state only returns to ``ok`` once the late fraction drops to
   ``exit_fraction`` or below (hysteresis, so a borderline link does not
   flap);
@@ -31,6 +33,7 @@ import numpy as np
 log = logging.getLogger(__name__)
 
 NS_PER_S = 1_000_000_000
+SEQ_MOD = 1 << 32
 
 
 class LinkState(enum.Enum):
@@ -81,6 +84,8 @@ class SenderLatency:
     state: LinkState
     messages: int
     """Verified messages seen from this sender in total."""
+    lost: int
+    """Messages missing from the sender's sequence (lost, dropped, or rejected)."""
     late_fraction: float
     """Fraction of the window over budget (NaN before the first message)."""
     p50_ms: float
@@ -102,6 +107,8 @@ class _Track:
     state: LinkState = LinkState.OK
     last_age_s: float = float("nan")
     late_flags: deque[bool] = field(default_factory=deque)
+    last_seq: int | None = None
+    lost: int = 0
 
 
 StateCallback = Callable[[str, LinkState, LinkState], None]
@@ -140,8 +147,11 @@ class LatencyWatch:
             ages_s=deque(maxlen=window), last_seen_ns=now_ns, late_flags=deque(maxlen=window)
         )
 
-    def observe(self, sender_id: str, age_s: float, now_ns: int) -> LinkState:
-        """Record a verified message of age ``age_s`` (seconds) received at ``now_ns``.
+    def observe(
+        self, sender_id: str, age_s: float, now_ns: int, seq: int | None = None
+    ) -> LinkState:
+        """Record a verified message of age ``age_s`` (seconds) received at ``now_ns``,
+        with its 32-bit sequence number ``seq`` if known (gaps count as lost messages).
 
         Returns the sender's state after the update.
         """
@@ -149,6 +159,17 @@ class LatencyWatch:
         if track is None:
             track = self._tracks[sender_id] = self._new_track(now_ns)
         cfg = self.config
+        if seq is not None:
+            if track.last_seq is not None:
+                gap = (seq - track.last_seq) % SEQ_MOD
+                if 1 < gap < SEQ_MOD // 2:
+                    missing = gap - 1
+                    track.lost += missing
+                    track.late_flags.extend([True] * min(missing, cfg.window))
+                if gap < SEQ_MOD // 2:
+                    track.last_seq = seq
+            else:
+                track.last_seq = seq
         age = max(0.0, float(age_s))
         track.ages_s.append(age)
         track.late_flags.append(age > cfg.budget_s)
@@ -214,6 +235,7 @@ class LatencyWatch:
                 sender_id=sender_id,
                 state=track.state,
                 messages=track.messages,
+                lost=track.lost,
                 late_fraction=fraction,
                 p50_ms=p50,
                 p99_ms=p99,

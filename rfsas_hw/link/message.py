@@ -67,11 +67,23 @@ BEARING_DTYPE = np.dtype(
         ("channel", ">u2"),
     ]
 )
+NATIVE_DTYPE = np.dtype(
+    [
+        ("t_us", "i8"),
+        ("emitter", "u8"),
+        ("azimuth_deg", "f4"),
+        ("sigma_deg", "f4"),
+        ("snr_db", "f4"),
+        ("channel", "u2"),
+    ]
+)
 BEARING_BYTES = BEARING_DTYPE.itemsize
 HEADER_BYTES = _PREFIX.size + _FIXED.size
 """Header bytes besides the sender id."""
 _SENDER_RE = re.compile(rb"[A-Za-z0-9._-]{1,32}")
 _INT64_MAX = (1 << 63) - 1
+_MAX_T_US = _INT64_MAX // 1000
+"""Latest capture time that still fits int64 nanoseconds."""
 
 
 class MessageFormatError(LinkError):
@@ -166,42 +178,54 @@ def encode_body(msg: SafetyMessage) -> bytes:
     pose = (msg.pose.x_m, msg.pose.y_m, msg.pose.heading_deg)
     if not all(math.isfinite(v) for v in pose):
         raise LinkError(f"sender pose must be finite, got {msg.pose}")
-    if np.any(b.channel < 0):
+    if b.channel.min() < 0:
         raise LinkError("channel numbers must not be negative")
-    rows = np.empty(n, BEARING_DTYPE)
+    rows = np.empty(n, NATIVE_DTYPE)
     rows["t_us"] = b.t_ns // 1000
     rows["emitter"] = b.emitter
     # float32 rounds 359.99999 up to 360.0, which is 0 on the compass
     az32 = b.azimuth_deg.astype(np.float32)
-    rows["azimuth_deg"] = np.where(az32 >= np.float32(360.0), np.float32(0.0), az32)
+    az32[az32 >= np.float32(360.0)] = 0.0
+    rows["azimuth_deg"] = az32
     rows["sigma_deg"] = b.sigma_deg
     rows["snr_db"] = b.snr_db
     rows["channel"] = b.channel
-    _check_rows(rows, LinkError)
+    problem = _bad_rows(rows)
+    if problem is not None:
+        raise LinkError(f"bad bearing: {problem}")
     head = _PREFIX.pack(MAGIC, VERSION, TYPE_SAFETY, 0, len(sender)) + sender
     fixed = _FIXED.pack(msg.t_gen_us, msg.seq, msg.epoch, *pose, n)
-    return head + fixed + rows.tobytes()
+    return head + fixed + rows.astype(BEARING_DTYPE).tobytes()
 
 
-def _check_rows(rows: np.ndarray, error: type[LinkError]) -> None:
+def _bad_rows(rows: np.ndarray) -> str | None:
+    """What is wrong with native-order bearing rows, or None. One pass when all is well."""
     az = rows["azimuth_deg"]
     sigma = rows["sigma_deg"]
-    if not np.all((az >= 0.0) & (az < 360.0)):
-        raise _raise(error, "azimuth outside [0, 360) degrees")
-    if not np.all(np.isfinite(sigma) & (sigma > 0.0)):
-        raise _raise(error, "sigma must be finite and positive")
-    if not np.all(np.isfinite(rows["snr_db"])):
-        raise _raise(error, "SNR must be finite")
-    if np.any(rows["t_us"] < 0):
-        raise _raise(error, "capture time before 1970")
-    if np.any(rows["channel"] > 0x7FFF):
-        raise _raise(error, "channel number above 32767")
-
-
-def _raise(error: type[LinkError], detail: str) -> LinkError:
-    if error is MessageFormatError:
-        return MessageFormatError("malformed", detail)
-    return error(f"bad bearing: {detail}")
+    # comparisons with NaN are false, so NaN fails every range check here
+    ok = (
+        (az >= 0.0)
+        & (az < 360.0)
+        & (sigma > 0.0)
+        & (sigma < np.inf)
+        & (np.abs(rows["snr_db"]) < np.inf)
+        & (rows["t_us"] >= 0)
+        & (rows["t_us"] <= _MAX_T_US)
+        & (rows["channel"] <= 0x7FFF)
+    )
+    if ok.all():
+        return None
+    if not ((az >= 0.0) & (az < 360.0)).all():
+        return "azimuth outside [0, 360) degrees"
+    if not ((sigma > 0.0) & (sigma < np.inf)).all():
+        return "sigma must be finite and positive"
+    if not (np.abs(rows["snr_db"]) < np.inf).all():
+        return "SNR must be finite"
+    if not (rows["t_us"] >= 0).all():
+        return "capture time before 1970"
+    if not (rows["t_us"] <= _MAX_T_US).all():
+        return "capture time out of range"
+    return "channel number above 32767"
 
 
 def peek(datagram: bytes, max_datagram: int = MAX_DATAGRAM) -> Peeked:
@@ -252,6 +276,15 @@ def decode(datagram: bytes, max_datagram: int = MAX_DATAGRAM) -> SafetyMessage:
     head = peek(datagram, max_datagram)
     if head.kind != TYPE_SAFETY:
         raise MessageFormatError("bad_type", "a nonce envelope, not a safety message")
+    return decode_peeked(datagram, head)
+
+
+def decode_peeked(datagram: bytes, head: Peeked) -> SafetyMessage:
+    """:func:`decode` for a datagram :func:`peek` has already passed as a safety message.
+
+    Raises:
+        MessageFormatError: a value is invalid (reason ``malformed``).
+    """
     fixed_at = _PREFIX.size + len(head.sender_id)
     t_gen_us, seq, epoch, x_m, y_m, heading_deg, _ = _FIXED.unpack_from(datagram, fixed_at)
     if not (math.isfinite(x_m) and math.isfinite(y_m) and 0.0 <= heading_deg < 360.0):
@@ -262,18 +295,18 @@ def decode(datagram: bytes, max_datagram: int = MAX_DATAGRAM) -> SafetyMessage:
         raise MessageFormatError("malformed", f"epoch {epoch} out of range")
     rows = np.frombuffer(
         datagram, BEARING_DTYPE, count=head.n_bearings, offset=fixed_at + _FIXED.size
-    )
-    _check_rows(rows, MessageFormatError)
-    if np.any(rows["t_us"] > _INT64_MAX // 1000):
-        raise MessageFormatError("malformed", "capture time out of range")
+    ).astype(NATIVE_DTYPE)
+    problem = _bad_rows(rows)
+    if problem is not None:
+        raise MessageFormatError("malformed", problem)
     bearings = BearingBatch(
         sensor_id=head.sender_id,
-        t_ns=rows["t_us"].astype(np.int64) * 1000,
-        azimuth_deg=rows["azimuth_deg"].astype(np.float64),
-        sigma_deg=rows["sigma_deg"].astype(np.float64),
-        snr_db=rows["snr_db"].astype(np.float64),
-        channel=rows["channel"].astype(np.int16),
-        emitter=rows["emitter"].astype(np.uint64),
+        t_ns=rows["t_us"] * 1000,
+        azimuth_deg=rows["azimuth_deg"],
+        sigma_deg=rows["sigma_deg"],
+        snr_db=rows["snr_db"],
+        channel=rows["channel"],
+        emitter=rows["emitter"],
     )
     return SafetyMessage(
         sender_id=head.sender_id,

@@ -99,3 +99,22 @@ def test_snapshot_statistics() -> None:
 def test_bad_config(kwargs: dict[str, float]) -> None:
     with pytest.raises(ValueError, match="latency"):
         LatencyConfig(**kwargs)  # type: ignore[arg-type]
+
+
+def test_sequence_gaps_count_as_missed_budget() -> None:
+    watch = LatencyWatch(LatencyConfig(window=20, min_samples=5))
+    t = T0
+    # every 5th message arrives: 80 % lost, although each one is fast
+    for seq in range(2**32 - 10, 2**32 + 40, 5):
+        watch.observe("rsu-1", 0.001, t, seq % 2**32)
+        t += S // 10
+    snap = watch.snapshot(t)["rsu-1"]
+    assert snap.state is LinkState.LATE
+    assert snap.lost == 4 * (snap.messages - 1)
+    assert snap.late_fraction == pytest.approx(0.8)
+    # a late duplicate or reordered message is not a gap
+    watch2 = LatencyWatch(LatencyConfig(min_samples=1))
+    for seq in (1, 2, 3, 2, 4, 5):
+        watch2.observe("rsu-1", 0.001, T0, seq)
+    assert watch2.snapshot(T0)["rsu-1"].lost == 0
+    assert watch2.state("rsu-1") is LinkState.OK

@@ -2,11 +2,12 @@
 
 from __future__ import annotations
 
+import os
 import socket
 
 import numpy as np
 import pytest
-from linkhelp import NOW_NS, SCHEDULE, bearings
+from linkhelp import NOW_NS, SCHEDULE, bearings, message
 
 from rfsas_hw.errors import LinkError
 from rfsas_hw.link import (
@@ -162,3 +163,28 @@ def test_binding_a_taken_port_is_a_link_error(trust: TrustedKeys) -> None:
             open_transport(f"udp://127.0.0.1:{port}", "recv")
     finally:
         first.close()
+
+
+def test_overload_checks_newest_first_and_sheds_signature_checks(
+    signer: Signer, trust: TrustedKeys
+) -> None:
+    port = free_port()
+    url = f"udp://127.0.0.1:{port}"
+    cfg = ReceiverConfig(check_epoch=False, backlog=10, shed_after_s=0.02)
+    rx = Receiver.listen(url, trust, config=cfg, clock=lambda: NOW_NS)
+    valid = signer.encode(message(seq=1))
+    forged = [signer.encode(message(seq=100 + i))[:-64] + os.urandom(64) for i in range(1000)]
+    with open_transport(url, "send") as tx:
+        for d in forged:
+            tx.send(d)
+            tx.send(b"junk datagram")
+        tx.send(valid)
+    try:
+        got = drain(rx, 1, rounds=5)
+    finally:
+        rx.close()
+    assert [m.message.seq for m in got] == [1]
+    rej = rx.stats.rejected
+    assert rej["bad_magic"] == 1000  # cheap checks still run on everything
+    assert rej["overload"] > 0 and rej["bad_signature"] > 0
+    assert rej["overload"] + rej["bad_signature"] == 1000

@@ -33,7 +33,8 @@ import binascii
 import hashlib
 import os
 import stat
-from collections.abc import Iterator
+import time
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal, cast, get_args
@@ -45,6 +46,8 @@ from cryptography.hazmat.primitives.asymmetric import ec, x25519
 from rfsas_hw.errors import KeyStoreError, LinkError
 from rfsas_hw.link.message import check_sender_id
 from rfsas_hw.link.signing import Signer
+from rfsas_hw.privacy.epochs import EpochSchedule
+from rfsas_hw.privacy.nonces import NonceAuthority, NonceStore
 
 Role = Literal["sensor", "authority", "backend"]
 ROLES: tuple[str, ...] = get_args(Role)
@@ -388,3 +391,40 @@ class KeyStore:
         if pub is None or _kx_bytes(key.public_key()) != _kx_bytes(pub):
             raise KeyStoreError(f"{self.path / KX_FILE}: does not match {CARD_FILE}")
         return key
+
+    def nonce_authority(self, schedule: EpochSchedule | None = None) -> NonceAuthority:
+        """The nonce authority of an ``authority`` identity, with every sensor and
+        backend in its trust directory enrolled.
+
+        Raises:
+            KeyStoreError: not an authority, or its key cannot be read.
+        """
+        if self.role != "authority":
+            raise KeyStoreError(f"{self.path}: a {self.role} identity is not a nonce authority")
+        authority = NonceAuthority(self.id, self.kx_private(), schedule)
+        for rid, key in self.trust.receivers().items():
+            authority.enroll(rid, key)
+        return authority
+
+    def nonce_store(
+        self,
+        schedule: EpochSchedule | None = None,
+        clock: Callable[[], int] | None = time.time_ns,
+    ) -> NonceStore:
+        """A nonce store for this sensor or backend, accepting envelopes from the
+        authorities in its trust directory.
+
+        Raises:
+            KeyStoreError: an authority identity, no authority enrolled, or the key
+                cannot be read.
+        """
+        if self.role == "authority":
+            raise KeyStoreError(
+                f"{self.path}: the authority makes nonces, it does not receive them"
+            )
+        authorities = self.trust.authorities()
+        if not authorities:
+            raise KeyStoreError(
+                f"{self.path}: no nonce authority enrolled (rfsas keys enroll {self.path} CARD)"
+            )
+        return NonceStore(self.id, self.kx_private(), authorities, schedule, clock=clock)

@@ -1,0 +1,168 @@
+"""``rfsas nonces``: run the nonce authority, or check that a receiver gets its nonces."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import click
+
+from rfsas_hw.errors import ConfigError
+from rfsas_hw.link.distribution import NonceDistributor, NonceInbox
+from rfsas_hw.link.keys import KeyStore
+from rfsas_hw.link.transport import Transport, open_transport
+from rfsas_hw.privacy.epochs import DEFAULT_EPOCH_S, DEFAULT_GRACE_S, EpochSchedule
+
+KEYS_HELP = "Key directory (rfsas keys new); its trust/ holds the enrolled cards."
+
+
+def _schedule(epoch_s: float, grace_s: float) -> EpochSchedule:
+    try:
+        return EpochSchedule(epoch_s, grace_s)
+    except ValueError as err:
+        raise ConfigError(f"--epoch/--grace: {err}") from err
+
+
+@click.group()
+def nonces() -> None:
+    """Epoch nonces: the authority hands them to enrolled sensors and backends."""
+
+
+@nonces.command("serve")
+@click.option(
+    "--keys",
+    "keys_dir",
+    type=click.Path(file_okay=False, path_type=Path),
+    required=True,
+    help=KEYS_HELP,
+)
+@click.option(
+    "--to",
+    "targets",
+    multiple=True,
+    metavar="ID=udp://HOST:PORT",
+    required=True,
+    help="Where an enrolled receiver listens (repeat for each).",
+)
+@click.option(
+    "--epoch",
+    "epoch_s",
+    type=float,
+    default=DEFAULT_EPOCH_S,
+    show_default=True,
+    help="Epoch length, seconds.",
+)
+@click.option(
+    "--grace",
+    "grace_s",
+    type=float,
+    default=DEFAULT_GRACE_S,
+    show_default=True,
+    help="Receivers' grace period at a boundary, seconds.",
+)
+@click.option(
+    "--resend",
+    "resend_s",
+    type=float,
+    default=5.0,
+    show_default=True,
+    help="Send each envelope again after this many seconds.",
+)
+@click.option("--duration", type=float, help="Stop after this many seconds (default: Ctrl-C).")
+def serve(
+    keys_dir: Path,
+    targets: tuple[str, ...],
+    epoch_s: float,
+    grace_s: float,
+    resend_s: float,
+    duration: float | None,
+) -> None:
+    """Draw a fresh nonce per epoch and send it, ahead of time, to every enrolled receiver."""
+    authority = KeyStore.open(keys_dir).nonce_authority(_schedule(epoch_s, grace_s))
+    destinations: dict[str, Transport] = {}
+    for target in targets:
+        rid, sep, url = target.partition("=")
+        if not sep or not rid or not url:
+            raise ConfigError(f"--to {target!r}: expected ID=udp://HOST:PORT")
+        if rid not in authority.receivers:
+            raise ConfigError(
+                f"--to {rid}: not enrolled with authority {authority.authority_id!r} "
+                f"(rfsas keys enroll {keys_dir} CARD)"
+            )
+        destinations[rid] = open_transport(url, "send")
+    dist = NonceDistributor(authority, destinations, resend_s=resend_s)
+    click.echo(
+        f"authority {authority.authority_id!r}: {len(destinations)} of "
+        f"{len(authority.receivers)} enrolled receivers reachable; epochs of {epoch_s:g} s"
+    )
+    stop = None if duration is None else time.monotonic() + duration
+    current = None
+    try:
+        while stop is None or time.monotonic() < stop:
+            dist.tick()
+            epoch = authority.schedule.epoch_of(time.time_ns())
+            if epoch != current:
+                current = epoch
+                click.echo(f"epoch {epoch}: nonces of epochs {epoch} and {epoch + 1} handed out")
+            time.sleep(0.2 if stop is None else min(0.2, max(0.0, stop - time.monotonic())))
+    except KeyboardInterrupt:
+        pass
+    finally:
+        dist.close()
+    sent = ", ".join(f"{rid} {n}" for rid, n in sorted(dist.sent.items())) or "none"
+    click.echo(f"envelopes sent: {sent}; send errors: {sum(dist.errors.values())}")
+
+
+@nonces.command("listen")
+@click.option(
+    "--keys",
+    "keys_dir",
+    type=click.Path(file_okay=False, path_type=Path),
+    required=True,
+    help=KEYS_HELP,
+)
+@click.option(
+    "--listen",
+    "url",
+    required=True,
+    metavar="udp://HOST:PORT",
+    help="Where envelopes for this receiver arrive.",
+)
+@click.option(
+    "--epoch",
+    "epoch_s",
+    type=float,
+    default=DEFAULT_EPOCH_S,
+    show_default=True,
+    help="Epoch length, seconds.",
+)
+@click.option(
+    "--grace",
+    "grace_s",
+    type=float,
+    default=DEFAULT_GRACE_S,
+    show_default=True,
+    help="Grace period at a boundary, seconds.",
+)
+@click.option(
+    "--duration", type=float, default=10.0, show_default=True, help="How long to listen, seconds."
+)
+def listen(keys_dir: Path, url: str, epoch_s: float, grace_s: float, duration: float) -> None:
+    """Check that this sensor or backend receives its nonces (prints epochs, never nonces)."""
+    store = KeyStore.open(keys_dir).nonce_store(_schedule(epoch_s, grace_s))
+    inbox = NonceInbox(store, open_transport(url, "recv"))
+    stop = time.monotonic() + duration
+    shown: tuple[int, ...] = ()
+    try:
+        while time.monotonic() < stop:
+            inbox.poll(timeout=min(0.2, max(0.0, stop - time.monotonic())))
+            if store.epochs != shown:
+                shown = store.epochs
+                click.echo(f"holding nonces of epochs {', '.join(map(str, shown))}")
+    except KeyboardInterrupt:
+        pass
+    finally:
+        inbox.close()
+    click.echo(f"envelopes accepted {inbox.accepted}, refused {inbox.rejected}")
+    if inbox.accepted == 0:
+        raise ConfigError(f"{url}: no nonce envelope for {store.receiver_id!r} arrived")

@@ -27,6 +27,7 @@ COMMANDS: list[str] = [
     "rfsas_hw.cli.keys:keys",
     "rfsas_hw.cli.nonces:nonces",
     "rfsas_hw.cli.backend:backend",
+    "rfsas_hw.cli.board:board",
 ]
 
 

@@ -23,6 +23,7 @@ EXIT_BAD_INPUT = 2
 COMMANDS: list[str] = [
     "rfsas_hw.cli.sim:sim",
     "rfsas_hw.cli.plan:plan",
+    "rfsas_hw.cli.demo:demo",
     "rfsas_hw.cli.calibrate:calibrate",
     "rfsas_hw.cli.keys:keys",
     "rfsas_hw.cli.nonces:nonces",

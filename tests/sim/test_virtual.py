@@ -31,7 +31,7 @@ def test_on_board_pose_follows_the_car(example) -> None:
         p1 = src.pose_at(src.world.t0_ns + 2_000_000_000)
     assert (p0.x_m, p0.y_m) == pytest.approx((1.75, -165.0))
     assert p1.y_m - p0.y_m == pytest.approx(40.0)
-    assert p1.heading_deg == pytest.approx(15.0)  # north + the 15° mounting offset
+    assert p1.heading_deg == pytest.approx(10.0)  # north + the 10° mounting offset
 
 
 def test_bundled_calibrations_are_the_simulated_turntable_runs(example) -> None:

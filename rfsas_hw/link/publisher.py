@@ -93,14 +93,28 @@ class Publisher:
 
     @classmethod
     def to_url(
-        cls, url: str, signer: Signer, pose: Pose | Callable[[], Pose], **kwargs: object
+        cls,
+        url: str,
+        signer: Signer,
+        pose: Pose | Callable[[], Pose],
+        *,
+        epoch_s: float = DEFAULT_EPOCH_S,
+        max_datagram: int = DEFAULT_DATAGRAM,
+        clock: Callable[[], int] = time.time_ns,
     ) -> Publisher:
-        """A publisher sending to ``url`` (e.g. ``udp://127.0.0.1:47000``).
+        """A publisher sending to ``url`` (e.g. ``udp://127.0.0.1:47000``); it owns the socket.
 
         Raises:
-            LinkError: bad URL or socket failure.
+            LinkError: bad URL, datagram size or socket failure.
         """
-        return cls(signer, open_transport(url, "send"), pose, **kwargs)  # type: ignore[arg-type]
+        return cls(
+            signer,
+            open_transport(url, "send"),
+            pose,
+            epoch_s=epoch_s,
+            max_datagram=max_datagram,
+            clock=clock,
+        )
 
     @property
     def pose(self) -> Pose:

@@ -245,7 +245,9 @@ class Receiver:
         trust: SenderKeys,
         nonces: EnvelopeSink | None = None,
         config: ReceiverConfig | None = None,
-        **kwargs: object,
+        *,
+        position: Callable[[], tuple[float, float] | None] | None = None,
+        clock: Callable[[], int] = time.time_ns,
     ) -> Receiver:
         """A receiver reading from the transport ``url`` names (e.g. ``udp://127.0.0.1:47000``).
 
@@ -253,7 +255,7 @@ class Receiver:
             LinkError: the URL is bad or the socket cannot be bound.
         """
         transport = open_transport(url, "recv")
-        return cls(trust, nonces, config, transport=transport, **kwargs)  # type: ignore[arg-type]
+        return cls(trust, nonces, config, position=position, transport=transport, clock=clock)
 
     def feed(self, datagram: bytes, t_recv_ns: int | None = None) -> VerifiedMessage | None:
         """Check one datagram received at ``t_recv_ns`` (UTC ns; default: the clock).

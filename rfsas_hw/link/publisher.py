@@ -18,11 +18,13 @@ import time
 from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
 from rfsas_hw.angles import wrap_deg_360
 from rfsas_hw.errors import LinkError
+from rfsas_hw.link.keys import KeyStore
 from rfsas_hw.link.message import DEFAULT_DATAGRAM, MAX_DATAGRAM, SafetyMessage, max_bearings
 from rfsas_hw.link.signing import Signer
 from rfsas_hw.link.transport import Transport, open_transport
@@ -115,6 +117,25 @@ class Publisher:
             max_datagram=max_datagram,
             clock=clock,
         )
+
+    @classmethod
+    def from_keys(
+        cls,
+        url: str,
+        keys_dir: str | Path,
+        pose: Pose | Callable[[], Pose],
+        *,
+        epoch_s: float = DEFAULT_EPOCH_S,
+        max_datagram: int = DEFAULT_DATAGRAM,
+    ) -> Publisher:
+        """A publisher signing as the sensor identity in ``keys_dir`` and sending to ``url``.
+
+        Raises:
+            KeyStoreError: not a sensor key directory, or its signing key is unusable.
+            LinkError: bad URL or socket failure.
+        """
+        signer = KeyStore.open(keys_dir).signer()
+        return cls.to_url(url, signer, pose, epoch_s=epoch_s, max_datagram=max_datagram)
 
     @property
     def pose(self) -> Pose:

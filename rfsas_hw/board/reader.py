@@ -21,7 +21,12 @@ from collections.abc import Iterator
 from dataclasses import asdict, dataclass, field
 from typing import Any, Literal, Protocol
 
+import numpy as np
+import numpy.typing as npt
+
 from rfsas_hw.board.codec import CRC_STARTS, decode_payload
+from rfsas_hw.board.columns import RECORD, is_measurement, records
+from rfsas_hw.board.fastpath import WIRE, decode_measurement_rows, segments
 from rfsas_hw.board.framing import (
     MAX_ENCODED,
     Frame,
@@ -129,6 +134,40 @@ class FrameDecoder:
             self.stats.restarts += 1
         self._expect = (seq + 1) & 0xFFFF
 
+    def _segment(self, seg: bytes, pos: int) -> tuple[bytes, Frame] | None:
+        """Decode one non-empty segment at stream offset ``pos``, counting what fails."""
+        st = self.stats
+        n = len(seg)
+        try:
+            if n > MAX_ENCODED:
+                raise FrameError("length", f"segment of {n} bytes exceeds {MAX_ENCODED}")
+            frame = check_frame(cobs_decode(seg), self.crc_starts)
+        except FrameError as err:
+            found = recover_suffix(seg, self.crc_starts)
+            if found is None:
+                self._reject(err, n, pos)
+                return None
+            skip, frame = found
+            st.resyncs += 1
+            st.discarded_bytes += skip
+            self._note(FrameError("garbage", f"{skip} bytes of garbage before a frame"), pos)
+            seg = seg[skip:]
+        st.frames += 1
+        return seg + b"\x00", frame
+
+    def _keep_tail(self, tail: bytes, pos: int) -> None:
+        if len(tail) > MAX_ENCODED:
+            # no delimiter for longer than any frame: keep only what could
+            # still be the start of one
+            cut = len(tail) - MAX_ENCODED
+            self.stats.resyncs += 1
+            self.stats.discarded_bytes += cut
+            self._note(FrameError("length", f"{cut} bytes without a delimiter"), pos)
+            tail = tail[cut:]
+            pos += cut
+        self._buf = tail
+        self._offset = pos
+
     def feed(self, data: bytes) -> list[tuple[bytes, Frame]]:
         """Decode every complete frame in ``data`` (plus what was buffered).
 
@@ -136,50 +175,112 @@ class FrameDecoder:
         including the delimiter. Bad segments are counted, never raised.
         """
         self.new_errors = []
-        st = self.stats
-        st.bytes += len(data)
+        self.stats.bytes += len(data)
         buf = self._buf + data if self._buf else data
         parts = buf.split(b"\x00")
         tail = parts.pop()
         pos = self._offset
         out: list[tuple[bytes, Frame]] = []
-        crc_starts = self.crc_starts
         for seg in parts:
-            n = len(seg)
-            if n:
-                try:
-                    if n > MAX_ENCODED:
-                        raise FrameError("length", f"segment of {n} bytes exceeds {MAX_ENCODED}")
-                    frame = check_frame(cobs_decode(seg), crc_starts)
-                except FrameError as err:
-                    found = recover_suffix(seg, crc_starts)
-                    if found is None:
-                        self._reject(err, n, pos)
-                        pos += n + 1
-                        continue
-                    skip, frame = found
-                    st.resyncs += 1
-                    st.discarded_bytes += skip
-                    self._note(
-                        FrameError("garbage", f"{skip} bytes of garbage before a frame"), pos
-                    )
-                    seg = seg[skip:]
-                st.frames += 1
-                self._track(frame.seq, frame.compat)
-                out.append((seg + b"\x00", frame))
-            pos += n + 1
-        if len(tail) > MAX_ENCODED:
-            # no delimiter for longer than any frame: keep only what could
-            # still be the start of one
-            cut = len(tail) - MAX_ENCODED
-            st.resyncs += 1
-            st.discarded_bytes += cut
-            self._note(FrameError("length", f"{cut} bytes without a delimiter"), pos)
-            tail = tail[cut:]
-            pos += cut
-        self._buf = tail
-        self._offset = pos
+            if seg:
+                got = self._segment(seg, pos)
+                if got is not None:
+                    self._track(got[1].seq, got[1].compat)
+                    out.append(got)
+            pos += len(seg) + 1
+        self._keep_tail(tail, pos)
         return out
+
+    def feed_columns(self, data: bytes) -> tuple[npt.NDArray[np.void], list[tuple[bytes, Frame]]]:
+        """Like :meth:`feed`, for a measurement stream: records and the other frames.
+
+        Returns the measurement records of every MEASUREMENT and
+        MEASUREMENT_BATCH frame as a :data:`~rfsas_hw.board.columns.RECORD`
+        array in stream order, and the ``(raw, frame)`` pairs of all other
+        frames. Single-measurement frames are decoded column-wise
+        (:mod:`rfsas_hw.board.fastpath`); counters are the same as with
+        :meth:`feed`, plus ``bad_payloads`` for a measurement frame whose
+        payload is too short (a sender bug, counted and skipped).
+        """
+        self.new_errors = []
+        self.stats.bytes += len(data)
+        buf = self._buf + data if self._buf else data
+        arr = np.frombuffer(buf, dtype=np.uint8)
+        starts, ends = segments(arr)
+        base = self._offset
+        if ends.size == 0:
+            self._keep_tail(buf, base)
+            return np.empty(0, RECORD), []
+        fast = np.zeros(ends.size, dtype=bool)
+        cand = np.flatnonzero(ends - starts == WIRE)
+        rec_parts: list[npt.NDArray[np.void]] = []
+        rec_order: list[npt.NDArray[np.int64]] = []
+        seq_idx: list[npt.NDArray[np.int64]] = []
+        seq_val: list[npt.NDArray[np.int64]] = []
+        seq_cmp: list[npt.NDArray[np.int64]] = []
+        if cand.size:
+            rows = arr[starts[cand, None] + np.arange(WIRE)]
+            ok, decoded = decode_measurement_rows(rows)
+            good = cand[ok]
+            fast[good] = True
+            frames = decoded[ok]
+            self.stats.frames += int(good.size)
+            rec_parts.append(np.ascontiguousarray(frames[:, 8:33]).view(RECORD).reshape(-1))
+            rec_order.append(good)
+            seq_idx.append(good)
+            seq_val.append(frames[:, 3].astype(np.int64) | (frames[:, 4].astype(np.int64) << 8))
+            seq_cmp.append(frames[:, 2].astype(np.int64))
+        others: list[tuple[int, bytes, Frame]] = []
+        for i in np.flatnonzero(~fast & (ends > starts)).tolist():
+            s, e = int(starts[i]), int(ends[i])
+            got = self._segment(buf[s:e], base + s)
+            if got is None:
+                continue
+            frame = got[1]
+            seq_idx.append(np.array([i]))
+            seq_val.append(np.array([frame.seq]))
+            seq_cmp.append(np.array([frame.compat]))
+            if is_measurement(frame):
+                try:
+                    r = records([frame])
+                except PayloadError as err:  # a sender bug: counted, not raised
+                    self.stats.bad_payloads += 1
+                    self._note(FrameError("payload", str(err)), base + s)
+                    continue
+                rec_parts.append(r)
+                rec_order.append(np.full(len(r), i))
+            else:
+                others.append((i, *got))
+        if seq_idx:
+            idx = np.concatenate(seq_idx)
+            order = np.argsort(idx, kind="stable")
+            self._track_many(np.concatenate(seq_val)[order], np.concatenate(seq_cmp)[order])
+        self._keep_tail(buf[int(ends[-1]) + 1 :], base + int(ends[-1]) + 1)
+        if not rec_parts:
+            recs = np.empty(0, RECORD)
+        elif len(rec_parts) == 1:
+            recs = rec_parts[0]
+        else:
+            recs = np.concatenate(rec_parts)[np.argsort(np.concatenate(rec_order), kind="stable")]
+        others.sort(key=lambda t: t[0])
+        return recs, [(raw, frame) for _, raw, frame in others]
+
+    def _track_many(self, seqs: npt.NDArray[np.int64], compats: npt.NDArray[np.int64]) -> None:
+        """:meth:`_track` over many frames in stream order, vectorised."""
+        if seqs.size == 0:
+            return
+        expect = np.empty_like(seqs)
+        expect[1:] = (seqs[:-1] + 1) & 0xFFFF
+        expect[0] = seqs[0] if self._expect is None else self._expect
+        gap = (seqs - expect) & 0xFFFF
+        flagged = (compats & _RESTART) != 0
+        restart = (gap != 0) & (flagged | (gap >= 0x8000))
+        lost = (gap != 0) & ~restart
+        st = self.stats
+        st.restarts += int(restart.sum()) + int(self._expect is None and flagged[0])
+        st.sequence_gaps += int(lost.sum())
+        st.lost += int(gap[lost].sum())
+        self._expect = int(seqs[-1] + 1) & 0xFFFF
 
     def flush(self) -> None:
         """End of input: count a frame left without its delimiter as truncated."""

@@ -20,11 +20,13 @@ import time
 from collections.abc import Callable, Sequence
 from typing import Any
 
+import numpy as np
+import numpy.typing as npt
 import serial
 
 from rfsas_hw.board.channels import channel_to_freq_mhz
 from rfsas_hw.board.codec import Encoder, decode_payload, message_name
-from rfsas_hw.board.columns import is_measurement, records, to_observations
+from rfsas_hw.board.columns import to_observations
 from rfsas_hw.board.framing import Frame
 from rfsas_hw.board.messages import (
     Ack,
@@ -167,7 +169,7 @@ class SerialSource(Source[ObservationBatch]):
         self.heartbeat: Heartbeat | None = None
         self._encoder = Encoder()
         self._port: Any = None
-        self._pending: list[Frame] = []
+        self._pending: list[npt.NDArray[np.void]] = []
         self._configured = False
         self._restarted = False
         self._next_sync = 0.0
@@ -272,10 +274,10 @@ class SerialSource(Source[ObservationBatch]):
             return []
         arrival = time.time_ns()
         out: list[Message] = []
-        for _, frame in self.decoder.feed(data):
-            if is_measurement(frame):
-                self._pending.append(frame)
-                continue
+        recs, others = self.decoder.feed_columns(data)
+        if len(recs):
+            self._pending.append(recs)
+        for _, frame in others:
             try:
                 msg = decode_payload(frame)
             except PayloadError as err:
@@ -336,14 +338,8 @@ class SerialSource(Source[ObservationBatch]):
         self._publish_counters()
         if not self._pending:
             return None
-        frames, self._pending = self._pending, []
-        try:
-            rec = records(frames)
-        except PayloadError as err:
-            self._bad("payload", BoardProtocolError(f"{self.url}: {err}"))
-            rec = records(f for f in frames if _well_formed(f))
-        if len(rec) == 0:
-            return None
+        parts, self._pending = self._pending, []
+        rec = parts[0] if len(parts) == 1 else np.concatenate(parts)
         t_us = rec["t_us"]
         self.clock.observe_arrival(int(t_us.max()), time.time_ns())
         n_ant = self.info.n_antennas if self.info is not None else 2
@@ -421,14 +417,6 @@ class SerialSource(Source[ObservationBatch]):
             except (serial.SerialException, OSError) as err:
                 log.debug("stop on close: %s", err)
         self._drop_port()
-
-
-def _well_formed(frame: Frame) -> bool:
-    try:
-        records([frame])
-    except PayloadError:
-        return False
-    return True
 
 
 def board_info(url: str, **options: Any) -> tuple[Info, dict[str, Any]]:

@@ -5,11 +5,13 @@ from __future__ import annotations
 import io
 from pathlib import Path
 
+import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from rfsas_hw.board import codec
+from rfsas_hw.board.columns import is_measurement, records
 from rfsas_hw.board.messages import Heartbeat, Measurement, Message
 from rfsas_hw.board.reader import FrameDecoder, FrameReader
 from rfsas_hw.errors import BoardProtocolError
@@ -148,3 +150,34 @@ def test_overlong_run_without_delimiter_is_bounded() -> None:
     frames = dec.feed(codec.encode(m, 1))
     assert len(frames) == 1
     assert dec.stats.discarded_bytes == 5000
+
+
+@settings(max_examples=120, deadline=None)
+@given(st.lists(small_messages, min_size=1, max_size=25), st.data())
+def test_columnar_path_equals_per_frame_path(msgs: list[Message], data: st.DataObject) -> None:
+    enc = codec.Encoder(first_seq=data.draw(st.integers(0, 0xFFFF)))
+    stream = bytearray()
+    for m in msgs:
+        w = enc.encode(m)
+        if data.draw(st.booleans()):
+            w = _touch(
+                w,
+                data.draw(st.sampled_from(["flip", "drop", "insert"])),
+                data.draw(st.integers(0, 10_000)),
+                data.draw(st.integers(0, 7)),
+            )
+        stream += data.draw(st.binary(max_size=8)) + w
+    chunk = data.draw(st.integers(1, 300))
+    slow, fast = FrameDecoder(), FrameDecoder()
+    slow_recs, slow_other, fast_recs, fast_other = [], [], [], []
+    for i in range(0, len(stream), chunk):
+        piece = bytes(stream[i : i + chunk])
+        frames = slow.feed(piece)
+        slow_recs.append(records(f for _, f in frames))
+        slow_other += [(raw, f) for raw, f in frames if not is_measurement(f)]
+        recs, other = fast.feed_columns(piece)
+        fast_recs.append(recs)
+        fast_other += other
+    assert np.concatenate(fast_recs).tobytes() == np.concatenate(slow_recs).tobytes()
+    assert fast_other == slow_other
+    assert fast.stats == slow.stats

@@ -25,8 +25,9 @@ from typing import Protocol
 import numpy as np
 import numpy.typing as npt
 
-from rfsas_hw.errors import RfsasError
+from rfsas_hw.errors import DataFormatError, RfsasError
 from rfsas_hw.privacy.epochs import DEFAULT_EPOCH_S, NS_PER_S, epoch_of
+from rfsas_hw.records import MAC_MASK
 
 __all__ = [
     "DEFAULT_EPOCH_S",
@@ -140,10 +141,17 @@ class MacHasher:
 
         Raises:
             NonceUnavailableError: no nonce for an epoch in the batch.
+            DataFormatError: a MAC does not fit 48 bits, or the arrays differ in length.
         """
         out = np.empty(len(macs), dtype=np.uint64)
         if len(macs) == 0:
             return out
+        if len(t_ns) != len(macs):
+            raise DataFormatError(f"{len(macs)} MACs but {len(t_ns)} capture times")
+        too_big = np.flatnonzero(np.asarray(macs, dtype=np.uint64) > np.uint64(MAC_MASK))
+        if too_big.size:
+            # the row, not the value: the value is (part of) a MAC
+            raise DataFormatError(f"MAC at row {int(too_big[0])} does not fit 48 bits")
         epochs = np.asarray(t_ns, dtype=np.int64) // self._epoch_ns
         for epoch in np.unique(epochs):
             sel = epochs == epoch

@@ -9,6 +9,7 @@ import os
 import numpy as np
 import pytest
 
+from rfsas_hw.errors import DataFormatError
 from rfsas_hw.privacy.epochs import NS_PER_S, EpochSchedule, epoch_of
 from rfsas_hw.privacy.hashing import (
     FixedNonce,
@@ -185,3 +186,13 @@ def test_schedule_grace_window_at_the_boundary() -> None:
 def test_schedule_rejects_bad_lengths(epoch_s: float, grace_s: float) -> None:
     with pytest.raises(ValueError, match="must be"):
         EpochSchedule(epoch_s, grace_s)
+
+
+def test_bad_inputs_are_named_without_echoing_the_mac() -> None:
+    hasher = MacHasher(FixedNonce(bytes(16)))
+    macs = np.array([1, 1 << 48 | 0xABCDEF], np.uint64)
+    with pytest.raises(DataFormatError, match="row 1 does not fit 48 bits") as info:
+        hasher.hash_batch(macs, np.zeros(2, np.int64))
+    assert "abcdef" not in str(info.value).lower()
+    with pytest.raises(DataFormatError, match="2 MACs but 1 capture times"):
+        hasher.hash_batch(macs, np.zeros(1, np.int64))

@@ -190,32 +190,17 @@ class TriangulationBatch:
 
     def reason(self, i: int) -> str:
         """Explanation of row ``i``'s status, with the numbers that decided it."""
-        status = FixStatus(int(self.status[i]))
-        n = int(self.n_bearings[i])
-        if status is FixStatus.OK:
-            return f"ok: {n} bearings, GDOP {self.gdop[i]:.3g}, condition {self.condition[i]:.3g}"
-        if status is FixStatus.TOO_FEW_BEARINGS:
-            return f"too few bearings: {n} usable, need 2"
-        if status is FixStatus.BEHIND_SENSOR:
-            return (
-                f"lines of bearing meet behind a sensor: the direction to the solution "
-                f"differs from a measured bearing by {self.max_residual_deg[i]:.1f}°"
-            )
-        if status is FixStatus.ILL_CONDITIONED:
-            cond = float(self.condition[i])
-            if not math.isfinite(cond):
-                return "ill-conditioned: lines of bearing are parallel (singular geometry)"
-            return (
-                f"ill-conditioned: near-parallel lines of bearing or too large an error "
-                f"ellipse (condition {cond:.3g}, 1σ major axis "
-                f"{self.range_fraction[i]:.2f} of the shortest range)"
-            )
-        if status is FixStatus.INCONSISTENT:
-            return (
-                f"inconsistent bearings: χ² {self.chi2[i]:.3g} > {self.chi2_limit[i]:.3g} "
-                f"on {n - 2} degrees of freedom"
-            )
-        return f"not converged after {int(self.iterations[i])} iterations"
+        return _reason(
+            FixStatus(int(self.status[i])),
+            int(self.n_bearings[i]),
+            float(self.gdop[i]),
+            float(self.condition[i]),
+            float(self.range_fraction[i]),
+            float(self.max_residual_deg[i]),
+            float(self.chi2[i]),
+            float(self.chi2_limit[i]),
+            int(self.iterations[i]),
+        )
 
     def __getitem__(self, i: int) -> Triangulation:
         status = FixStatus(int(self.status[i]))
@@ -230,6 +215,41 @@ class TriangulationBatch:
             iterations=int(self.iterations[i]),
             n_bearings=int(self.n_bearings[i]),
         )
+
+
+def _reason(
+    status: FixStatus,
+    n: int,
+    gdop: float,
+    condition: float,
+    range_fraction: float,
+    max_residual_deg: float,
+    chi2: float,
+    chi2_limit: float,
+    iterations: int,
+) -> str:
+    if status is FixStatus.OK:
+        return f"ok: {n} bearings, GDOP {gdop:.3g}, condition {condition:.3g}"
+    if status is FixStatus.TOO_FEW_BEARINGS:
+        return f"too few bearings: {n} usable, need 2"
+    if status is FixStatus.BEHIND_SENSOR:
+        return (
+            f"lines of bearing meet behind a sensor: the direction to the solution "
+            f"differs from a measured bearing by {max_residual_deg:.1f}°"
+        )
+    if status is FixStatus.ILL_CONDITIONED:
+        if not math.isfinite(condition):
+            return "ill-conditioned: lines of bearing are parallel (singular geometry)"
+        return (
+            f"ill-conditioned: near-parallel lines of bearing or too large an error "
+            f"ellipse (condition {condition:.3g}, 1σ major axis "
+            f"{range_fraction:.2f} of the shortest range)"
+        )
+    if status is FixStatus.INCONSISTENT:
+        return (
+            f"inconsistent bearings: χ² {chi2:.3g} > {chi2_limit:.3g} on {n - 2} degrees of freedom"
+        )
+    return f"not converged after {iterations} iterations"
 
 
 def _inputs(
@@ -469,6 +489,200 @@ def triangulate_batch(
     )
 
 
+def _wls_one(
+    xs: list[float], ys: list[float], phis: list[float], ws: list[float]
+) -> tuple[float, float] | None:
+    """:func:`_lines_wls` for one problem in plain floats (None when singular)."""
+    a11 = a12 = a22 = b1 = b2 = 0.0
+    for x, y, phi, w in zip(xs, ys, phis, ws, strict=True):
+        s, c = math.sin(phi), math.cos(phi)
+        rhs = s * x - c * y
+        a11 += w * s * s
+        a12 -= w * s * c
+        a22 += w * c * c
+        b1 += w * s * rhs
+        b2 -= w * c * rhs
+    det = a11 * a22 - a12 * a12
+    if not det > 1e-12 * (a11 + a22) ** 2:
+        return None
+    px, py = (a22 * b1 - a12 * b2) / det, (a11 * b2 - a12 * b1) / det
+    return (px, py) if math.isfinite(px) and math.isfinite(py) else None
+
+
+def _resid_one(
+    px: float, py: float, xs: list[float], ys: list[float], phis: list[float]
+) -> tuple[list[float], list[float], list[float]]:
+    """Predicted azimuths (math rad), squared ranges and wrapped residuals."""
+    phi0 = [math.atan2(py - y, px - x) for x, y in zip(xs, ys, strict=True)]
+    d2 = [(px - x) ** 2 + (py - y) ** 2 for x, y in zip(xs, ys, strict=True)]
+    two_pi = 2 * math.pi
+    # same wrap as wrap_rad_pi: into (−π, π]
+    r = [math.pi - ((math.pi - (p - q)) % two_pi) for p, q in zip(phis, phi0, strict=True)]
+    return phi0, d2, r
+
+
+def _cost_one(
+    px: float, py: float, xs: list[float], ys: list[float], phis: list[float], ws: list[float]
+) -> float:
+    _, _, r = _resid_one(px, py, xs, ys, phis)
+    return sum(w * v * v for w, v in zip(ws, r, strict=True))
+
+
+def _info_one(phi0: list[float], d2: list[float], ws: list[float]) -> tuple[float, float, float]:
+    mu = lam = nu = 0.0
+    for p, dd, w in zip(phi0, d2, ws, strict=True):
+        c, s = math.cos(p), math.sin(p)
+        wd = w / dd
+        mu += wd * c * c
+        lam += wd * s * s
+        nu += wd * s * c
+    return mu, lam, nu
+
+
+def _triangulate_one(
+    xs: list[float],
+    ys: list[float],
+    phis: list[float],
+    ws: list[float],
+    options: TriangulationOptions,
+) -> Triangulation:
+    """:func:`triangulate_batch` for one fix of usable bearings, in plain floats.
+
+    Numpy's per-call overhead dominates a problem of a few bearings, so a single
+    fix is solved with :mod:`math`; the batch path is the reference it is
+    tested against, step for step.
+    """
+    n = len(xs)
+    inf, nan = math.inf, math.nan
+    if n < 2:
+        return Triangulation(
+            np.full(2, nan),
+            np.full((2, 2), inf),
+            FixStatus.TOO_FEW_BEARINGS,
+            _reason(FixStatus.TOO_FEW_BEARINGS, n, inf, inf, inf, nan, nan, inf, 0),
+            inf,
+            inf,
+            nan,
+            0,
+            n,
+        )
+    start = _wls_one(xs, ys, phis, ws)
+    if start is not None:
+        d2 = [(start[0] - x) ** 2 + (start[1] - y) ** 2 for x, y in zip(xs, ys, strict=True)]
+        refined = _wls_one(xs, ys, phis, [w / max(d, 1e-6) for w, d in zip(ws, d2, strict=True)])
+        start = refined if refined is not None else start
+    if start is None:
+        status = FixStatus.ILL_CONDITIONED
+        return Triangulation(
+            np.full(2, nan),
+            np.full((2, 2), inf),
+            status,
+            _reason(status, n, inf, inf, inf, nan, nan, inf, 0),
+            inf,
+            inf,
+            nan,
+            0,
+            n,
+        )
+    px, py = start
+    _, _, r_start = _resid_one(px, py, xs, ys, phis)
+    start_resid_deg = math.degrees(max(abs(v) for v in r_start))
+    start_behind = start_resid_deg > options.behind_deg
+    converged = start_behind and n == 2
+    iterations = 0
+    for _ in range(options.max_iterations):
+        if converged:
+            break
+        iterations += 1
+        phi0, d2, r = _resid_one(px, py, xs, ys, phis)
+        d2 = [max(d, 1e-12) for d in d2]
+        mu, lam, nu = _info_one(phi0, d2, ws)
+        det = mu * lam - nu * nu
+        g1 = g2 = 0.0
+        for p, dd, w, v in zip(phi0, d2, ws, r, strict=True):
+            root = math.sqrt(dd)
+            g1 += w * (-math.sin(p)) * v / root
+            g2 += w * math.cos(p) * v / root
+        if det > 0:
+            sx, sy = (mu * g1 + nu * g2) / det, (nu * g1 + lam * g2) / det
+        else:
+            sx = sy = nan
+        if not (math.isfinite(sx) and math.isfinite(sy)):
+            converged = True
+            break
+        cost0 = sum(w * v * v for w, v in zip(ws, r, strict=True))
+        alpha = 1.0
+        accepted = False
+        for _ in range(options.max_halvings + 1):
+            tx, ty = px + alpha * sx, py + alpha * sy
+            if _cost_one(tx, ty, xs, ys, phis, ws) <= cost0 * (1 + 1e-12) + 1e-300:
+                accepted = True
+                break
+            alpha /= 2
+        moved = math.hypot(tx - px, ty - py) if accepted else 0.0
+        if accepted:
+            px, py = tx, ty
+        converged = moved < options.tolerance_m or not accepted
+    phi0, d2, r = _resid_one(px, py, xs, ys, phis)
+    d2 = [max(d, 1e-12) for d in d2]
+    mu, lam, nu = _info_one(phi0, d2, ws)
+    det = mu * lam - nu * nu
+    if det > 0:
+        cov = np.array([[mu / det, nu / det], [nu / det, lam / det]])
+    else:
+        cov = np.full((2, 2), inf)
+    tr = mu + lam
+    disc = math.sqrt(max(tr * tr / 4 - det, 0.0))
+    e_max, e_min = tr / 2 + disc, tr / 2 - disc
+    condition = e_max / e_min if e_min > 0 else inf
+    major = 1.0 / math.sqrt(e_min) if e_min > 0 else inf
+    range_fraction = major / math.sqrt(min(d2))
+    chi2 = sum(w * v * v for w, v in zip(ws, r, strict=True))
+    max_residual_deg = math.degrees(max(abs(v) for v in r))
+    scale = math.sqrt(sum(d / w for d, w in zip(d2, ws, strict=True)) / n)
+    gdop = math.sqrt(float(cov[0, 0] + cov[1, 1])) / scale
+    chi2_limit = inf
+    if options.consistency_alpha > 0 and n >= 3:
+        chi2_limit = float(chdtri(n - 2, options.consistency_alpha))
+    status = FixStatus.OK
+    if not converged:
+        status = FixStatus.NOT_CONVERGED
+    if chi2 > chi2_limit:
+        status = FixStatus.INCONSISTENT
+    if max_residual_deg > options.behind_deg:
+        status = FixStatus.BEHIND_SENSOR
+    ill = not math.isfinite(condition) or condition > options.max_condition
+    ill = ill or not range_fraction <= options.max_range_fraction
+    if ill:
+        status = FixStatus.ILL_CONDITIONED
+    position = np.array([px, py])
+    if start_behind and (ill or max_residual_deg > options.behind_deg):
+        status = FixStatus.BEHIND_SENSOR
+        max_residual_deg = start_resid_deg
+        position = np.array(start)
+    return Triangulation(
+        position=position,
+        covariance=cov,
+        status=status,
+        reason=_reason(
+            status,
+            n,
+            gdop,
+            condition,
+            range_fraction,
+            max_residual_deg,
+            chi2,
+            chi2_limit,
+            iterations,
+        ),
+        gdop=gdop,
+        condition=condition,
+        chi2=chi2,
+        iterations=iterations,
+        n_bearings=n,
+    )
+
+
 def triangulate(
     stations_xy: Any,
     azimuths_deg: Any,
@@ -497,4 +711,12 @@ def triangulate(
             f"triangulate takes stations (N, 2) and azimuths (N,), got {S.shape} and {az.shape}"
         )
     sg = np.broadcast_to(sg, az.shape) if sg.ndim == 0 else sg
-    return triangulate_batch(S[None], az[None], sg[None], options)[0]
+    S, az, sg, valid = _inputs(S[None], az[None], sg[None])
+    keep = valid[0]
+    return _triangulate_one(
+        S[0, keep, 0].tolist(),
+        S[0, keep, 1].tolist(),
+        compass_to_math_rad(az[0, keep]).tolist(),
+        (1.0 / np.deg2rad(sg[0, keep]) ** 2).tolist(),
+        options,
+    )

@@ -56,7 +56,6 @@ F_SENTINEL = "sentinel chain value"
 F_NO_SIGNAL = "no signal at all"
 F_EXTRA_CHAIN = "chain index beyond n_antennas"
 
-_PAD = bytes(64)
 _EMPTY: dict[int, FrameTable] = {}
 _U16 = struct.Struct("<H").unpack_from
 _U32 = struct.Struct("<I").unpack_from
@@ -261,7 +260,10 @@ class FrameDecoder:
         self.width = n_antennas
         self.vector_min = vector_min
         _EMPTY.setdefault(n_antennas, FrameTable.allocate(0, n_antennas))
-        self._layouts: dict[tuple[int, ...], radiotap.Layout | None] = {}
+        # (present words, vendor skip length or -1) -> layout
+        self._layouts: dict[tuple[tuple[int, ...], int], radiotap.Layout] = {}
+        # present words -> the first layout compiled for them
+        self._first: dict[tuple[int, ...], radiotap.Layout] = {}
 
     # -- entry point --------------------------------------------------------------
 
@@ -270,7 +272,9 @@ class FrameDecoder:
         result = DecodeResult(_EMPTY.get(self.width) or FrameTable.allocate(0, self.width))
         if len(spans) == 0:
             return result
-        padded = bytes(buf) + _PAD
+        # Reads are bounds-checked against their frame; rows found bad read offset 0
+        # instead, which a tiny buffer might not have.
+        padded = buf if len(buf) >= 64 else bytes(buf) + bytes(64)
         tables: list[tuple[npt.NDArray[np.int64], FrameTable]] = []
         first = int(spans.linktype[0])
         single = bool((spans.linktype == first).all())
@@ -403,12 +407,19 @@ class FrameDecoder:
             if not word >> 31:
                 break
         present = tuple(words)
-        layout = self._layouts.get(present)
-        if layout is None:
-            layout = self._layout(buf, present, start, avail)
-        if layout is None or not layout.vectorisable or layout.vendor_skip_at >= 0:
+        first = self._first.get(present) or self._layout(buf, present, -1, start, avail)
+        if first is None or not first.vectorisable:
             return None
-        if it_len < layout.min_len:
+        skip_at = first.vendor_skip_at
+        skip = -1
+        if skip_at >= 0:
+            if it_len < skip_at + 2:
+                return None
+            skip = _U16(buf, start + skip_at)[0]
+        layout = self._layouts.get((present, skip)) or self._layout(
+            buf, present, skip, start, avail
+        )
+        if layout is None or not layout.vectorisable or it_len < layout.min_len:
             return None
         chains = []
         for ant_off, sig_off in layout.chains:
@@ -515,51 +526,65 @@ class FrameDecoder:
         live = np.flatnonzero(~slow)
         if len(live) == 0:
             return np.zeros(n, np.int64), np.zeros(n, bool)
-        w = words[live, :nwords]
-        key = w[:, 0].astype(np.uint64)
-        for j in range(1, nwords):
-            key = key * np.uint64(0x9E3779B97F4A7C15) + w[:, j].astype(np.uint64)
-        if (key == key[0]).all():
-            groups: list[npt.NDArray[np.int64]] = [np.arange(len(live))]
-        else:
-            _, inverse = np.unique(key, return_inverse=True)
-            order = np.argsort(inverse, kind="stable")
-            bounds = np.flatnonzero(np.diff(inverse[order])) + 1
-            groups = np.split(order, bounds)
-        for members in groups:
+        # Exact group keys: pairs of present words as 64-bit integers.
+        width = nwords + (nwords & 1)
+        key = np.ascontiguousarray(words[live, :width]).view(np.uint64)
+        for members in _groups(key):
             rows = live[members]
             present = _trim(tuple(int(x) for x in words[rows[0], :nwords]))
-            same = (words[rows, :nwords] == words[rows[0], :nwords]).all(axis=1)
-            if not same.all():
-                slow[rows[~same]] = True
-                rows = rows[same]
-            layout = self._layout(buf, present, int(h[rows[0]]), int(avail[rows[0]]))
-            if layout is None or not layout.vectorisable:
+            first = self._layout(buf, present, -1, int(h[rows[0]]), int(avail[rows[0]]))
+            if first is None or not first.vectorisable:
                 slow[rows] = True
                 continue
-            need = np.full(len(rows), layout.min_len, np.int64)
-            if layout.vendor_skip_at >= 0:
-                need += v.u16[h[rows] + layout.vendor_skip_at]
-            short = it_len[rows] < need
-            if short.any():
-                slow[rows[short]] = True
-                rows = rows[~short]
-            self._gather(v, h[rows], rows, layout, table, result)
+            if first.vendor_skip_at < 0:
+                parts = [(rows, first)]
+            else:
+                # Frames with the same words but other vendor data lengths: one layout each.
+                readable = it_len[rows] >= first.vendor_skip_at + 2
+                slow[rows[~readable]] = True
+                rows = rows[readable]
+                skips = v.u16[h[rows] + first.vendor_skip_at]
+                parts = []
+                for skip in np.unique(skips).tolist():
+                    sub = rows[skips == skip]
+                    got = self._layout(buf, present, skip, int(h[sub[0]]), int(avail[sub[0]]))
+                    if got is None:
+                        slow[sub] = True
+                    else:
+                        parts.append((sub, got))
+            for sub, layout in parts:
+                short = it_len[sub] < layout.min_len
+                if short.any():
+                    slow[sub[short]] = True
+                    sub = sub[~short]
+                self._gather(v, h[sub], sub, layout, table, result)
         return np.where(slow, 0, it_len), (table.rt_flags & radiotap.FLAG_FCS_AT_END) != 0
 
     def _layout(
-        self, buf: bytes, present: tuple[int, ...], start: int, avail: int
+        self, buf: bytes, present: tuple[int, ...], skip: int, start: int, avail: int
     ) -> radiotap.Layout | None:
-        if present in self._layouts:
-            return self._layouts[present]
+        """The layout for these present words (and vendor skip length, -1 for any),
+        compiled from the frame at ``start`` if not cached; None if that frame is malformed."""
+        if skip < 0:
+            first = self._first.get(present)
+            if first is not None:
+                return first
+        else:
+            got = self._layouts.get((present, skip))
+            if got is not None:
+                return got
         try:
-            layout: radiotap.Layout | None = radiotap.compile_layout(buf, start, avail)
+            layout = radiotap.compile_layout(buf, start, avail)
         except CaptureFormatError:
             # This frame is malformed; another frame with the same words may not be.
             return None
         if len(self._layouts) > 4096:
             self._layouts.clear()
-        self._layouts[present] = layout
+            self._first.clear()
+        self._first.setdefault(present, layout)
+        self._layouts[(present, layout.vendor_skip)] = layout
+        if skip >= 0 and layout.vendor_skip != skip:
+            return None
         return layout
 
     def _gather(
@@ -571,6 +596,8 @@ class FrameDecoder:
         table: FrameTable,
         result: DecodeResult,
     ) -> None:
+        if len(rows) == 0:
+            return
         if layout.tsft >= 0:
             table.tsft_us[rows] = v.u64[hr + layout.tsft]
             table.has_tsft[rows] = True
@@ -584,11 +611,39 @@ class FrameDecoder:
             ant = v.u8[hr + ant_off]
             sig = v.i8[hr + sig_off]
             inside = ant < self.width
-            if inside.all():
+            if (ant == ant[0]).all() and inside[0]:
+                table.chain_dbm[rows, int(ant[0])] = sig
+            elif inside.all():
                 table.chain_dbm[rows, ant] = sig
             else:
                 table.chain_dbm[rows[inside], ant[inside]] = sig[inside]
                 result.flagged[F_EXTRA_CHAIN] += int((~inside).sum())
+
+
+def _groups(key: npt.NDArray[np.uint64]) -> list[npt.NDArray[np.int64]]:
+    """Row indexes grouped by equal key row (shape (n, m)), each group in row order.
+
+    Captures hold a handful of layouts, so peeling off one key at a time
+    (a comparison per layout) beats sorting; many layouts fall back to a sort.
+    """
+    groups: list[npt.NDArray[np.int64]] = []
+    rest = np.arange(len(key))
+    single = key.shape[1] == 1
+    flat = key[:, 0]
+    while len(rest) and len(groups) < 8:
+        same = flat[rest] == flat[rest[0]] if single else (key[rest] == key[rest[0]]).all(axis=1)
+        if same.all():
+            groups.append(rest)
+            return groups
+        groups.append(rest[same])
+        rest = rest[~same]
+    if len(rest):
+        _, inverse = np.unique(key[rest], axis=0, return_inverse=True)
+        inverse = inverse.ravel()
+        order = np.argsort(inverse, kind="stable")
+        bounds = np.flatnonzero(np.diff(inverse[order])) + 1
+        groups.extend(rest[part] for part in np.split(order, bounds))
+    return groups
 
 
 def _trim(words: tuple[int, ...]) -> tuple[int, ...]:

@@ -152,6 +152,137 @@ def _ts_to_ns(ts: npt.NDArray[np.uint64], iface: Interface) -> npt.NDArray[np.in
     return out + iface.tsoffset_s * NS_PER_S
 
 
+FAST_MIN_BYTES = 64 * 1024
+"""Below this many buffered bytes records are found one by one."""
+SLOW_RECORDS = 4096
+"""Records found one by one after the numpy walk stopped early (then it is tried again)."""
+MAX_REPAIRS = 16
+"""Segments re-walked from a verified position before the walk gives up on a buffer."""
+
+
+def _lockstep(
+    u32: npt.NDArray[np.uint32],
+    starts: npt.NDArray[np.int64],
+    seg_end: npt.NDArray[np.int64],
+    end: int,
+) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.int64]]:
+    """Walk the record chains from ``starts`` in lock step until each leaves its segment.
+
+    Returns (grid of record offsets, one row per step and one column per
+    chain, -1 where none; the offset where each chain crossed its segment end
+    or met a record cut by the buffer end, or -1 when it met an implausible
+    record first).
+    """
+    k = len(starts)
+    at = starts.copy()
+    crossing = np.full(k, -1, np.int64)
+    rows: list[npt.NDArray[np.int64]] = []
+    idx = np.flatnonzero(starts >= 0)
+    while len(idx):
+        p = at[idx]
+        length = u32[p + 8].astype(np.int64)
+        nxt = p + 16 + length
+        good = (length <= MAX_CAPLEN) & (nxt <= end)
+        row = np.full(k, -1, np.int64)
+        row[idx] = np.where(good, p, -1)
+        rows.append(row)
+        at[idx] = nxt
+        crossed = good & (nxt >= seg_end[idx])
+        crossing[idx[crossed]] = nxt[crossed]
+        # A plausible record cut by the end of the buffer ends its chain cleanly.
+        cut = (length <= MAX_CAPLEN) & (nxt > end)
+        crossing[idx[cut]] = p[cut]
+        idx = idx[good & ~crossed]
+    grid = np.stack(rows) if rows else np.full((0, k), -1, np.int64)
+    return grid, crossing
+
+
+def find_pcap_records(
+    buf: bytes, endian: str, pos: int, end: int, mean_record: float
+) -> tuple[npt.NDArray[np.int64], int]:
+    """Offsets of consecutive pcap records from ``pos`` (a known record start), found with numpy.
+
+    A record's offset depends on every record before it, so one walk is
+    sequential. Instead the buffer is cut into segments; a record start is
+    guessed near each segment start (the high half of its seconds field equal
+    to the first record's, and a plausible length), and all segments are
+    walked in lock step, one numpy gather per step. Segment ``k``'s walk is
+    kept only if segment ``k-1``'s verified walk lands exactly on its start;
+    a segment whose guess was wrong is walked again from that landing point.
+    So every offset returned is on the true chain from ``pos``. The walk
+    stops at a corrupt record or a record cut by the end of the buffer; the
+    caller continues from the returned position record by record.
+
+    Args:
+        buf: the buffer.
+        endian: ``"<"`` or ``">"``.
+        pos: offset of a record header known to be on the chain.
+        end: end of the valid data.
+        mean_record: typical record size so far, bytes (sizes the segments).
+
+    Returns:
+        (record offsets, offset of the first record not returned).
+    """
+    none = np.empty(0, np.int64)
+    if end - pos < FAST_MIN_BYTES:
+        return none, pos
+    u32 = _u32_view(buf, endian)
+    u16 = _u16_view(buf, endian)
+    seg_len = int(max(4096, 32 * mean_record))
+    window = int(min(seg_len // 2, max(128, 3 * mean_record)))
+    # The last window must end inside the buffer.
+    k = (end - pos - window - 16) // seg_len
+    if k < 2:
+        return none, pos
+    seg = pos + np.arange(k, dtype=np.int64) * seg_len
+    seg_end = seg + seg_len
+    # The last chain stops where a full record header no longer fits.
+    seg_end[-1] = end - 15
+    high = int(u32[pos]) >> 16
+    high_at = 2 if endian == "<" else 0
+    # Row j of this view is the window after segment j+1's start, one u16 per byte offset.
+    base = u16[int(seg[1]) + high_at :]
+    windows = np.lib.stride_tricks.as_strided(
+        base, shape=(k - 1, window), strides=(seg_len, 1), writeable=False
+    )
+    match = windows == high
+    rows = np.arange(k - 1)
+    guess = seg[1:] + match.argmax(axis=1)
+    first = guess - seg[1:]
+    length = u32[guess + 8].astype(np.int64)
+    plausible = match[rows, first] & (length <= MAX_CAPLEN) & (u32[guess + 12] >= length)
+    starts = np.concatenate(([pos], np.where(plausible, guess, -1)))
+    grid, crossing = _lockstep(u32, starts, seg_end, end)
+    redone: dict[int, npt.NDArray[np.int64]] = {}
+    n_ok = 0
+    for _ in range(MAX_REPAIRS + 1):
+        chained = crossing >= 0
+        chained[1:] &= crossing[:-1] == starts[1:]
+        n_ok = int(np.cumprod(chained).sum())
+        if n_ok in (0, k) or starts[n_ok] == crossing[n_ok - 1]:
+            break
+        # Chain n_ok started off the true chain: walk it again from where it must start.
+        one = np.array([crossing[n_ok - 1]], np.int64)
+        sub, cross = _lockstep(u32, one, seg_end[n_ok : n_ok + 1], end)
+        starts[n_ok] = one[0]
+        crossing[n_ok] = cross[0]
+        column = sub[:, 0]
+        redone[n_ok] = column[column >= 0]
+    if n_ok == 0:
+        return none, pos
+    if not redone:
+        offsets = grid[:, :n_ok].T.ravel()
+        return offsets[offsets >= 0], int(crossing[n_ok - 1])
+    parts = []
+    for j in range(n_ok):
+        if j in redone:
+            parts.append(redone[j])
+        else:
+            column = grid[:, j]
+            parts.append(column[column >= 0])
+    return np.concatenate(parts), int(crossing[n_ok - 1])
+
+
 class CaptureParser:
     """Push parser for pcap and pcapng streams.
 
@@ -176,6 +307,7 @@ class CaptureParser:
         self._ts_scale = 1000
         self._resync_from: int | None = None
         self._pending: tuple[int, str] | None = None
+        self._mean_record = 256.0
 
     # -- input ----------------------------------------------------------------------
 
@@ -302,14 +434,30 @@ class CaptureParser:
             problems.append(self._resync_problem(pos, found, end))
             pos = found
             self._resync_from = None
+        fast = np.empty(0, np.int64)
+        budget = max_frames
+        if self._resync_from is None and end - pos >= FAST_MIN_BYTES:
+            # Look only as far as max_frames records probably reach.
+            region = min(end, pos + int(max_frames * self._mean_record * 1.25) + FAST_MIN_BYTES)
+            fast, pos = find_pcap_records(buf, self._endian, pos, region, self._mean_record)
+            if len(fast) > 1:
+                self._mean_record = (pos - int(fast[0])) / len(fast)
+            if len(fast) > max_frames:
+                pos = int(fast[max_frames])
+                fast = fast[:max_frames]
+            if len(fast) and pos >= region - MAX_CAPLEN - 16:
+                budget = len(fast)  # the walk reached its region: the next call goes on
+            else:
+                budget = min(max_frames, len(fast) + SLOW_RECORDS)
+        n_fast = len(fast)
         append = offs.append
         unpack = struct.Struct(self._endian + "I").unpack_from
-        while len(offs) < max_frames and pos + 16 <= end:
+        while n_fast + len(offs) < budget and pos + 16 <= end:
             incl = unpack(buf, pos + 8)[0]
             if incl > MAX_CAPLEN:
-                lost_at.append(len(offs))
+                lost_at.append(n_fast + len(offs))
                 self._pending = (
-                    counter + len(offs) + len(lost_at),
+                    counter + n_fast + len(offs) + len(lost_at),
                     f"record header says {incl} captured bytes (more than {MAX_CAPLEN})",
                 )
                 found = self._resync_pcap(buf, pos, end, final)
@@ -323,8 +471,9 @@ class CaptureParser:
                 break
             append(pos)
             pos += 16 + incl
-        if final and self._resync_from is None and pos < end and len(offs) < max_frames:
-            lost_at.append(len(offs))
+        n_rec = n_fast + len(offs)
+        if final and self._resync_from is None and pos < end and n_rec < budget:
+            lost_at.append(n_rec)
             left = end - pos - 16
             detail = (
                 f"record header truncated ({end - pos} of 16 bytes)"
@@ -332,17 +481,14 @@ class CaptureParser:
                 else f"record truncated: header says "
                 f"{unpack(buf, pos + 8)[0]} bytes, {left} left in the file"
             )
-            problems.append(
-                FrameProblem(
-                    R_TRUNCATED, counter + len(offs) + len(lost_at), self._base + pos, detail
-                )
-            )
+            number = counter + n_rec + len(lost_at)
+            problems.append(FrameProblem(R_TRUNCATED, number, self._base + pos, detail))
             pos = end
         self._pos = pos
-        self._frame_no = counter + len(offs) + len(lost_at)
-        if not offs and not problems:
+        self._frame_no = counter + n_rec + len(lost_at)
+        if not n_rec and not problems:
             return None
-        o = np.asarray(offs, np.int64)
+        o = np.concatenate((fast, np.asarray(offs, np.int64))) if offs else fast
         u32 = _u32_view(buf, self._endian)
         sec = u32[o].astype(np.int64)
         frac = u32[o + 4].astype(np.int64)

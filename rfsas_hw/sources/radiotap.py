@@ -169,7 +169,7 @@ class Layout:
     present: tuple[int, ...]
     """The present words this layout was compiled from."""
     min_len: int
-    """Smallest ``it_len`` that holds every field walked (without vendor data)."""
+    """Smallest ``it_len`` that holds every field walked."""
     tsft: int = -1
     flags: int = -1
     channel: int = -1
@@ -179,8 +179,10 @@ class Layout:
     """``(antenna offset, signal offset)`` per chain namespace, in header order."""
     vendor_skip_at: int = -1
     """Offset of the ``skip_length`` of the one vendor namespace, or -1 when none."""
+    vendor_skip: int = -1
+    """The vendor ``skip_length`` these offsets assume (fields after vendor data move with it)."""
     vectorisable: bool = True
-    """False when offsets depend on per-frame vendor data (decode such frames one by one)."""
+    """False with several vendor namespaces (decode such frames one by one)."""
 
 
 def _err(msg: str) -> CaptureFormatError:
@@ -210,7 +212,7 @@ def read_present_words(buf: bytes | memoryview, start: int, it_len: int) -> tupl
 class _Walk:
     """One pass over a header's data fields, recording where each one sits."""
 
-    __slots__ = ("after_vendor", "buf", "it_len", "start", "stopped", "vendors")
+    __slots__ = ("after_vendor", "buf", "it_len", "start", "stopped", "vendor_at", "vendors")
 
     def __init__(self, buf: bytes | memoryview, start: int, it_len: int) -> None:
         self.buf = buf
@@ -220,6 +222,8 @@ class _Walk:
         self.stopped: int | None = None
         self.after_vendor = False
         """True when any field or namespace header lies after vendor data."""
+        self.vendor_at = -1
+        """Header offset of the first vendor namespace field."""
 
     def run(self, words: tuple[int, ...]) -> tuple[int, dict[int, int], list[tuple[int, int]]]:
         """Walk the data fields.
@@ -295,6 +299,8 @@ class _Walk:
                     )
                 if self.vendors:
                     self.after_vendor = True
+                else:
+                    self.vendor_at = pos
                 oui, subns, skip = _VENDOR.unpack_from(self.buf, self.start + pos)
                 self.vendors.append(VendorNamespace(int.from_bytes(oui, "big"), subns, skip))
                 vendor_skip = skip
@@ -400,12 +406,12 @@ def compile_layout(buf: bytes | memoryview, start: int, avail: int) -> Layout:
     layout.channel = ns0.get(BIT_CHANNEL, -1)
     layout.signal = ns0.get(BIT_DBM_ANTSIGNAL, -1)
     layout.antenna = ns0.get(BIT_ANTENNA, -1)
-    if walk.vendors:
-        if len(walk.vendors) > 1 or walk.after_vendor:
-            # Offsets after vendor data depend on each frame's skip length.
-            layout.vectorisable = False
-        else:
-            # The single vendor namespace comes last: only the end moves.
-            layout.min_len = end - walk.vendors[0].skip_length
-            layout.vendor_skip_at = layout.min_len - VENDOR_HEADER_SIZE + 4
+    if len(walk.vendors) > 1:
+        # The second vendor header's place depends on the first one's skip length.
+        layout.vectorisable = False
+    elif walk.vendors:
+        # The one vendor header precedes all vendor data, so its place is fixed;
+        # what follows the vendor data is valid for this skip length only.
+        layout.vendor_skip_at = walk.vendor_at + 4
+        layout.vendor_skip = walk.vendors[0].skip_length
     return layout

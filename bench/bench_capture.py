@@ -1,0 +1,236 @@
+"""Frames per second from a radiotap pcap to per-chain signal: rfsas-hw next to the usual tools.
+
+    python bench/bench_capture.py [N]
+
+Writes a pcap of N frames (default 500,000) with the layouts real captures
+mix: mac80211 two-chain headers (most frames), three chains, a single
+namespace without chains, vendor namespaces (walked frame by frame), and ACKs
+(no transmitter). Then, from the same file:
+
+- rfsas-hw ``pcap:`` source: pcap → ObservationBatch (time, MAC, channel,
+  per-chain dBm, seq, kind, flags);
+- tshark extracting the same fields (``-T fields``) — on a subset;
+- scapy ``RawPcapReader`` (records only, no radiotap decoding);
+- rfsas-hw's per-frame walk (``radiotap.parse``) over those raw records;
+- scapy full dissection (``PcapReader``), which does not decode the chains —
+  on a small subset.
+
+Rates are frames per CPU second of the process doing the work (tshark's
+CPU time is read from the child's resource usage), so a busy shared machine
+skews them less than wall time would. Ratios are from this one run.
+"""
+
+from __future__ import annotations
+
+import resource
+import shutil
+import struct
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+import rfsas_hw.sources
+from rfsas_hw.sources import radiotap
+
+GOAL_PER_S = 1_000_000
+GOAL_VS_TSHARK = 30.0
+TSHARK_FIELDS = [
+    "frame.time_epoch",
+    "wlan.ta",
+    "wlan.seq",
+    "wlan.fc.type_subtype",
+    "radiotap.channel.freq",
+    "radiotap.dbm_antsignal",
+    "radiotap.antenna",
+]
+
+
+def _header(words: list[int], body: bytes) -> bytes:
+    raw = struct.pack("<BBH", 0, 0, 4 + 4 * len(words) + len(body))
+    return raw + b"".join(struct.pack("<I", w) for w in words) + body
+
+
+def templates() -> list[tuple[float, bytes, bytes]]:
+    """(share of frames, radiotap header, 802.11 frame) for each layout in the mix."""
+    tsft = struct.pack("<Q", 9_526_800_862)
+    chan = struct.pack("<HH", 5745, 0x0140)
+    # mac80211, two chains: TSFT, Flags, Rate, Channel, dBm, RX flags, then chain namespaces.
+    two = _header(
+        [0xA000402F, 0xA0000820, 0x00000820],
+        tsft + b"\x10\x0c" + chan + b"\xde\x00" + b"\x00\x00" + b"\xd9\x00\xde\x01",
+    )
+    three = _header(
+        [0xA000402F, 0xA0000820, 0xA0000820, 0x00000820],
+        bytes(4) + tsft + b"\x10\x0c" + chan + b"\xce\x00\x00\x00" + b"\xb2\x00\xbd\x01\xce\x02",
+    )
+    single = _header([0x0000086E], b"\x10\x0c" + chan + b"\xd0\xa0\x01")
+    # A vendor namespace between namespace 0 and the chain: offsets vary, walked per frame.
+    vendor = _header(
+        [0xC000002E, 0xA0000001, 0x00000820],
+        b"\x10\x0c" + chan + b"\xd3\x00" + b"\x00\x11\x22\x01\x04\x00" + b"\x01\x02\x03\x04"
+        + b"\xd1\x00",
+    )  # fmt: skip
+    beacon = struct.pack("<HH", 0x0080, 0) + b"\xff" * 6 + bytes(6) + b"\xff" * 6 + bytes(2)
+    beacon += bytes(40) + b"\x00\x00\x00\x00"  # body + FCS
+    ack = struct.pack("<HH", 0x00D4, 0) + bytes(6) + b"\x00\x00\x00\x00"
+    return [
+        (0.80, two, beacon),
+        (0.08, three, beacon),
+        (0.05, single, beacon),
+        (0.02, vendor, beacon),
+        (0.05, two, ack),
+    ]
+
+
+def write_capture(path: Path, n: int) -> None:
+    """A pcap of ``n`` frames mixing the template layouts, with varying MACs, seqs, signals."""
+    rng = np.random.default_rng(0)
+    kinds = templates()
+    choice = rng.choice(len(kinds), size=n, p=[k[0] for k in kinds])
+    recs = [rt + fr for _, rt, fr in kinds]
+    sizes = np.array([16 + len(r) for r in recs])[choice]
+    offsets = np.concatenate(([0], np.cumsum(sizes)[:-1]))
+    out = np.zeros(int(sizes.sum()), np.uint8)
+    t_us = 1_700_000_000_000_000 + np.cumsum(rng.integers(50, 400, n))
+    for k, rec in enumerate(recs):
+        rows = offsets[choice == k]
+        if len(rows) == 0:
+            continue
+        full = np.frombuffer(struct.pack("<IIII", 0, 0, len(rec), len(rec)) + rec, np.uint8)
+        out[rows[:, None] + np.arange(len(full))] = full
+        rt_len = kinds[k][1][2] | kinds[k][1][3] << 8
+        if len(kinds[k][2]) > 20:  # a beacon: vary transmitter and sequence number
+            ta = rows + 16 + rt_len + 10
+            out[ta + 4] = rng.integers(0, 256, len(rows))
+            out[ta + 5] = rng.integers(0, 64, len(rows))
+            seq = rng.integers(0, 4096, len(rows)) << 4
+            out[rows + 16 + rt_len + 22] = seq & 0xFF
+            out[rows + 16 + rt_len + 23] = seq >> 8
+    sel = t_us
+    secs, usecs = sel // 1_000_000, sel % 1_000_000
+    stamp = np.zeros((n, 8), np.uint8)
+    stamp[:, :4] = secs.astype("<u4").view(np.uint8).reshape(n, 4)
+    stamp[:, 4:] = usecs.astype("<u4").view(np.uint8).reshape(n, 4)
+    out[offsets[:, None] + np.arange(8)] = stamp
+    with path.open("wb") as f:
+        f.write(struct.pack("<IHHiIII", 0xA1B2C3D4, 2, 4, 0, 0, 65535, 127))
+        f.write(out.tobytes())
+
+
+def head(src: Path, dst: Path, n: int) -> None:
+    """Copy the first ``n`` records of a little-endian pcap."""
+    data = src.read_bytes()
+    pos = 24
+    for _ in range(n):
+        if pos + 16 > len(data):
+            break
+        pos += 16 + struct.unpack_from("<I", data, pos + 8)[0]
+    dst.write_bytes(data[:pos])
+
+
+def run_ours(path: Path) -> tuple[int, int, float]:
+    t0 = time.process_time()
+    observations = 0
+    with rfsas_hw.sources.open(f"pcap:{path}") as src:
+        for batch in src:
+            observations += len(batch)
+        frames = src.stats.frames + sum(src.stats.skipped.values())
+    return frames, observations, time.process_time() - t0
+
+
+def run_tshark(path: Path) -> tuple[int, float] | None:
+    exe = shutil.which("tshark")
+    if exe is None:
+        return None
+    cmd = [exe, "-n", "-r", str(path), "-T", "fields"]
+    for name in TSHARK_FIELDS:
+        cmd += ["-e", name]
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    out = subprocess.run(cmd, capture_output=True, check=True).stdout
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    cpu = (after.ru_utime + after.ru_stime) - (before.ru_utime + before.ru_stime)
+    return out.count(b"\n"), cpu
+
+
+def run_raw(path: Path, walk: bool) -> tuple[int, float]:
+    from scapy.utils import RawPcapReader
+
+    t0 = time.process_time()
+    n = 0
+    with RawPcapReader(str(path)) as reader:
+        for data, _meta in reader:
+            if walk:
+                radiotap.parse(data)
+            n += 1
+    return n, time.process_time() - t0
+
+
+def run_scapy_full(path: Path) -> tuple[int, float]:
+    from scapy.layers.dot11 import RadioTap
+    from scapy.utils import PcapReader
+
+    t0 = time.process_time()
+    n = 0
+    with PcapReader(str(path)) as reader:
+        for pkt in reader:
+            rt = pkt.getlayer(RadioTap)
+            _ = (rt.dBm_AntSignal, rt.ChannelFrequency, pkt.addr2, pkt.SC)
+            n += 1
+    return n, time.process_time() - t0
+
+
+def main() -> None:
+    n = int(sys.argv[1]) if len(sys.argv) > 1 else 500_000
+    with tempfile.TemporaryDirectory() as tmp:
+        full = Path(tmp) / "bench.pcap"
+        write_capture(full, n)
+        size_mb = full.stat().st_size / 1e6
+        subsets = {}
+        for name, m in (("tshark", min(n, 100_000)), ("raw", min(n, 200_000)), ("scapy", 2_000)):
+            subsets[name] = Path(tmp) / f"{name}.pcap"
+            head(full, subsets[name], m)
+
+        rows: list[tuple[str, int, float | None, str]] = []
+        frames, obs, t = run_ours(full)
+        ours = frames / t
+        rows.append(("rfsas-hw pcap: source (per-chain observations)", frames, t, ""))
+        got = run_tshark(subsets["tshark"])
+        if got is None:
+            rows.append(("tshark -T fields (same fields)", 0, None, "tshark is NOT installed"))
+        else:
+            rows.append(("tshark -T fields (same fields)", got[0], got[1], ""))
+        k, t = run_raw(subsets["raw"], walk=False)
+        rows.append(("scapy RawPcapReader (records only)", k, t, "no radiotap decoding"))
+        k, t = run_raw(subsets["raw"], walk=True)
+        rows.append(("RawPcapReader + rfsas-hw per-frame walk", k, t, ""))
+        k, t = run_scapy_full(subsets["scapy"])
+        rows.append(("scapy full dissection (PcapReader)", k, t, "no per-chain fields"))
+
+    print(f"capture: {n:,} frames, {size_mb:.1f} MB; {obs:,} observations out of {frames:,}")
+    print(f"{'reader':<50} {'frames':>9} {'frames/s':>12} {'ours is':>9}  note")
+    tshark_rate = None
+    for name, count, secs, note in rows:
+        if secs is None:
+            print(f"{name:<50} {'-':>9} {'-':>12} {'-':>9}  {note}")
+            continue
+        rate = count / secs
+        if name.startswith("tshark"):
+            tshark_rate = rate
+        ratio = "1.0x" if rate == ours else f"{ours / rate:,.1f}x"
+        print(f"{name:<50} {count:>9,} {rate:>12,.0f} {ratio:>9}  {note}")
+    print()
+    verdict = "met" if ours >= GOAL_PER_S else "NOT met"
+    print(f"goal {GOAL_PER_S:,} frames/s on one core: {verdict} ({ours:,.0f})")
+    if tshark_rate is None:
+        print("goal 30x tshark: not measured - tshark is not installed (apt-get install tshark)")
+    else:
+        verdict = "met" if ours / tshark_rate >= GOAL_VS_TSHARK else "NOT met"
+        print(f"goal {GOAL_VS_TSHARK:.0f}x tshark: {verdict} ({ours / tshark_rate:,.1f}x)")
+
+
+if __name__ == "__main__":
+    main()

@@ -453,7 +453,7 @@ class Assessment:
     vy_mps: float
     """Tracked north velocity, m/s."""
     age_s: float
-    """Seconds since the newest bearing of the latest fix."""
+    """Seconds since the newest bearing of the latest fix that set the position."""
     sensors: tuple[str, ...]
     """Sensors whose bearings made the latest fix."""
     fix_ok: bool

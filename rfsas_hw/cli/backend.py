@@ -17,7 +17,7 @@ from rfsas_hw.backend.association import AssociationConfig
 from rfsas_hw.backend.collision import THREAT_SIZES
 from rfsas_hw.backend.encounter import EncounterConfig
 from rfsas_hw.backend.service import BackendConfig, BackendService, JsonlSink, ResultSink
-from rfsas_hw.backend.vehicle import VehicleFeed, VehicleState, load_vehicle
+from rfsas_hw.backend.vehicle import VehicleFeed, load_vehicle
 from rfsas_hw.errors import ConfigError
 from rfsas_hw.link import Receiver, ReceiverConfig
 from rfsas_hw.link.keys import KeyStore
@@ -104,17 +104,21 @@ def render_table(service: BackendService, alarm: bool) -> Table:
     type=click.Path(dir_okay=False, path_type=Path),
     help="At the end, draw a map PNG with 2σ covariance ellipses (needs the plot extra).",
 )
-@click.option("--duration", type=float, help="Stop after this many seconds (default: Ctrl-C).")
+@click.option(
+    "--duration",
+    type=click.FloatRange(min=0, min_open=True),
+    help="Stop after this many seconds (default: Ctrl-C).",
+)
 @click.option(
     "--window",
-    type=float,
+    type=click.FloatRange(min=0, min_open=True),
     default=1.0,
     show_default=True,
     help="Association window, seconds (shorter than the nonce epoch).",
 )
 @click.option(
     "--epoch",
-    type=float,
+    type=click.FloatRange(min=1.0),
     default=DEFAULT_EPOCH_S,
     show_default=True,
     help="Nonce epoch length of the deployment, seconds.",
@@ -128,7 +132,7 @@ def render_table(service: BackendService, alarm: bool) -> Table:
 )
 @click.option(
     "--reaction",
-    type=float,
+    type=click.FloatRange(min=0),
     default=0.0,
     show_default=True,
     help="Reaction delay before braking, seconds.",
@@ -154,8 +158,6 @@ def backend(
     more sensors within the window become a fix with its covariance; fixes feed
     a track per emitter; every track is judged against the vehicle state.
     """
-    if duration is not None and duration <= 0:
-        raise click.BadParameter("must be > 0", param_hint="--duration")
     config = BackendConfig(
         association=AssociationConfig(window_s=window, epoch_s=epoch),
         encounter=EncounterConfig(threat_kind=threat, reaction_s=reaction),
@@ -163,19 +165,23 @@ def backend(
     trust = KeyStore.open(keys_dir).trust
     if len(trust) == 0:
         raise ConfigError(f"{keys_dir}: no enrolled sensors in trust/ (rfsas keys enroll)")
-    feed: VehicleFeed | None = None
-    state: VehicleState | None = None
-    if vehicle is not None and vehicle.startswith("udp://"):
-        feed = VehicleFeed.listen(vehicle)
-    elif vehicle is not None:
-        state = load_vehicle(vehicle)
-    sinks: list[ResultSink] = []
-    if out is not None:
-        sinks.append(JsonlSink(out))
-    service = BackendService(config, vehicle=state, sinks=sinks)
+    state = None if vehicle is None or vehicle.startswith("udp://") else load_vehicle(vehicle)
     receiver = Receiver.listen(
         listen, trust, config=ReceiverConfig(epoch_s=epoch, grace_s=min(5.0, epoch / 4))
     )
+    feed: VehicleFeed | None = None
+    sinks: list[ResultSink] = []
+    try:
+        if vehicle is not None and vehicle.startswith("udp://"):
+            feed = VehicleFeed.listen(vehicle)
+        if out is not None:
+            sinks.append(JsonlSink(out))
+    except Exception:
+        receiver.close()
+        if feed is not None:
+            feed.close()
+        raise
+    service = BackendService(config, vehicle=state, sinks=sinks)
     console = Console()
     click.echo(f"listening on {listen}; {len(trust)} enrolled sender(s)", err=True)
     started = time.monotonic()

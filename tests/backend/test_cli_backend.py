@@ -11,11 +11,12 @@ import time
 from pathlib import Path
 
 import numpy as np
+import pytest
 from click.testing import CliRunner
 
 from rfsas_hw.angles import math_rad_to_compass
 from rfsas_hw.cli.backend import backend
-from rfsas_hw.link import Publisher
+from rfsas_hw.link import Publisher, open_transport
 from rfsas_hw.link.keys import KeyStore
 from rfsas_hw.records import BearingBatch, Pose
 
@@ -30,12 +31,20 @@ def free_port() -> int:
         return int(s.getsockname()[1])
 
 
-def send_rounds(url: str, stores: dict[str, KeyStore], delay_s: float) -> None:
+VEHICLE_JSON = b'{"x_m": -12, "y_m": 22, "heading_deg": 90, "speed_mps": 8}'
+
+
+def send_rounds(
+    url: str, stores: dict[str, KeyStore], delay_s: float, vehicle_url: str | None = None
+) -> None:
     time.sleep(delay_s)
     pubs = {sid: Publisher.to_url(url, stores[sid].signer(), pose) for sid, pose in SENSORS.items()}
+    feed = None if vehicle_url is None else open_transport(vehicle_url, "send")
     try:
         for _ in range(5):
             now = time.time_ns()
+            if feed is not None:
+                feed.send(VEHICLE_JSON)
             for sid, pose in SENSORS.items():
                 d = TARGET - np.array([pose.x_m, pose.y_m])
                 az = float(math_rad_to_compass(np.arctan2(d[1], d[0])))
@@ -54,24 +63,32 @@ def send_rounds(url: str, stores: dict[str, KeyStore], delay_s: float) -> None:
     finally:
         for pub in pubs.values():
             pub.close()
+        if feed is not None:
+            feed.close()
 
 
-def test_backend_command_locates_and_judges(tmp_path: Path) -> None:
+@pytest.mark.parametrize("vehicle_from", ["file", "udp"])
+def test_backend_command_locates_and_judges(tmp_path: Path, vehicle_from: str) -> None:
     backend_keys = KeyStore.create(tmp_path / "backend", "backend", "obu-1")
     stores = {sid: KeyStore.create(tmp_path / sid, "sensor", sid) for sid in SENSORS}
     for store in stores.values():
         backend_keys.trust.enroll(store.card)
-    vehicle = tmp_path / "vehicle.yaml"
     # 6 m west of the emitter at 8 m/s: contact in 3.5 m, stopping needs 6.9 m
-    vehicle.write_text("x_m: -12\ny_m: 22\nheading_deg: 90\nspeed_mps: 8\n")
+    vehicle = tmp_path / "vehicle.json"
+    vehicle.write_bytes(VEHICLE_JSON)
+    vehicle_url = f"udp://127.0.0.1:{free_port()}"
+    vehicle_arg = str(vehicle) if vehicle_from == "file" else vehicle_url
     out, png = tmp_path / "run.jsonl", tmp_path / "map.png"
     url = f"udp://127.0.0.1:{free_port()}"
-    sender = threading.Thread(target=send_rounds, args=(url, stores, 0.4))
+    sender = threading.Thread(
+        target=send_rounds,
+        args=(url, stores, 0.4, vehicle_url if vehicle_from == "udp" else None),
+    )
     sender.start()
     result = CliRunner().invoke(
         backend,
         [
-            "--listen", url, "--keys", str(tmp_path / "backend"), "--vehicle", str(vehicle),
+            "--listen", url, "--keys", str(tmp_path / "backend"), "--vehicle", vehicle_arg,
             "--out", str(out), "--plot", str(png), "--duration", "1.5",
         ],
         env={"COLUMNS": "160"},

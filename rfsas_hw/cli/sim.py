@@ -188,3 +188,12 @@ def braking(
     if plot_path is not None:
         table.add_row("plot", str(plot_path))
     Console().print(table)
+
+
+# learning to brake (train / evaluate / render) lives in its own module
+from rfsas_hw.cli.simrl import evaluate as _evaluate  # noqa: E402
+from rfsas_hw.cli.simrl import render as _render  # noqa: E402
+from rfsas_hw.cli.simrl import train as _train  # noqa: E402
+
+for _command in (_train, _evaluate, _render):
+    sim.add_command(_command)

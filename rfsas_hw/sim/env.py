@@ -164,16 +164,16 @@ class IntersectionEnv(gym.Env[ObsArray, np.int64]):
         if self.episode is None:
             raise RuntimeError("call reset() first")
         t = self.t_s if t_s is None else t_s
-        return np.array([self._obstacle_x(np.array([t]))[0], self.config.obstacle.crossing_y_m])
+        return np.array([self._obstacle_x(t), self.config.obstacle.crossing_y_m])
 
-    def _obstacle_x(self, t_s: Array) -> Array:
+    def _obstacle_x(self, t_s: Any) -> Any:
+        """East coordinate of the obstacle at ``t_s`` (float or array), metres."""
         assert self.episode is not None
         e = self.episode
         sign = 1.0 if self.config.obstacle.direction == "east" else -1.0
-        x: Array = self.config.vehicle.lane_x_m + sign * e.obstacle_speed_mps * (
+        return self.config.vehicle.lane_x_m + sign * e.obstacle_speed_mps * (
             t_s - e.obstacle_arrival_s
         )
-        return x
 
     def sensor_poses(self) -> SensorPoses:
         """Poses of the roadside units and the on-board unit now."""
@@ -273,12 +273,12 @@ class IntersectionEnv(gym.Env[ObsArray, np.int64]):
             self.config, self.t_s, self.front_y_m, self.speed_mps, self.track
         )
 
-    def _overlap(self, front_y: float, obstacle: Array) -> bool:
+    def _overlap(self, front_y: float, obstacle_x: float) -> bool:
         v = self.config.vehicle
         length, width = THREAT_SIZES[self.config.obstacle.kind]
         # the obstacle travels east or west: its length lies along x
-        dx = abs(float(obstacle[0]) - v.lane_x_m)
-        dy = abs(float(obstacle[1]) - (front_y - v.length_m / 2))
+        dx = abs(obstacle_x - v.lane_x_m)
+        dy = abs(self.config.obstacle.crossing_y_m - (front_y - v.length_m / 2))
         return dx < (v.width_m + length) / 2 and dy < (v.length_m + width) / 2
 
     def _move(self, accel: float) -> tuple[float, bool]:
@@ -299,7 +299,7 @@ class IntersectionEnv(gym.Env[ObsArray, np.int64]):
             covered += s
             self.speed_mps = u1
             self.t_s += dt
-            if self._overlap(self.front_y_m, self.obstacle_xy()):
+            if self._overlap(self.front_y_m, self._obstacle_x(self.t_s)):
                 self.collided = True
                 self.impact_speed_mps = u1
                 break

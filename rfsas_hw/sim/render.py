@@ -173,8 +173,9 @@ class Renderer:
             pg.display.flip()
             self.clock.tick(self.fps)
             return None
-        frame = np.transpose(pg.surfarray.array3d(canvas), (1, 0, 2))
-        return np.ascontiguousarray(frame, dtype=np.uint8)
+        h, w, _ = frame_shape()
+        raw = pg.image.tobytes(canvas, "RGB")
+        return np.frombuffer(raw, dtype=np.uint8).reshape(h, w, 3).copy()
 
     def _draw_map(self, env: IntersectionEnv) -> None:
         pg = self.pg

@@ -368,6 +368,14 @@ def _ns(t_s: float) -> int:
     return round(t_s * 1e9)
 
 
+@functools.lru_cache(maxsize=8)
+def _vehicle_cov(sigma_along_m: float, sigma_across_m: float) -> Array:
+    """Position covariance of the northbound car, m² (constant, so computed once)."""
+    cov = heading_covariance(0.0, sigma_along_m, sigma_across_m)
+    cov.setflags(write=False)
+    return cov
+
+
 @dataclass(frozen=True, slots=True)
 class Assessment:
     """The backend's estimate of the risk at one instant (method.md §6, §7)."""
@@ -426,7 +434,7 @@ def assess_risk(
     p = collision_probability(
         (v.lane_x_m, car_y),
         0.0,
-        heading_covariance(0.0, v.sigma_along_m, v.sigma_across_m),
+        _vehicle_cov(v.sigma_along_m, v.sigma_across_m),
         (v.length_m, v.width_m),
         xy,
         heading,

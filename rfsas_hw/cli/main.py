@@ -25,6 +25,8 @@ COMMANDS: list[str] = [
     "rfsas_hw.cli.plan:plan",
     "rfsas_hw.cli.demo:demo",
     "rfsas_hw.cli.calibrate:calibrate",
+    "rfsas_hw.cli.replay:replay",
+    "rfsas_hw.cli.live:live",
     "rfsas_hw.cli.keys:keys",
     "rfsas_hw.cli.nonces:nonces",
     "rfsas_hw.cli.backend:backend",

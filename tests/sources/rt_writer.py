@@ -152,3 +152,39 @@ def pcapng(
         hdr = struct.pack(e + "IIIII", iface, ts >> 32, ts & 0xFFFFFFFF, len(frame), len(frame))
         out += _block(e, 6, hdr + frame)
     return bytes(out)
+
+
+def mac80211_header(rssi0: int, rssi1: int, freq_mhz: int = 2437, tsft_us: int = 0) -> bytes:
+    """A two-chain header in Linux mac80211's layout (TSFT, flags, channel, combined, chains)."""
+    combined = max(rssi0, rssi1)
+    return build(
+        [
+            RtNamespace(
+                {
+                    0: value(0, tsft_us),
+                    1: value(1, 0),
+                    3: struct.pack("<HH", freq_mhz, 0x00A0),
+                    5: value(5, combined),
+                }
+            ),
+            RtNamespace({5: value(5, rssi0), 11: value(11, 0)}),
+            RtNamespace({5: value(5, rssi1), 11: value(11, 1)}),
+        ]
+    )
+
+
+def sweep_capture(
+    n: int, span_s: float, start_ns: int = 1_700_000_000_000_000_000, emitters: int = 3
+) -> bytes:
+    """``n`` beacons from ``emitters`` transmitters over ``span_s`` seconds, two chains each,
+    with the two signals a few dB apart (inside a typical field of view)."""
+    frames = []
+    for i in range(n):
+        t_ns = start_ns + int(i * span_s * 1e9 / max(n - 1, 1))
+        r0 = -50 - (i % 7)
+        r1 = r0 + (i % 5) - 2
+        ta = 0x0200_0000_0000 + (i % emitters)
+        frames.append(
+            (t_ns, mac80211_header(r0, r1, tsft_us=i * 1000) + dot11(ta=ta, seq=i % 4096))
+        )
+    return pcap(frames)

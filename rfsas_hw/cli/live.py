@@ -1,0 +1,103 @@
+"""``rfsas live``: bearings from a live source (monitor-mode Wi-Fi, a pcap stream, a DF board)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import click
+from rich.console import Console
+
+import rfsas_hw.sources
+from rfsas_hw.cli.sensoropts import (
+    build_listeners,
+    build_pipeline,
+    parse_pose,
+    print_errors,
+    sensor_options,
+    summary_table,
+)
+from rfsas_hw.errors import ConfigError
+from rfsas_hw.runner import Runner
+from rfsas_hw.sources.registry import parse_spec
+
+
+def parse_channels(text: str) -> list[int]:
+    """``"1,6,11"`` to channel numbers.
+
+    Raises:
+        ConfigError: not a comma-separated list of positive integers.
+    """
+    try:
+        channels = [int(part) for part in text.split(",") if part.strip()]
+    except ValueError as err:
+        raise ConfigError(f"--channels {text!r}: expected numbers like 1,6,11") from err
+    if not channels or any(c <= 0 for c in channels):
+        raise ConfigError(f"--channels {text!r}: expected positive channel numbers")
+    return channels
+
+
+@click.command()
+@click.argument("spec")
+@sensor_options
+@click.option("--duration", type=float, help="Stop after this many seconds.")
+@click.option("--channels", help="Hop over these channels (wifi: sources), e.g. 1,6,11.")
+@click.option(
+    "--dwell",
+    type=float,
+    default=0.2,
+    show_default=True,
+    help="Seconds on each channel when hopping.",
+)
+@click.option(
+    "--any-link-type",
+    is_flag=True,
+    help="wifi: accept an interface that is not radiotap (ARPHRD 803); for tests on veth pairs.",
+)
+def live(
+    spec: str,
+    calibration_path: Path,
+    out: Path | None,
+    fmt: str | None,
+    sensor_id: str,
+    pose: str,
+    min_snr_db: float | None,
+    errors: str,
+    send: str | None,
+    keys_dir: Path | None,
+    duration: float | None,
+    channels: str | None,
+    dwell: float,
+    any_link_type: bool,
+) -> None:
+    """Run the sensor on SPEC until Ctrl-C, the end of the input, or --duration.
+
+    \b
+    rfsas live wifi:wlan0mon --calibration cal.yaml --out bearings.jsonl
+    rfsas live wifi:wlan0mon --channels 1,6,11 --dwell 0.2 --calibration cal.yaml --out b.csv
+    tcpdump -i wlan0mon -w - | rfsas live pcap:- --calibration cal.yaml --out b.jsonl
+    """
+    console = Console(stderr=True)
+    where = parse_pose(pose)
+    pipeline = build_pipeline(calibration_path, sensor_id, where, min_snr_db)
+    scheme, _ = parse_spec(spec)
+    options: dict[str, Any] = {"errors": errors}
+    if channels is not None:
+        if scheme != "wifi":
+            raise ConfigError("--channels needs a wifi: source (it hops the interface with iw)")
+        options["channels"] = parse_channels(channels)
+        options["dwell_s"] = dwell
+    if any_link_type:
+        if scheme != "wifi":
+            raise ConfigError("--any-link-type applies to wifi: sources only")
+        options["any_link_type"] = True
+    source = rfsas_hw.sources.open(spec, **options)
+    try:
+        listeners = build_listeners(out, fmt, send, keys_dir, where)
+    except BaseException:
+        source.close()
+        raise
+    console.print(f"reading {spec}; Ctrl-C ends the run", highlight=False)
+    summary = Runner(source, pipeline, listeners, duration_s=duration).run()
+    Console().print(summary_table(summary, f"live on {spec}"))
+    print_errors(console, summary)

@@ -377,8 +377,8 @@ def _exact_one(
     batch path is the reference it is tested against.
     """
     gens = []
-    for heading, (length, width) in ((hv_deg, sv), (ht_deg, st)):
-        a = math.radians(90.0 - heading)
+    angles = compass_to_math_rad(np.array([hv_deg, ht_deg])).tolist()
+    for a, (length, width) in zip(angles, (sv, st), strict=True):
         ux, uy = math.cos(a), math.sin(a)
         gens.append((length * ux, length * uy))
         gens.append((-width * uy, width * ux))

@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import numpy.typing as npt
 
-from rfsas_hw.angles import math_rad_to_compass
+from rfsas_hw.angles import compass_to_math_rad, math_rad_to_compass
 from rfsas_hw.backend.collision import Size, collision_probability, threat_box
 from rfsas_hw.backend.risk import (
     BRAKE_DECEL_MPS2,
@@ -153,7 +153,7 @@ def assess_encounter(
         size_t,
     )
     u_hat = vehicle.direction
-    a = math.radians(90.0 - threat_heading)
+    a = compass_to_math_rad(threat_heading)
     ut = np.array([math.cos(a), math.sin(a)])
     nt = np.array([-ut[1], ut[0]])
     reach = float(

@@ -24,6 +24,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from rfsas_hw.angles import compass_to_math_rad
 from rfsas_hw.backend.collision import (
     VEHICLE_SIGMA_ACROSS_M,
     VEHICLE_SIGMA_ALONG_M,
@@ -81,7 +82,7 @@ class VehicleState:
     @property
     def direction(self) -> npt.NDArray[np.float64]:
         """Unit vector of the heading, east/north."""
-        a = math.radians(90.0 - self.heading_deg)
+        a = compass_to_math_rad(self.heading_deg)
         return np.array([math.cos(a), math.sin(a)])
 
     @property

@@ -189,7 +189,7 @@ class DriverSpec:
     measurement_floor_db: float = 1.0
     """Per-chain RSSI spread at high SNR (AGC, estimator), dB."""
     tsft_drift_ppm: float = 0.0
-    """Drift of the card's TSF clock against UTC, parts per million."""
+    """Largest drift of a card's TSF clock against UTC, ppm (each card draws its own)."""
     delivery_jitter_us: float = 150.0
     """Largest delay between the frame on air and its capture timestamp, microseconds."""
 

@@ -344,9 +344,11 @@ class World:
         capture = t_ns[:, None] + np.round(rng.uniform(0.0, jitter_us, (n, n_cards)) * 1e3).astype(
             np.int64
         )
-        tsft0 = stream(spec.seed, "tsft", s.id).integers(10**6, 10**10, n_cards)
-        drift = 1.0 + s.driver.tsft_drift_ppm * 1e-6
-        tsft = (tsft0[None, :] + np.floor(t[:, None] * 1e6 * drift)).astype(np.uint64)
+        clock_rng = stream(spec.seed, "tsft", s.id)
+        tsft0 = clock_rng.integers(10**6, 10**10, n_cards)
+        # every card's crystal is off by its own amount, up to ±tsft_drift_ppm
+        drift = 1.0 + s.driver.tsft_drift_ppm * 1e-6 * clock_rng.uniform(-1.0, 1.0, n_cards)
+        tsft = (tsft0[None, :] + np.floor(t[:, None] * 1e6 * drift[None, :])).astype(np.uint64)
         rec = Receptions(
             sensor_id=s.id,
             n_cards=n_cards,

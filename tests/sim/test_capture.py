@@ -230,3 +230,27 @@ def test_serial_board_stream_decodes_to_the_world(tmp_path: Path) -> None:
     np.testing.assert_array_equal(got, rec.chain_dbm)
     assert [m.mac for m in meas] == rec.mac.tolist()
     assert reader.stats.as_dict()["errors"] == []
+
+
+def test_two_card_captures_pair_back_into_two_antenna_observations(tmp_path: Path) -> None:
+    """``pcap:A+B`` pairs the single-chain cards' frames despite their own TSF clocks."""
+    data = small_mapping()
+    data["sensors"][0]["receiver"] = "two-single-chain-cards"
+    data["sensors"][0]["pose"] = {"x_m": -60, "y_m": 0, "heading_deg": 34}
+    data["sensors"][0]["driver"] = {"tsft_drift_ppm": 30}
+    data["duration_s"] = 10.0
+    world = World(small(**{k: v for k, v in data.items() if k != "version"}, version=1))
+    out = write_captures(world, tmp_path)
+    a, b = out.files["rsu"]
+    with open_source(f"pcap:{a}+{b}") as src:
+        got = ObservationBatch.concat(list(src))
+        stats = src.stats.as_dict()
+    rec = world.receptions("rsu")
+    both = rec.heard.all(axis=1)
+    assert 50 < both.sum() < len(rec)  # the weak beam's card misses some frames
+    assert len(got) == both.sum() and stats["ambiguous_dropped"] == 0
+    order = np.argsort(rec.capture_ns[both, 0], kind="stable")
+    np.testing.assert_array_equal(got.rssi_dbm, rec.chain_dbm[both][order])
+    np.testing.assert_array_equal(got.seq, rec.seq[both][order])
+    # the fitted relative drift is the difference of the two cards' own drifts
+    assert abs(stats["clock_drift_ppm"]) > 0.5

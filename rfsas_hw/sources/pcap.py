@@ -206,6 +206,7 @@ class PcapSource(Source[ObservationBatch]):
         self.path = path
         self.n_antennas = n_antennas
         self._paired: Any = None
+        self._paired_started = False
         self._stream: FrameStream | None = None
         # Open the input before the base class exists: a failed open leaves nothing to close.
         parts = path.split("+") if path != "-" and not Path(path).exists() else [path]
@@ -229,10 +230,7 @@ class PcapSource(Source[ObservationBatch]):
 
     def _read_raw(self, timeout: float | None) -> ObservationBatch | None:
         if self._paired is not None:
-            batch: ObservationBatch | None = self._paired.next_batch(self.stats)
-            if batch is None:
-                self._end()
-            return batch
+            return self._read_paired()
         assert self._stream is not None
         got = self._stream.read(timeout)
         self.stats.extra["bytes_read"] = self._stream.bytes_read
@@ -249,6 +247,24 @@ class PcapSource(Source[ObservationBatch]):
         obs = got.table.to_observations(flagged)
         flagged.update(got.flagged)
         return obs
+
+    def _read_paired(self) -> ObservationBatch | None:
+        paired = self._paired
+        if not self._paired_started:
+            self._paired_started = True
+            for path, problem in paired.problems:
+                self._bad(problem.reason, problem.error(path))
+            for reason, count in paired.dropped.items():
+                self.stats.skip(reason, count=count)
+            unpaired = paired.result.counters
+            for reason in ("ambiguous", "unpaired_a", "unpaired_b"):
+                if unpaired[reason]:
+                    self.stats.skip(f"pairing: {reason.replace('_', ' ')}", count=unpaired[reason])
+            self.stats.extra.update(paired.extra)
+        batch: ObservationBatch | None = paired.next_batch()
+        if batch is None:
+            self._end()
+        return batch
 
     def _close(self) -> None:
         if self._stream is not None:

@@ -44,6 +44,39 @@ class BoardStreamInfo:
     """Protocol frames in the stream."""
 
 
+def board_measurements(world: World, sensor_id: str, boot_utc_ns: int) -> list[Measurement]:
+    """Every frame the sensor hears as a board ``Measurement`` (board time since ``boot_utc_ns``).
+
+    What :class:`rfsas_hw.board.emulator.CaptureFeed` replays to make the
+    board emulator hear the twin.
+
+    Raises:
+        ConfigError: no such sensor.
+    """
+    rec = world.receptions(sensor_id)
+    t_us = (rec.capture_ns[:, 0] - boot_utc_ns) // 1000
+    out = []
+    for k in np.argsort(t_us, kind="stable"):
+        rssi = tuple(
+            int(rec.chain_dbm[k, c]) if rec.chain_state[k, c] == CHAIN_PRESENT else None
+            for c in range(2)
+        )
+        seq = int(rec.seq[k])
+        out.append(
+            Measurement(
+                t_us=int(t_us[k]),
+                mac=int(rec.mac[k]),
+                freq_mhz=int(rec.freq_mhz[k]),
+                channel=int(rec.channel[k]),
+                kind=int(rec.kind[k]),
+                flags=0,
+                frame_seq=None if seq < 0 else seq,
+                rssi_dbm=rssi,
+            )
+        )
+    return out
+
+
 def board_stream(
     world: World, sensor_id: str, *, batch_ms: float = 50.0, boot_offset_s: float = 12.5
 ) -> tuple[bytes, BoardStreamInfo]:
@@ -62,8 +95,7 @@ def board_stream(
     enc = Encoder()
     caps = Capability.WIFI_2G4 | Capability.BLE | Capability.BATCH | Capability.FRAME_SEQ
     out = [enc.encode(Info(1, 1, 0, 0, 2, int(caps), board_id))]
-    t_us = (rec.capture_ns[:, 0] - boot_utc_ns) // 1000
-    order = np.argsort(t_us, kind="stable")
+    meas = board_measurements(world, sensor_id, boot_utc_ns)
     batch_us = int(batch_ms * 1000)
     start_us = (world.t0_ns - boot_utc_ns) // 1000
     end_us = start_us + int(world.duration_s * 1e6) + batch_us
@@ -74,30 +106,12 @@ def board_stream(
     for window in range(start_us, end_us, batch_us):
         stop = window + batch_us
         group: list[Measurement] = []
-        while i < len(order) and t_us[order[i]] < stop:
-            k = order[i]
-            rssi = tuple(
-                int(rec.chain_dbm[k, c]) if rec.chain_state[k, c] == CHAIN_PRESENT else None
-                for c in range(2)
-            )
-            seq = int(rec.seq[k])
-            group.append(
-                Measurement(
-                    t_us=int(t_us[k]),
-                    mac=int(rec.mac[k]),
-                    freq_mhz=int(rec.freq_mhz[k]),
-                    channel=int(rec.channel[k]),
-                    kind=int(rec.kind[k]),
-                    flags=0,
-                    frame_seq=None if seq < 0 else seq,
-                    rssi_dbm=rssi,
-                )
-            )
+        while i < len(meas) and meas[i].t_us < stop:
+            group.append(meas[i])
             i += 1
         for j in range(0, len(group), MeasurementBatch.MAX_COUNT):
-            out.append(
-                enc.encode(MeasurementBatch(tuple(group[j : j + MeasurementBatch.MAX_COUNT])))
-            )
+            chunk = tuple(group[j : j + MeasurementBatch.MAX_COUNT])
+            out.append(enc.encode(MeasurementBatch(chunk)))
             frames += 1
         heard += len(group)
         if stop >= next_beat:

@@ -254,3 +254,18 @@ def test_two_card_captures_pair_back_into_two_antenna_observations(tmp_path: Pat
     np.testing.assert_array_equal(got.seq, rec.seq[both][order])
     # the fitted relative drift is the difference of the two cards' own drifts
     assert abs(stats["clock_drift_ppm"]) > 0.5
+
+
+def test_board_emulator_replays_the_twin() -> None:
+    """The twin's measurements drive the board emulator's capture feed, in time order."""
+    from rfsas_hw.board.emulator import CaptureFeed
+    from rfsas_hw.sim.board_stream import board_measurements
+
+    data = small_mapping()
+    data["sensors"][0]["receiver"] = "serial-board"
+    world = World(small(**{k: v for k, v in data.items() if k != "version"}, version=1))
+    meas = board_measurements(world, "rsu", world.t0_ns)
+    assert len(meas) == len(world.receptions("rsu"))
+    feed = CaptureFeed(meas)
+    got = feed.due(0, 10**12, lambda t: np.full(len(t), 2437, np.int64))
+    assert [m.frame_seq for m in got] == [m.frame_seq for m in meas]

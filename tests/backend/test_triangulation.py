@@ -100,7 +100,9 @@ def test_wrap_safe_across_north_and_across_west() -> None:
         (10.0, 50.0, 1.0, 0.5),
         (20.0, 200.0, 0.5, 0.5),
         (80.0, 3.0, 2.0, 0.0),  # emitter almost on the baseline between the stations
-        (5.0, 20.0, 1.0, 0.5),
+        (5.0, 20.0, 1.0, 0.5),  # near the acceptance limit: a few accepted
+        (10.0, 20.0, 2.0, 0.0),  # about half accepted
+        (20.0, 50.0, 1.0, 0.5),  # nearly all accepted
     ],
 )
 def test_poor_geometry_is_never_a_silent_wrong_fix(

@@ -299,7 +299,6 @@ def run_demo(
     latency: list[float] = []
     cursors = dict.fromkeys(observations, 0)
     n_steps = math.ceil(world.duration_s / step_s)
-    sent = 0
     for k in range(1, n_steps + 1):
         t_end_ns = world.t0_ns + round(k * step_s * NS)
         t_s = (t_end_ns - world.t0_ns) / NS
@@ -321,21 +320,14 @@ def run_demo(
                 chunk = part.select(slices == piece)
                 current_pose[sid] = _pose(world, sid, int(np.median(chunk.t_ns)))
                 pipelines[sid].pose = current_pose[sid]
-                bearings = pipelines[sid].process(chunk)
-                before = publishers[sid].stats.messages
-                publishers[sid].on_bearings(bearings)
-                sent += publishers[sid].stats.messages - before
+                publishers[sid].on_bearings(pipelines[sid].process(chunk))
         clock.t_ns = t_end_ns
-        received = 0
+        total_sent = sum(p.stats.messages for p in publishers.values())
         deadline = time.monotonic() + 1.0
-        while received < sent and time.monotonic() < deadline:
-            got = receiver.receive(timeout=0.05)
-            for msg in got:
+        # loopback delivers at once; wait until every datagram sent so far has been checked
+        while receiver.stats.datagrams < total_sent and time.monotonic() < deadline:
+            for msg in receiver.receive(timeout=0.05):
                 backend.on_verified(msg)
-            received += len(got) + 0
-            if not got and receiver.stats.datagrams >= sent:
-                break
-        sent = 0
         pos = ego.position([t_s])[0]
         heading = float(ego.heading_deg([t_s])[0])
         speed = float(ego.speed_mps([t_s])[0])

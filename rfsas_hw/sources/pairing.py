@@ -90,6 +90,10 @@ class PairResult:
     counters: Counter[str] = field(default_factory=Counter)
     """paired, ambiguous, unpaired_a, unpaired_b, no_key."""
     fits: list[ClockFit] = field(default_factory=list)
+    rows_a: npt.NDArray[np.int64] = field(default_factory=lambda: np.empty(0, np.int64))
+    """Row of A behind each paired observation."""
+    rows_b: npt.NDArray[np.int64] = field(default_factory=lambda: np.empty(0, np.int64))
+    """Row of B behind each paired observation."""
 
     def extra(self, frames_a: int) -> dict[str, Any]:
         """Counters for ``SourceStats.extra``."""
@@ -283,7 +287,7 @@ def pair_tables(a: FrameTable, b: FrameTable, cfg: PairingConfig) -> PairResult:
         kind=dot11.kind_of(a.ftype[rows_a], a.subtype[rows_a]),
         flags=flags,
     )
-    return PairResult(obs, counters, fits)
+    return PairResult(obs, counters, fits, rows_a, rows_b)
 
 
 class OfflinePairing:

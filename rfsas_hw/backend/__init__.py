@@ -35,7 +35,13 @@ from rfsas_hw.backend.risk import (
     impact_speed,
     stopping_distance,
 )
-from rfsas_hw.backend.service import BackendConfig, BackendService, BackendStats, JsonlSink
+from rfsas_hw.backend.service import (
+    BackendConfig,
+    BackendService,
+    BackendStats,
+    JsonlSink,
+    load_backend_config,
+)
 from rfsas_hw.backend.tracking import Track, Tracker, TrackerConfig
 from rfsas_hw.backend.triangulation import (
     FixStatus,
@@ -84,6 +90,7 @@ __all__ = [
     "fatality_risk",
     "heading_covariance",
     "impact_speed",
+    "load_backend_config",
     "load_vehicle",
     "stopping_distance",
     "threat_box",

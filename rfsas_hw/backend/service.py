@@ -38,7 +38,8 @@ from rfsas_hw.backend.risk import Advisory
 from rfsas_hw.backend.tracking import Tracker, TrackerConfig
 from rfsas_hw.backend.triangulation import FixStatus, TriangulationOptions, triangulate_batch
 from rfsas_hw.backend.vehicle import VehicleFeed, VehicleState
-from rfsas_hw.errors import BackendError
+from rfsas_hw.config import from_mapping, read_yaml
+from rfsas_hw.errors import BackendError, ConfigError
 from rfsas_hw.records import Assessment, BearingBatch, Fix, Pose, emitter_hex
 
 log = logging.getLogger(__name__)
@@ -52,6 +53,7 @@ __all__ = [
     "JsonlSink",
     "MessageSource",
     "ResultSink",
+    "load_backend_config",
 ]
 
 
@@ -79,6 +81,38 @@ class BackendConfig:
     def __post_init__(self) -> None:
         if not self.step_s > 0:
             raise BackendError(f"step_s must be > 0, got {self.step_s}")
+
+
+def load_backend_config(path: str | Path) -> BackendConfig:
+    """Read a :class:`BackendConfig` from YAML (top level, or a ``backend:`` section).
+
+    Example::
+
+        association: {window_s: 0.5, epoch_s: 60}
+        triangulation: {max_range_fraction: 0.08}
+        tracker: {accel_sigma_mps2: 3.0}
+        encounter: {threat_kind: cyclist, reaction_s: 0.3,
+                    thresholds: {brake_risk: 0.005}}
+        step_s: 0.1
+
+    Raises:
+        ConfigError: unreadable file, invalid YAML, an unknown key or a bad value
+            (the message names the file and the key).
+    """
+    data = read_yaml(path)
+    if isinstance(data, dict) and "backend" in data:
+        data = data["backend"]
+    if data is None:
+        data = {}
+    if not isinstance(data, dict):
+        raise ConfigError(f"{path}: expected a mapping of backend settings")
+    try:
+        return from_mapping(BackendConfig, data, str(path))
+    except (BackendError, ConfigError) as err:
+        # range checks of the settings do not know the file they came from
+        if str(err).startswith(str(path)):
+            raise
+        raise ConfigError(f"{path}: {err}") from err
 
 
 @dataclass(slots=True)

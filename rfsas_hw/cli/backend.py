@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import click
@@ -13,10 +14,14 @@ from rich.console import Console
 from rich.live import Live
 from rich.table import Table
 
-from rfsas_hw.backend.association import AssociationConfig
 from rfsas_hw.backend.collision import THREAT_SIZES
-from rfsas_hw.backend.encounter import EncounterConfig
-from rfsas_hw.backend.service import BackendConfig, BackendService, JsonlSink, ResultSink
+from rfsas_hw.backend.service import (
+    BackendConfig,
+    BackendService,
+    JsonlSink,
+    ResultSink,
+    load_backend_config,
+)
 from rfsas_hw.backend.vehicle import VehicleFeed, load_vehicle
 from rfsas_hw.errors import ConfigError
 from rfsas_hw.link import Receiver, ReceiverConfig
@@ -110,32 +115,30 @@ def render_table(service: BackendService, alarm: bool) -> Table:
     help="Stop after this many seconds (default: Ctrl-C).",
 )
 @click.option(
+    "--config",
+    "config_file",
+    type=click.Path(dir_okay=False, path_type=Path),
+    help="Backend settings in YAML (association, triangulation, tracker, encounter).",
+)
+@click.option(
     "--window",
     type=click.FloatRange(min=0, min_open=True),
-    default=1.0,
-    show_default=True,
-    help="Association window, seconds (shorter than the nonce epoch).",
+    help="Association window, seconds, shorter than the nonce epoch [default: 1].",
 )
 @click.option(
     "--epoch",
     type=click.FloatRange(min=1.0),
-    default=DEFAULT_EPOCH_S,
-    show_default=True,
-    help="Nonce epoch length of the deployment, seconds.",
+    help=f"Nonce epoch length of the deployment, seconds [default: {DEFAULT_EPOCH_S:g}].",
 )
 @click.option(
     "--threat",
     type=click.Choice(sorted(THREAT_SIZES)),
-    default="pedestrian",
-    show_default=True,
-    help="What the emitters are carried by (sets the threat box).",
+    help="What the emitters are carried by; sets the threat box [default: pedestrian].",
 )
 @click.option(
     "--reaction",
     type=click.FloatRange(min=0),
-    default=0.0,
-    show_default=True,
-    help="Reaction delay before braking, seconds.",
+    help="Reaction delay before braking, seconds [default: 0].",
 )
 @click.option("--no-table", is_flag=True, help="Do not draw the live table.")
 def backend(
@@ -145,10 +148,11 @@ def backend(
     out: Path | None,
     plot: Path | None,
     duration: float | None,
-    window: float,
-    epoch: float,
-    threat: str,
-    reaction: float,
+    config_file: Path | None,
+    window: float | None,
+    epoch: float | None,
+    threat: str | None,
+    reaction: float | None,
     no_table: bool,
 ) -> None:
     """Receive signed bearings, triangulate emitters and judge collision risk live.
@@ -158,10 +162,22 @@ def backend(
     more sensors within the window become a fix with its covariance; fixes feed
     a track per emitter; every track is judged against the vehicle state.
     """
-    config = BackendConfig(
-        association=AssociationConfig(window_s=window, epoch_s=epoch),
-        encounter=EncounterConfig(threat_kind=threat, reaction_s=reaction),
+    config = BackendConfig() if config_file is None else load_backend_config(config_file)
+    assoc, enc = config.association, config.encounter
+    config = replace(
+        config,
+        association=replace(
+            assoc,
+            window_s=assoc.window_s if window is None else window,
+            epoch_s=assoc.epoch_s if epoch is None else epoch,
+        ),
+        encounter=replace(
+            enc,
+            threat_kind=enc.threat_kind if threat is None else threat,
+            reaction_s=enc.reaction_s if reaction is None else reaction,
+        ),
     )
+    epoch = config.association.epoch_s
     trust = KeyStore.open(keys_dir).trust
     if len(trust) == 0:
         raise ConfigError(f"{keys_dir}: no enrolled sensors in trust/ (rfsas keys enroll)")

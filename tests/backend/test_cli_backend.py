@@ -127,3 +127,16 @@ def test_backend_command_reports_bad_keys_in_one_line(tmp_path: Path) -> None:
         backend, ["--listen", "udp://127.0.0.1:9", "--keys", str(empty.path)]
     )
     assert result.exit_code != 0 and "no enrolled sensors" in str(result.exception)
+
+
+def test_backend_command_settings_file_and_flags(tmp_path: Path) -> None:
+    settings = tmp_path / "backend.yaml"
+    settings.write_text("association: {window_s: 0.5, epoch_s: 30}\n")
+    args = ["--listen", "udp://127.0.0.1:9", "--keys", str(tmp_path / "none")]
+    # the file's 30 s epoch makes a 40 s window invalid; a flag overrides the file
+    result = CliRunner().invoke(backend, [*args, "--config", str(settings), "--window", "40"])
+    assert "shorter than the nonce epoch (30.0 s)" in str(result.exception)
+    result = CliRunner().invoke(
+        backend, [*args, "--config", str(settings), "--window", "40", "--epoch", "60"]
+    )
+    assert "not a key directory" in str(result.exception)  # settings accepted, keys next

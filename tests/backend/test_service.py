@@ -13,7 +13,12 @@ from cryptography.hazmat.primitives.asymmetric import ec
 
 from rfsas_hw.angles import math_rad_to_compass
 from rfsas_hw.backend.association import AssociationConfig
-from rfsas_hw.backend.service import BackendConfig, BackendService, JsonlSink
+from rfsas_hw.backend.service import (
+    BackendConfig,
+    BackendService,
+    JsonlSink,
+    load_backend_config,
+)
 from rfsas_hw.backend.triangulation import bearing_crb
 from rfsas_hw.backend.vehicle import VehicleFeed, VehicleState, load_vehicle
 from rfsas_hw.errors import ConfigError
@@ -183,3 +188,31 @@ def test_vehicle_state_from_a_file_and_a_udp_feed(tmp_path: Path) -> None:
         feed.close()
     assert state == VehicleState(1.0, 2.0, 0.0, 3.0)
     assert feed.rejected == {"not_json": 1, "bad_state": 1}
+
+
+def test_backend_settings_from_yaml(tmp_path: Path) -> None:
+    path = tmp_path / "backend.yaml"
+    path.write_text(
+        "backend:\n"
+        "  association: {window_s: 0.5, epoch_s: 30}\n"
+        "  triangulation: {max_range_fraction: 0.08}\n"
+        "  encounter: {threat_kind: cyclist, thresholds: {brake_risk: 0.005}}\n"
+    )
+    cfg = load_backend_config(path)
+    assert cfg.association.window_s == 0.5 and cfg.association.epoch_s == 30
+    assert cfg.triangulation.max_range_fraction == 0.08
+    assert cfg.encounter.threat_kind == "cyclist"
+    assert cfg.encounter.thresholds.brake_risk == 0.005
+    assert cfg.tracker == BackendConfig().tracker
+    typo = tmp_path / "typo.yaml"
+    typo.write_text("association: {window: 0.5}\n")
+    with pytest.raises(ConfigError, match=r"typo\.yaml.*association.*unknown key 'window'"):
+        load_backend_config(typo)
+    long = tmp_path / "long.yaml"
+    long.write_text("association: {window_s: 90}\n")
+    with pytest.raises(ConfigError, match=r"long\.yaml.*shorter than the nonce epoch"):
+        load_backend_config(long)
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("triangulation: {max_condition: 0.5}\n")
+    with pytest.raises(ConfigError, match=r"bad\.yaml: max_condition must be > 1"):
+        load_backend_config(bad)

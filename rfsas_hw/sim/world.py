@@ -28,7 +28,7 @@ import numpy as np
 import numpy.typing as npt
 
 from rfsas_hw.angles import math_rad_to_compass, wrap_deg_180
-from rfsas_hw.records import FrameKind, ObservationBatch, ObsFlag, mac_to_int
+from rfsas_hw.records import ObservationBatch, ObsFlag, mac_to_int
 from rfsas_hw.rf.antenna import GaussianBeamPair
 from rfsas_hw.rf.aoa import sigma_monopulse_deg
 from rfsas_hw.rf.noise import quantise_db, rssi_sigma_db
@@ -377,8 +377,3 @@ class World:
             emitter_xy=exy,
         )
         return rec.select(keep)
-
-
-def frame_kind_name(kind: int) -> str:
-    """Lower-case name of a :class:`FrameKind` value."""
-    return FrameKind(int(kind)).name.lower()

@@ -104,6 +104,17 @@ def _check_table(report: CheckReport, cal_path: Path, samples_path: Path) -> Tab
 @click.option(
     "--antenna", default="", help="Free description of the antenna pair/board, stored in the file."
 )
+@click.option(
+    "--capture",
+    help="Fit from a turntable capture (pcap/pcapng) instead of a samples CSV; needs --angles.",
+)
+@click.option(
+    "--angles",
+    "angles_path",
+    type=click.Path(dir_okay=False, path_type=Path),
+    help="Turntable angle log CSV (time, angle_deg) recorded with --capture.",
+)
+@click.option("--emitter", help="MAC address of the reference emitter in --capture.")
 def calibrate(
     inputs: tuple[Path, ...],
     output: Path | None,
@@ -115,6 +126,9 @@ def calibrate(
     step_db: float,
     noise_floor: float,
     antenna: str,
+    capture: str | None,
+    angles_path: Path | None,
+    emitter: str | None,
 ) -> None:
     """Fit a monopulse calibration from a turntable CSV (angle_deg,rssi1_dbm,rssi2_dbm[,channel]).
 
@@ -134,11 +148,25 @@ def calibrate(
             plot_calibration(cal, samples, plot_path)
             console.print(f"plot written to {plot_path}")
         return
-    if len(inputs) != 1:
+    if capture is not None:
+        if inputs or angles_path is None or emitter is None:
+            raise click.UsageError("--capture needs --angles LOG.csv and --emitter MAC, no INPUTS")
+        from rfsas_hw.sources.turntable import samples_from_capture
+
+        samples, joined = samples_from_capture(capture, angles_path, emitter)
+        console.print(
+            f"{joined.samples} samples from {joined.emitter_frames} frames of {emitter} "
+            f"({joined.outside_log} outside the angle log, {joined.in_log_gap} in log gaps, "
+            f"{joined.missing_antenna} without both antennas)"
+        )
+        source_name = Path(capture).name
+    elif len(inputs) != 1:
         raise click.UsageError("give one samples CSV (or --check CAL.yaml SAMPLES.csv)")
+    else:
+        samples = read_samples_csv(inputs[0])
+        source_name = inputs[0].name
     if output is None:
         raise click.UsageError("-o/--output CAL.yaml is required")
-    samples = read_samples_csv(inputs[0])
     cal = fit_calibration(
         samples,
         mode,  # type: ignore[arg-type]
@@ -146,9 +174,9 @@ def calibrate(
         grid_step_deg=grid_step,
         step_db=step_db,
         noise_floor_dbm=noise_floor,
-        antenna={"description": antenna, "source": inputs[0].name}
+        antenna={"description": antenna, "source": source_name}
         if antenna
-        else {"source": inputs[0].name},
+        else {"source": source_name},
     )
     save_calibration(cal, output)
     console.print(_summary(cal, output))

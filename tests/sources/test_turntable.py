@@ -120,3 +120,23 @@ def test_wrong_emitter_gives_a_clear_error(session: tuple[Path, Path, np.ndarray
     cap, log, _ = session
     with pytest.raises(DataFormatError, match="no samples: 0 frames from"):
         samples_from_capture(str(cap), log, "00:00:00:00:00:01")
+
+
+def test_calibrate_command_from_a_capture(
+    session: tuple[Path, Path, np.ndarray], tmp_path: Path
+) -> None:
+    from click.testing import CliRunner
+
+    from rfsas_hw.cli.main import _load_commands, cli
+    from rfsas_hw.df import load_calibration
+
+    _load_commands()
+    cap, log, _ = session
+    out = tmp_path / "cal.yaml"
+    args = ["calibrate", "--capture", str(cap), "--angles", str(log), "--emitter", REF_TEXT]
+    result = CliRunner().invoke(cli, [*args, "-o", str(out)], catch_exceptions=False)
+    assert result.exit_code == 0, result.output
+    assert "samples from 1200 frames" in result.output
+    cal = load_calibration(out)
+    assert [t.channel for t in cal.tables] == [6]
+    assert cal.tables[0].samples >= 1199

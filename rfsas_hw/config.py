@@ -17,7 +17,7 @@ from typing import Any, TypeVar
 
 import yaml
 
-from rfsas_hw.errors import ConfigError
+from rfsas_hw.errors import ConfigError, RfsasError
 
 T = TypeVar("T")
 
@@ -148,7 +148,9 @@ def from_mapping(cls: type[T], data: Mapping[str, Any], where: str = "config") -
             raise ConfigError(f"{where}: missing required key {name!r}")
     try:
         return cls(**kwargs)
-    except (TypeError, ValueError) as err:
+    except ConfigError:
+        raise
+    except (TypeError, ValueError, RfsasError) as err:
         raise ConfigError(f"{where}: {err}") from err
 
 

@@ -230,6 +230,8 @@ def test_serial_board_stream_decodes_to_the_world(tmp_path: Path) -> None:
     np.testing.assert_array_equal(got, rec.chain_dbm)
     assert [m.mac for m in meas] == rec.mac.tolist()
     assert reader.stats.as_dict()["errors"] == []
+    again = write_captures(World(world.scenario), tmp_path / "again")
+    assert again.board_streams["rsu"].read_bytes() == path.read_bytes()
 
 
 def test_two_card_captures_pair_back_into_two_antenna_observations(tmp_path: Path) -> None:

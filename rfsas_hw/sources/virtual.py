@@ -14,6 +14,7 @@ the wall clock instead of as fast as possible).
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -36,6 +37,8 @@ class VirtualSource(Source[ObservationBatch]):
         batch_s: simulated seconds per batch.
         realtime: sleep so that batches arrive at the pace of simulated time.
         world: an already built world of the same scenario (shares its cache).
+        clock: monotonic seconds, for ``realtime`` (injectable for tests).
+        sleep: how to wait, for ``realtime`` (injectable for tests).
 
     Raises:
         ConfigError: bad scenario, unknown sensor, or no sensor named while
@@ -53,6 +56,8 @@ class VirtualSource(Source[ObservationBatch]):
         batch_s: float = 0.1,
         realtime: bool = False,
         world: World | None = None,
+        clock: Callable[[], float] = time.monotonic,
+        sleep: Callable[[float], None] = time.sleep,
         **options: Any,
     ) -> None:
         # everything that can fail runs before the base class marks the source open
@@ -73,6 +78,8 @@ class VirtualSource(Source[ObservationBatch]):
         self.world = world
         self.batch_ns = int(batch_s * 1e9)
         self.realtime = realtime
+        self._clock = clock
+        self._sleep = sleep
         obs = self.world.receptions(self.sensor.id).observations()
         order = np.argsort(obs.t_ns, kind="stable")
         self._obs = obs.select(order)
@@ -114,14 +121,14 @@ class VirtualSource(Source[ObservationBatch]):
         stop_ns = min(self._next_ns + self.batch_ns, self._end_ns)
         if self.realtime:
             if self._wall0 is None:
-                self._wall0 = time.monotonic()
+                self._wall0 = self._clock()
             due = self._wall0 + (stop_ns - self.world.t0_ns) / 1e9
-            wait = due - time.monotonic()
+            wait = due - self._clock()
             if timeout is not None and wait > timeout:
-                time.sleep(max(timeout, 0.0))
+                self._sleep(max(timeout, 0.0))
                 return None
             if wait > 0:
-                time.sleep(wait)
+                self._sleep(wait)
         stop = int(np.searchsorted(self._obs.t_ns, stop_ns, side="left"))
         batch = self._obs.select(slice(self._cursor, stop))
         self._cursor = stop

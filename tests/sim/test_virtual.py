@@ -65,3 +65,57 @@ def test_roadside_bearings_are_within_their_sigma(example) -> None:
     assert len(z) > 100
     assert 0.7 < np.std(z) < 1.4
     assert np.mean(np.abs(z) < 3) > 0.97
+
+
+class FakeTime:
+    """A clock that only moves when slept on."""
+
+    def __init__(self) -> None:
+        self.now = 100.0
+        self.slept: list[float] = []
+
+    def clock(self) -> float:
+        return self.now
+
+    def sleep(self, seconds: float) -> None:
+        self.slept.append(seconds)
+        self.now += seconds
+
+
+def test_realtime_paces_batches_by_scenario_time() -> None:
+    from rfsas_hw.sources.virtual import VirtualSource
+
+    from .conftest import small
+
+    fake = FakeTime()
+    src = VirtualSource(
+        small(), "rsu", batch_s=0.5, realtime=True, clock=fake.clock, sleep=fake.sleep
+    )
+    with src:
+        n = sum(1 for _ in src)
+    assert n >= 5
+    # a 3 s scenario replayed in real time takes 3 s of (fake) waiting
+    assert sum(fake.slept) == pytest.approx(3.0)
+    fake2 = FakeTime()
+    src2 = VirtualSource(
+        small(), "rsu", batch_s=0.5, realtime=True, clock=fake2.clock, sleep=fake2.sleep
+    )
+    with src2:
+        assert src2.read(timeout=0.1) is None  # not due yet: waited the timeout only
+    assert fake2.slept == [0.1]
+
+
+def test_physical_two_ray_models_in_the_world() -> None:
+    from rfsas_hw.rf.propagation import path_loss_db
+    from rfsas_hw.sim.world import World
+
+    from .conftest import small
+
+    for model in ("breakpoint", "coherent"):
+        world = World(small(detail="low", rf={"path_loss": model}))
+        rec = world.receptions("rsu")
+        want_pl = path_loss_db(rec.distance_m, model, freq_mhz=2437.0)
+        ant = world.antennas["rsu"]
+        pt = np.where(rec.emitter == 1, 20.0, 27.0) + 3.0
+        want = (pt - want_pl - 15.0)[:, None] + ant.gains_db(rec.true_relative_deg)
+        np.testing.assert_allclose(rec.chain_dbm, want, atol=1e-9)

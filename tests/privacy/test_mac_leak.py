@@ -15,7 +15,10 @@ import json
 import logging
 import re
 import socket
+import subprocess
+import sys
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -24,10 +27,13 @@ from cryptography.hazmat.primitives.asymmetric import ec
 
 from rfsas_hw.df import load_calibration
 from rfsas_hw.link import Publisher, Receiver, ReceiverConfig, Signer, TrustedKeys
+from rfsas_hw.link.keys import KeyStore
 from rfsas_hw.output import BearingWriter
 from rfsas_hw.pipeline import SensorPipeline
 from rfsas_hw.privacy import FixedNonce, MacHasher
-from rfsas_hw.records import ObservationBatch, Pose
+from rfsas_hw.records import FrameKind, ObservationBatch, Pose
+from rfsas_hw.sim.capture_writer import write_capture
+from rfsas_hw.sim.frames import RadiotapInfo, dot11_frame, radiotap_header, with_fcs
 from rfsas_hw.stream import Fanout
 
 REPO = Path(__file__).resolve().parents[2]
@@ -170,4 +176,70 @@ def test_library_sensor_leaks_no_mac(tmp_path: Path) -> None:
     blobs["stats"] = json.dumps(
         {"pipeline": pipeline.stats.as_dict(), "receiver": rx.stats.as_dict()}, default=str
     ).encode()
+    assert find_leaks(blobs, KNOWN_MACS) == []
+
+
+def write_known_capture(path: Path, t0_ns: int) -> int:
+    """A radiotap pcap of probe requests and data frames from the known MACs, heard on
+    two chains, captured from ``t0_ns`` on; returns the frame count."""
+    frames = known_frames(t0_ns)
+
+    def records() -> Iterator[tuple[int, bytes]]:
+        for i, obs in enumerate(frames):
+            kind = FrameKind.QOS_DATA if i % 3 == 0 else FrameKind.PROBE_REQUEST
+            r1, r2 = (round(v) for v in obs.rssi_dbm)
+            info = RadiotapInfo(
+                tsft_us=obs.t_ns // 1000,
+                freq_mhz=2437,
+                rate_500kbps=2,
+                combined_dbm=max(r1, r2),
+                chains=[(r1, 0), (r2, 1)],
+            )
+            frame = dot11_frame(kind, obs.mac, obs.seq or 0, 6, obs.t_ns, peer=0x0A0B0C0D0E0F)
+            yield obs.t_ns, radiotap_header(info) + with_fcs(frame)
+
+    return write_capture(path, records(), "pcap")
+
+
+def test_replay_command_end_to_end_leaks_no_mac(tmp_path: Path) -> None:
+    """``rfsas -vv replay CAPTURE --out … --send udp://… --keys …``: stdout, stderr (debug
+    log), the output file and every datagram are free of the capture's MACs."""
+    capture = tmp_path / "known_macs.pcap"
+    n_frames = write_known_capture(capture, time.time_ns())
+    assert all(bytes.fromhex(f"{m:012x}") in capture.read_bytes() for m in KNOWN_MACS)
+    keys = KeyStore.create(tmp_path / "rsu-1", "sensor")
+    listener = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    listener.bind(("127.0.0.1", 0))
+    listener.settimeout(0.2)
+    port = listener.getsockname()[1]
+    out = tmp_path / "bearings.jsonl"
+    cmd = [sys.executable, "-m", "rfsas_hw.cli.main", "-vv", "replay", str(capture)]
+    cmd += ["--calibration", str(CALIBRATION), "--out", str(out), "--sensor-id", "rsu-1"]
+    cmd += ["--pose", "1,2,90", "--send", f"udp://127.0.0.1:{port}", "--keys", str(keys.path)]
+    datagrams: list[bytes] = []
+    try:
+        proc = subprocess.run(cmd, capture_output=True, timeout=120, check=False)
+        while True:
+            try:
+                datagrams.append(listener.recv(65536))
+            except TimeoutError:
+                break
+    finally:
+        listener.close()
+    assert proc.returncode == 0, proc.stderr.decode(errors="replace")
+    # the run was real: frames read, debug logging on, bearings written and sent signed
+    assert str(n_frames) in proc.stdout.decode()
+    assert b"DEBUG" in proc.stderr and b"sent seq" in proc.stderr
+    lines = out.read_text().splitlines()
+    assert len(lines) > 0.8 * n_frames
+    rx = Receiver(TrustedKeys({"rsu-1": keys.signer().public_key}))
+    got = [rx.feed(d) for d in datagrams]
+    assert datagrams and all(g is not None for g in got), rx.stats
+    assert sum(len(g.bearings) for g in got if g) == len(lines)
+    assert {json.loads(line)["emitter"] for line in lines} == {
+        f"{e:016x}" for g in got if g for e in g.bearings.emitter.tolist()
+    }
+
+    blobs = {f"datagram {i}": d for i, d in enumerate(datagrams)}
+    blobs.update(stdout=proc.stdout, stderr=proc.stderr, jsonl=out.read_bytes())
     assert find_leaks(blobs, KNOWN_MACS) == []

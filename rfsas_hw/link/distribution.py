@@ -18,6 +18,7 @@ from collections.abc import Callable, Mapping
 from rfsas_hw.errors import LinkError
 from rfsas_hw.link.transport import Transport
 from rfsas_hw.privacy.epochs import NS_PER_S
+from rfsas_hw.privacy.hashing import NonceUnavailableError
 from rfsas_hw.privacy.nonces import NonceAuthority, NonceEnvelopeError, NonceStore
 
 log = logging.getLogger(__name__)
@@ -102,18 +103,29 @@ class NonceDistributor:
 class NonceInbox:
     """Takes nonce envelopes from a transport into a :class:`NonceStore`.
 
+    Also a :class:`~rfsas_hw.privacy.hashing.NonceProvider`: a sensor's hasher
+    can ask it directly, and each request first takes whatever envelopes have
+    arrived, so a sensor loop needs no separate polling.
+
     Args:
         store: where opened nonces go.
         transport: where envelopes arrive.
         clock: UTC ns.
+        wait_s: how long :meth:`nonce_for` waits for a missing nonce to arrive
+            (at start-up the first envelope may still be on its way).
     """
 
     def __init__(
-        self, store: NonceStore, transport: Transport, clock: Callable[[], int] = time.time_ns
+        self,
+        store: NonceStore,
+        transport: Transport,
+        clock: Callable[[], int] = time.time_ns,
+        wait_s: float = 0.0,
     ) -> None:
         self.store = store
         self.transport = transport
         self.clock = clock
+        self.wait_s = wait_s
         self.accepted = 0
         self.rejected = 0
         """Envelopes refused (malformed, not for us, not authentic, unwanted epoch)."""
@@ -134,6 +146,23 @@ class NonceInbox:
             datagram = self.transport.recv(0)
         self.accepted += accepted
         return accepted
+
+    def nonce_for(self, epoch: int) -> bytes:
+        """The nonce of ``epoch``, taking arrived envelopes first.
+
+        Raises:
+            NonceUnavailableError: not received within ``wait_s``, or expired.
+        """
+        self.poll(0.0)
+        deadline = time.monotonic() + self.wait_s
+        while True:
+            try:
+                return self.store.nonce_for(epoch)
+            except NonceUnavailableError:
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    raise
+                self.poll(min(left, 0.1))
 
     def close(self) -> None:
         """Close the transport."""

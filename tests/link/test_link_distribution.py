@@ -14,7 +14,7 @@ from rfsas_hw.errors import KeyStoreError
 from rfsas_hw.link import Receiver, open_transport
 from rfsas_hw.link.distribution import NonceDistributor, NonceInbox
 from rfsas_hw.link.keys import KeyStore
-from rfsas_hw.privacy import MacHasher, NonceProvider
+from rfsas_hw.privacy import MacHasher, NonceProvider, NonceUnavailableError
 from rfsas_hw.privacy.epochs import NS_PER_S, EpochSchedule
 
 SCHED = EpochSchedule(60.0, 5.0)
@@ -178,3 +178,24 @@ def test_cli_serve_and_listen(
         capsys, "nonces", "listen", "--keys", sensor_dir, "--listen", url, "--duration", "0.2"
     )
     assert code == 2 and "no nonce envelope" in err
+
+
+def test_inbox_is_a_nonce_provider_that_waits_for_its_envelope(
+    deployment: dict[str, KeyStore],
+) -> None:
+    authority = deployment["auth"].nonce_authority(SCHED)
+    url = f"udp://127.0.0.1:{free_port()}"
+    store = deployment["sensor"].nonce_store(SCHED, clock=lambda: NOW)
+    inbox = NonceInbox(store, open_transport(url, "recv"), clock=lambda: NOW, wait_s=0.0)
+    hasher = MacHasher(inbox)
+    macs, t = np.array([0xA4C3F0123456], np.uint64), np.full(1, NOW, np.int64)
+    try:
+        with pytest.raises(NonceUnavailableError, match="not received"):
+            hasher.hash_batch(macs, t)
+        with open_transport(url, "send") as tx:
+            threading.Timer(0.2, lambda: tx.send(authority.seal("rsu-1", K))).start()
+            inbox.wait_s = 5.0
+            ids = hasher.hash_batch(macs, t)
+    finally:
+        inbox.close()
+    assert ids.tolist() == MacHasher(authority).hash_batch(macs, t).tolist()

@@ -142,7 +142,7 @@ class TrainResult:
     model_path: Path
     """The saved model (zip)."""
     steps: int
-    """Environment steps trained."""
+    """Environment steps trained (fewer than asked when ``max_seconds`` stopped it)."""
     seconds: float
     """Wall time of training, seconds."""
     episodes: int
@@ -151,13 +151,16 @@ class TrainResult:
     """Directory of progress.csv and monitor.csv (None: no logs)."""
 
 
-def _progress_callback(progress: Progress | None, total: int) -> Any:
+def _progress_callback(progress: Progress | None, total: int, max_seconds: float | None) -> Any:
     from stable_baselines3.common.callbacks import BaseCallback
 
     class _Progress(BaseCallback):
         def __init__(self) -> None:
             super().__init__()
             self.episodes = 0
+            self.deadline = (
+                time.perf_counter() + max_seconds if max_seconds is not None else math.inf
+            )
 
         def _on_step(self) -> bool:
             dones = self.locals.get("dones")
@@ -165,7 +168,7 @@ def _progress_callback(progress: Progress | None, total: int) -> Any:
                 self.episodes += int(np.sum(dones))
             if progress is not None:
                 progress(min(self.num_timesteps, total), total)
-            return True
+            return time.perf_counter() < self.deadline
 
     return _Progress()
 
@@ -178,12 +181,15 @@ def train(
     seed: int = 0,
     log_dir: str | Path | None = None,
     progress: Progress | None = None,
+    max_seconds: float | None = None,
     **ppo: Any,
 ) -> TrainResult:
     """Train PPO on the environment for ``steps`` steps and save the model.
 
     ``ppo`` overrides entries of :data:`PPO_DEFAULTS` (or adds other PPO
-    arguments). Training runs on the CPU with one torch thread.
+    arguments). Training runs on the CPU with one torch thread. With
+    ``max_seconds`` training stops early once that much wall time has passed
+    (the result says how many steps were done).
 
     Raises:
         MissingDependencyError: stable-baselines3 is not installed.
@@ -212,7 +218,7 @@ def train(
     model = PPO("MlpPolicy", env, seed=seed, device="cpu", verbose=0, **params)
     if logs is not None:
         model.set_logger(configure(str(logs), ["csv"]))
-    callback = _progress_callback(progress, steps)
+    callback = _progress_callback(progress, steps, max_seconds)
     start = time.perf_counter()
     try:
         model.learn(total_timesteps=steps, callback=callback)
@@ -222,7 +228,7 @@ def train(
     seconds = time.perf_counter() - start
     model.save(str(out))
     saved = out if out.suffix == ".zip" else out.with_name(out.name + ".zip")
-    return TrainResult(saved, steps, seconds, callback.episodes, logs)
+    return TrainResult(saved, int(model.num_timesteps), seconds, callback.episodes, logs)
 
 
 @dataclass(frozen=True)

@@ -1,4 +1,4 @@
-"""``--send`` and ``--keys``: the options of every command that publishes signed bearings.
+"""``--send``, ``--keys`` and ``--nonces``: options of the commands that run a sensor.
 
 Usage in a command::
 
@@ -19,8 +19,11 @@ from typing import Any, TypeVar
 import click
 
 from rfsas_hw.errors import ConfigError
+from rfsas_hw.link.distribution import NonceInbox
+from rfsas_hw.link.keys import KeyStore
 from rfsas_hw.link.publisher import Publisher
-from rfsas_hw.privacy.epochs import DEFAULT_EPOCH_S
+from rfsas_hw.link.transport import open_transport
+from rfsas_hw.privacy.epochs import DEFAULT_EPOCH_S, DEFAULT_GRACE_S, EpochSchedule
 from rfsas_hw.records import Pose
 
 F = TypeVar("F", bound=Callable[..., Any])
@@ -60,3 +63,30 @@ def make_publisher(
     if keys_dir is None:
         raise ConfigError("--send needs --keys DIR: messages are signed with the sensor's key")
     return Publisher.from_keys(send, keys_dir, pose, epoch_s=epoch_s)
+
+
+NONCES_HELP = (
+    "Hash MACs with the deployment's epoch nonces, received here from the nonce "
+    "authority (needs --keys; default: a random key for this run)."
+)
+
+
+def nonce_inbox(
+    nonces: str,
+    keys_dir: Path | None,
+    epoch_s: float = DEFAULT_EPOCH_S,
+    grace_s: float = DEFAULT_GRACE_S,
+    wait_s: float = 10.0,
+) -> NonceInbox:
+    """The nonce provider ``--nonces udp://HOST:PORT --keys DIR`` asks for: it listens for
+    the authority's envelopes and waits up to ``wait_s`` for a missing epoch's nonce.
+
+    Raises:
+        ConfigError: ``--nonces`` without ``--keys``.
+        KeyStoreError: the key directory has no enrolled authority or no usable key.
+        LinkError: bad URL or socket failure.
+    """
+    if keys_dir is None:
+        raise ConfigError("--nonces needs --keys DIR: envelopes are sealed to the sensor's key")
+    store = KeyStore.open(keys_dir).nonce_store(EpochSchedule(epoch_s, grace_s))
+    return NonceInbox(store, open_transport(nonces, "recv"), wait_s=wait_s)

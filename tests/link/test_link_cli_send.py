@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import socket
+import time
 from pathlib import Path
 
 import click
@@ -10,9 +11,9 @@ import pytest
 from click.testing import CliRunner
 from linkhelp import NOW_NS, bearings
 
-from rfsas_hw.cli.linkopts import make_publisher, send_options
+from rfsas_hw.cli.linkopts import make_publisher, nonce_inbox, send_options
 from rfsas_hw.errors import ConfigError, KeyStoreError
-from rfsas_hw.link import Receiver, ReceiverConfig
+from rfsas_hw.link import Receiver, ReceiverConfig, open_transport
 from rfsas_hw.link.keys import KeyStore
 from rfsas_hw.records import Pose
 
@@ -63,3 +64,26 @@ def test_options_appear_on_a_command() -> None:
     assert result.exit_code == 0, result.output
     assert seen == {"send": "udp://127.0.0.1:1", "keys": Path("k")}
     assert "--send" in CliRunner().invoke(cmd, ["--help"]).output
+
+
+def test_nonce_inbox_from_options(tmp_path: Path) -> None:
+    with pytest.raises(ConfigError, match="--nonces needs --keys"):
+        nonce_inbox("udp://127.0.0.1:9", None)
+    sensor = KeyStore.create(tmp_path / "rsu-7", "sensor")
+    with pytest.raises(KeyStoreError, match="no nonce authority enrolled"):
+        nonce_inbox("udp://127.0.0.1:9", sensor.path)
+    auth = KeyStore.create(tmp_path / "auth", "authority")
+    sensor.trust.enroll(auth.card)
+    auth.trust.enroll(sensor.card)
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    inbox = nonce_inbox(f"udp://127.0.0.1:{port}", sensor.path, wait_s=5.0)
+    authority = auth.nonce_authority()
+    epoch = authority.schedule.epoch_of(time.time_ns())
+    try:
+        with open_transport(f"udp://127.0.0.1:{port}", "send") as tx:
+            tx.send(authority.seal("rsu-7", epoch))
+        assert inbox.nonce_for(epoch) == authority.nonce_for(epoch)
+    finally:
+        inbox.close()

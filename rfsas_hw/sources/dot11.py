@@ -123,23 +123,28 @@ def parse_header(buf: bytes | memoryview, start: int = 0, length: int | None = N
     return Dot11Header(ftype, subtype, bool(fc & FC_RETRY), ta, seq, frag)
 
 
+def _kind_table() -> npt.NDArray[np.uint8]:
+    table = np.full(64, FrameKind.UNKNOWN, np.uint8)
+    for subtype in range(16):
+        table[TYPE_MGMT << 4 | subtype] = FrameKind.OTHER_MGMT
+        table[TYPE_CTRL << 4 | subtype] = FrameKind.CONTROL
+        table[TYPE_DATA << 4 | subtype] = FrameKind.QOS_DATA if subtype & 8 else FrameKind.DATA
+    table[TYPE_MGMT << 4 | SUBTYPE_BEACON] = FrameKind.BEACON
+    table[TYPE_MGMT << 4 | SUBTYPE_PROBE_REQ] = FrameKind.PROBE_REQUEST
+    table[TYPE_MGMT << 4 | SUBTYPE_PROBE_RESP] = FrameKind.PROBE_RESPONSE
+    return table
+
+
+_KIND = _kind_table()
+
+
 def kind_of(
     ftype: npt.NDArray[np.integer], subtype: npt.NDArray[np.integer]
 ) -> npt.NDArray[np.uint8]:
     """:class:`FrameKind` codes for arrays of frame types and subtypes."""
-    ftype = np.asarray(ftype)
-    subtype = np.asarray(subtype)
-    kind = np.full(ftype.shape, FrameKind.UNKNOWN, np.uint8)
-    mgmt = ftype == TYPE_MGMT
-    kind[mgmt] = FrameKind.OTHER_MGMT
-    kind[mgmt & (subtype == SUBTYPE_BEACON)] = FrameKind.BEACON
-    kind[mgmt & (subtype == SUBTYPE_PROBE_REQ)] = FrameKind.PROBE_REQUEST
-    kind[mgmt & (subtype == SUBTYPE_PROBE_RESP)] = FrameKind.PROBE_RESPONSE
-    kind[ftype == TYPE_CTRL] = FrameKind.CONTROL
-    data = ftype == TYPE_DATA
-    kind[data] = FrameKind.DATA
-    kind[data & ((subtype & 8) != 0)] = FrameKind.QOS_DATA
-    return kind
+    index = ((np.asarray(ftype, np.int64) & 3) << 4) | (np.asarray(subtype, np.int64) & 0xF)
+    out: npt.NDArray[np.uint8] = _KIND[index]
+    return out
 
 
 def required_length_batch(
@@ -164,6 +169,26 @@ def has_transmitter_batch(
     return out
 
 
+def _channel(f: int) -> int:
+    if 2412 <= f <= 2472:
+        return (f - 2407) // 5
+    if f == 2484:
+        return 14
+    if 4910 <= f <= 4980:
+        return (f - 4000) // 5
+    if 5000 <= f <= 5925:
+        return (f - 5000) // 5
+    if f == 5935:
+        return 2
+    if 5950 < f <= 7125:
+        return (f - 5950) // 5
+    return 0
+
+
+_MAX_FREQ = 7200
+_CHANNEL = np.array([_channel(f) for f in range(_MAX_FREQ)], np.int16)
+
+
 def freq_to_channel(freq_mhz: npt.NDArray[np.integer]) -> npt.NDArray[np.int16]:
     """IEEE channel numbers for centre frequencies in MHz (0 where unknown).
 
@@ -171,15 +196,7 @@ def freq_to_channel(freq_mhz: npt.NDArray[np.integer]) -> npt.NDArray[np.int16]:
     6 GHz: 5950 + 5·n (channel 2 at 5935); 4.9 GHz (Japan): 4000 + 5·n.
     """
     f = np.asarray(freq_mhz, np.int64)
-    ch = np.zeros(f.shape, np.int64)
-    band24 = (f >= 2412) & (f <= 2472)
-    ch[band24] = (f[band24] - 2407) // 5
-    ch[f == 2484] = 14
-    band49 = (f >= 4910) & (f <= 4980)
-    ch[band49] = (f[band49] - 4000) // 5
-    band5 = (f >= 5000) & (f <= 5925)
-    ch[band5] = (f[band5] - 5000) // 5
-    band6 = (f > 5950) & (f <= 7125)
-    ch[band6] = (f[band6] - 5950) // 5
-    ch[f == 5935] = 2
-    return ch.astype(np.int16)
+    out: npt.NDArray[np.int16] = np.where(
+        (f >= 0) & (f < _MAX_FREQ), _CHANNEL[np.clip(f, 0, _MAX_FREQ - 1)], 0
+    ).astype(np.int16)
+    return out

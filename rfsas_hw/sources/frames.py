@@ -507,31 +507,36 @@ class FrameDecoder:
         hs = np.where(slow, 0, h)
         it_len = v.u16[hs + 2].astype(np.int64)
         slow |= (v.u8[hs] != 0) | (it_len < radiotap.MIN_HEADER_LEN) | (it_len > avail)
-        # Present words, padded with zeros after the last one.
-        words = np.zeros((n, MAX_FAST_WORDS), np.uint32)
-        words[:, 0] = v.u32[hs + 4]
-        more = ~slow & ((words[:, 0] >> 31) != 0)
-        k = 1
+        # Present words, one array per position, zero after a header's last word.
+        limit = len(buf) - 4
+        words: list[npt.NDArray[np.uint32]] = [v.u32[hs + 4]]
+        more = ~slow & ((words[0] >> 31) != 0)
         while more.any():
+            k = len(words)
             if k == MAX_FAST_WORDS:
                 slow |= more
                 break
             slow |= more & (it_len < 8 + 4 * (k + 1))
             more &= ~slow
-            rows = np.flatnonzero(more)
-            words[rows, k] = v.u32[h[rows] + 4 + 4 * k]
-            more[rows] = (words[rows, k] >> 31) != 0
-            k += 1
-        nwords = k
+            word = v.u32[np.minimum(hs + 4 + 4 * k, limit)]
+            word[~more] = 0
+            words.append(word)
+            more &= (word >> 31) != 0
         live = np.flatnonzero(~slow)
         if len(live) == 0:
             return np.zeros(n, np.int64), np.zeros(n, bool)
+        if len(words) & 1:
+            words.append(np.zeros(n, np.uint32))
         # Exact group keys: pairs of present words as 64-bit integers.
-        width = nwords + (nwords & 1)
-        key = np.ascontiguousarray(words[live, :width]).view(np.uint64)
-        for members in _groups(key):
+        columns = [
+            words[j][live].astype(np.uint64)
+            | (words[j + 1][live].astype(np.uint64) << np.uint64(32))
+            for j in range(0, len(words), 2)
+        ]
+        nwords = len(words)
+        for members in _groups(columns):
             rows = live[members]
-            present = _trim(tuple(int(x) for x in words[rows[0], :nwords]))
+            present = _trim(tuple(int(words[j][rows[0]]) for j in range(nwords)))
             first = self._layout(buf, present, -1, int(h[rows[0]]), int(avail[rows[0]]))
             if first is None or not first.vectorisable:
                 slow[rows] = True
@@ -620,29 +625,34 @@ class FrameDecoder:
                 result.flagged[F_EXTRA_CHAIN] += int((~inside).sum())
 
 
-def _groups(key: npt.NDArray[np.uint64]) -> list[npt.NDArray[np.int64]]:
-    """Row indexes grouped by equal key row (shape (n, m)), each group in row order.
+def _groups(columns: list[npt.NDArray[np.uint64]]) -> list[npt.NDArray[np.int64]]:
+    """Row indexes grouped by equal key (one value per column), each group in row order.
 
     Captures hold a handful of layouts, so peeling off one key at a time
-    (a comparison per layout) beats sorting; many layouts fall back to a sort.
+    (whole-column comparisons, no gathers) beats sorting; many layouts fall
+    back to a sort.
     """
     groups: list[npt.NDArray[np.int64]] = []
-    rest = np.arange(len(key))
-    single = key.shape[1] == 1
-    flat = key[:, 0]
-    while len(rest) and len(groups) < 8:
-        same = flat[rest] == flat[rest[0]] if single else (key[rest] == key[rest[0]]).all(axis=1)
-        if same.all():
-            groups.append(rest)
+    remaining = np.ones(len(columns[0]), bool)
+    first = 0
+    while len(groups) < 8:
+        same = columns[0] == columns[0][first]
+        for col in columns[1:]:
+            same &= col == col[first]
+        same &= remaining
+        groups.append(np.flatnonzero(same))
+        remaining &= ~same
+        left = int(remaining.argmax())
+        if not remaining[left]:
             return groups
-        groups.append(rest[same])
-        rest = rest[~same]
-    if len(rest):
-        _, inverse = np.unique(key[rest], axis=0, return_inverse=True)
-        inverse = inverse.ravel()
-        order = np.argsort(inverse, kind="stable")
-        bounds = np.flatnonzero(np.diff(inverse[order])) + 1
-        groups.extend(rest[part] for part in np.split(order, bounds))
+        first = left
+    rest = np.flatnonzero(remaining)
+    key = np.stack([col[rest] for col in columns], axis=1)
+    _, inverse = np.unique(key, axis=0, return_inverse=True)
+    inverse = inverse.ravel()
+    order = np.argsort(inverse, kind="stable")
+    bounds = np.flatnonzero(np.diff(inverse[order])) + 1
+    groups.extend(rest[part] for part in np.split(order, bounds))
     return groups
 
 

@@ -58,3 +58,30 @@ def test_plan_rejects_bad_channels(runner: CliRunner) -> None:
     res = runner.invoke(cli, ["plan", "--channels", "one,six"])
     assert res.exit_code != 0
     assert "--channels" in str(res.exception) or "--channels" in res.output
+
+
+def test_sim_capture_every_receiver_type(runner: CliRunner, tmp_path: Path) -> None:
+    from rfsas_hw.records import ObservationBatch
+    from rfsas_hw.sources import open_source
+
+    scenario = EXAMPLE.parent / "receivers.yaml"
+    res = runner.invoke(
+        cli, ["sim", "capture", str(scenario), "-o", str(tmp_path), "--format", "pcapng"]
+    )
+    assert res.exit_code == 0, res.output
+    names = sorted(p.name for p in tmp_path.iterdir())
+    assert names == [
+        "board.board.bin",
+        "hopper.pcapng",
+        "pair-card0.pcapng",
+        "pair-card1.pcapng",
+        "truth.jsonl",
+    ]
+    with open_source(f"pcap:{tmp_path / 'hopper.pcapng'}") as src:
+        hop = ObservationBatch.concat(list(src))
+    assert set(hop.channel.tolist()) == {1, 6, 11}
+    pair = f"pcap:{tmp_path / 'pair-card0.pcapng'}+{tmp_path / 'pair-card1.pcapng'}"
+    with open_source(pair) as src:
+        paired = ObservationBatch.concat(list(src))
+        assert src.stats.as_dict()["pairing_rate"] > 0.9
+    assert len(paired) > 20

@@ -139,6 +139,10 @@ def demo(
             f"{result.stop_needed_m:.0f} m ({reaction_s:g} s reaction + 0.47 g): "
             + ("stops in time" if stops else "too late to stop, but it brakes")
         )
+    if result.brake_needed_by_s is not None:
+        console.print(
+            f"to stop short the car needed the advisory by {result.brake_needed_by_s:.1f} s"
+        )
     else:
         console.print("no BRAKE advisory was issued")
     lat = result.latency_ms

@@ -135,6 +135,8 @@ class DemoResult:
     """Vehicle front to threat when that advisory came, metres."""
     stop_needed_m: float
     """Distance the vehicle needs to stop from its speed then at 0.47 g, metres."""
+    brake_needed_by_s: float | None
+    """Last step at which a BRAKE (after the reaction delay) still stops the car short."""
     wall_s: float
     """Wall time of the whole demo, seconds."""
     truth_tracks: dict[str, Array] = field(default_factory=dict)
@@ -296,6 +298,7 @@ def run_demo(
     length, width = ego_spec.size_m()
     threat_track = world.emitter_track(threat_index)
     rows: list[DemoRow] = []
+    headings: list[float] = []
     latency: list[float] = []
     cursors = dict.fromkeys(observations, 0)
     n_steps = math.ceil(world.duration_s / step_s)
@@ -342,6 +345,7 @@ def run_demo(
                 t_ns=t_end_ns,
             )
         )
+        headings.append(heading)
         backend.step(now_ns=t_end_ns)
         latency.append((time.perf_counter() - w0) * 1e3)
         target = emitter_hash(world, threat, hasher, t_end_ns)
@@ -367,16 +371,30 @@ def run_demo(
     first_brake = next(
         (r for r in rows if r.assessment is not None and r.assessment.advisory == "brake"), None
     )
+    # the car's front-bumper gap to the pedestrian at every step, along its heading
+    gaps = np.array(
+        [
+            float(
+                (threat_track.position([r.t_s])[0] - r.vehicle_xy)
+                @ np.array([math.sin(math.radians(h)), math.cos(math.radians(h))])
+            )
+            - length / 2
+            for r, h in zip(rows, headings, strict=True)
+        ]
+    )
+    needed = np.asarray(
+        stopping_distance(
+            np.array([r.vehicle_speed_mps for r in rows]), BRAKE_DECEL_MPS2, reaction_s
+        )
+    )
+    in_time = np.flatnonzero(gaps >= needed)
+    brake_by = rows[int(in_time[-1])].t_s if len(in_time) else None
     brake_gap = None
     stop_needed = math.nan
     if first_brake is not None:
-        threat_xy = threat_track.position([first_brake.t_s])[0]
-        ahead = threat_xy - first_brake.vehicle_xy
-        direction = np.array([math.sin(math.radians(heading)), math.cos(math.radians(heading))])
-        brake_gap = float(ahead @ direction) - length / 2
-        stop_needed = float(
-            stopping_distance(first_brake.vehicle_speed_mps, BRAKE_DECEL_MPS2, reaction_s)
-        )
+        k = rows.index(first_brake)
+        brake_gap = float(gaps[k])
+        stop_needed = float(needed[k])
     counters = {
         "frames": {sid: len(o) for sid, o in observations.items()},
         "source": source_stats,
@@ -395,6 +413,7 @@ def run_demo(
         counters=counters,
         latency_ms=np.asarray(latency),
         first_brake_s=first_brake.t_s if first_brake is not None else None,
+        brake_needed_by_s=brake_by,
         brake_gap_m=brake_gap,
         stop_needed_m=stop_needed,
         wall_s=0.0,

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import numpy as np
 import pytest
 from click.testing import CliRunner
 
@@ -42,6 +43,15 @@ def test_fix_behind_the_brake_advisory_is_within_3_sigma(demo: DemoResult) -> No
 def test_advisory_timing_is_reported(demo: DemoResult) -> None:
     assert demo.brake_gap_m is not None and demo.brake_gap_m > 0
     assert demo.stop_needed_m == pytest.approx(20 * 0.5 + 400 / (2 * 0.47 * 9.80665))
+    # the last moment a BRAKE still stops the car: 20 m/s, 0.5 s reaction, 0.47 g → 53.4 m
+    assert demo.brake_needed_by_s is not None
+    row = next(r for r in demo.rows if r.t_s == demo.brake_needed_by_s)
+    ped = np.array([row.truth_xy[0], -8.5])
+    assert (
+        (ped[1] - row.vehicle_xy[1]) - 2.25
+        >= demo.stop_needed_m
+        > (ped[1] - row.vehicle_xy[1] - 2.25 - 20 * 0.1)
+    )
     advisories = [r.assessment.advisory for r in demo.rows if r.assessment is not None]
     assert "brake" in advisories and advisories[-1] == "brake"
 

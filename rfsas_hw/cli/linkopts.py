@@ -12,6 +12,7 @@ Usage in a command::
 
 from __future__ import annotations
 
+import weakref
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any, TypeVar
@@ -89,4 +90,7 @@ def nonce_inbox(
     if keys_dir is None:
         raise ConfigError("--nonces needs --keys DIR: envelopes are sealed to the sensor's key")
     store = KeyStore.open(keys_dir).nonce_store(EpochSchedule(epoch_s, grace_s))
-    return NonceInbox(store, open_transport(nonces, "recv"), wait_s=wait_s)
+    inbox = NonceInbox(store, open_transport(nonces, "recv"), wait_s=wait_s)
+    # the command keeps the inbox for its whole run; close the socket when it goes
+    weakref.finalize(inbox, inbox.transport.close)
+    return inbox

@@ -9,6 +9,7 @@ import click
 from rich.console import Console
 
 import rfsas_hw.sources
+from rfsas_hw.cli.linkopts import NONCES_HELP, nonce_inbox
 from rfsas_hw.cli.sensoropts import (
     build_listeners,
     build_pipeline,
@@ -40,6 +41,7 @@ def parse_channels(text: str) -> list[int]:
 @click.command()
 @click.argument("spec")
 @sensor_options
+@click.option("--nonces", metavar="udp://HOST:PORT", help=NONCES_HELP)
 @click.option("--duration", type=float, help="Stop after this many seconds.")
 @click.option("--channels", help="Hop over these channels (wifi: sources), e.g. 1,6,11.")
 @click.option(
@@ -65,6 +67,7 @@ def live(
     errors: str,
     send: str | None,
     keys_dir: Path | None,
+    nonces: str | None,
     duration: float | None,
     channels: str | None,
     dwell: float,
@@ -79,7 +82,8 @@ def live(
     """
     console = Console(stderr=True)
     where = parse_pose(pose)
-    pipeline = build_pipeline(calibration_path, sensor_id, where, min_snr_db)
+    inbox = nonce_inbox(nonces, keys_dir) if nonces is not None else None
+    pipeline = build_pipeline(calibration_path, sensor_id, where, min_snr_db, inbox)
     scheme, _ = parse_spec(spec)
     options: dict[str, Any] = {"errors": errors}
     if channels is not None:

@@ -22,7 +22,7 @@ from rfsas_hw.df import load_calibration
 from rfsas_hw.errors import ConfigError
 from rfsas_hw.output import BearingWriter
 from rfsas_hw.pipeline import SensorPipeline
-from rfsas_hw.privacy.hashing import FixedNonce, MacHasher
+from rfsas_hw.privacy.hashing import FixedNonce, MacHasher, NonceProvider
 from rfsas_hw.records import Pose
 from rfsas_hw.runner import RunSummary
 from rfsas_hw.stream import Fanout
@@ -92,15 +92,20 @@ def sensor_options(func: F) -> F:
 
 
 def build_pipeline(
-    calibration_path: Path, sensor_id: str, pose: Pose, min_snr_db: float | None
+    calibration_path: Path,
+    sensor_id: str,
+    pose: Pose,
+    min_snr_db: float | None,
+    nonces: NonceProvider | None = None,
 ) -> SensorPipeline:
-    """The pipeline with a per-run random hashing key (ids unlinkable across runs).
+    """The pipeline hashing with ``nonces`` (the deployment's epoch nonces), or by
+    default with a per-run random key (ids unlinkable across runs).
 
     Raises:
         CalibrationError / ConfigError: the calibration file is unusable.
     """
     calibration = load_calibration(calibration_path)
-    hasher = MacHasher(FixedNonce(os.urandom(32)))
+    hasher = MacHasher(nonces if nonces is not None else FixedNonce(os.urandom(32)))
     return SensorPipeline(calibration, hasher, sensor_id, pose, min_snr_db=min_snr_db)
 
 

@@ -18,12 +18,12 @@ import socket
 import subprocess
 import sys
 import time
-from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
 import pytest
 from cryptography.hazmat.primitives.asymmetric import ec
+from privhelp import KNOWN_MACS, known_frames, write_known_capture
 
 from rfsas_hw.df import load_calibration
 from rfsas_hw.link import Publisher, Receiver, ReceiverConfig, Signer, TrustedKeys
@@ -31,22 +31,11 @@ from rfsas_hw.link.keys import KeyStore
 from rfsas_hw.output import BearingWriter
 from rfsas_hw.pipeline import SensorPipeline
 from rfsas_hw.privacy import FixedNonce, MacHasher
-from rfsas_hw.records import FrameKind, ObservationBatch, Pose
-from rfsas_hw.sim.capture_writer import write_capture
-from rfsas_hw.sim.frames import RadiotapInfo, dot11_frame, radiotap_header, with_fcs
+from rfsas_hw.records import Pose
 from rfsas_hw.stream import Fanout
 
 REPO = Path(__file__).resolve().parents[2]
 CALIBRATION = REPO / "calibration" / "example_cal.yaml"
-
-KNOWN_MACS = [
-    0x3C22FB0102AB,
-    0xA4C3F0123456,
-    0x02DEADBEEF01,
-    0xF0F1F2F3F4F5,
-    0x001122334455,
-    0x7EA1B2C3D4E5,
-]
 
 
 def mac_patterns(mac: int) -> list[re.Pattern[bytes]]:
@@ -97,21 +86,6 @@ def find_leaks(blobs: dict[str, bytes], macs: list[int]) -> list[str]:
 )
 def test_the_search_finds_every_form(leak: bytes) -> None:
     assert find_leaks({"planted": b"xx" + leak + b"yy"}, [0x3C22FB0102AB])
-
-
-def known_frames(t0_ns: int) -> ObservationBatch:
-    rng = np.random.default_rng(11)
-    n = 600
-    macs = np.array(KNOWN_MACS, np.uint64)[rng.integers(0, len(KNOWN_MACS), n)]
-    rssi1 = rng.uniform(-65, -40, n)
-    return ObservationBatch(
-        t_ns=t0_ns + np.sort(rng.integers(0, 50_000_000, n)),
-        mac=macs,
-        freq_mhz=np.full(n, 2437),
-        channel=np.full(n, 6),
-        rssi_dbm=np.stack([rssi1, rssi1 + rng.uniform(-4, 4, n)], axis=1),
-        seq=rng.integers(0, 4096, n).astype(np.int32),
-    )
 
 
 class Capture(logging.Handler):
@@ -177,28 +151,6 @@ def test_library_sensor_leaks_no_mac(tmp_path: Path) -> None:
         {"pipeline": pipeline.stats.as_dict(), "receiver": rx.stats.as_dict()}, default=str
     ).encode()
     assert find_leaks(blobs, KNOWN_MACS) == []
-
-
-def write_known_capture(path: Path, t0_ns: int) -> int:
-    """A radiotap pcap of probe requests and data frames from the known MACs, heard on
-    two chains, captured from ``t0_ns`` on; returns the frame count."""
-    frames = known_frames(t0_ns)
-
-    def records() -> Iterator[tuple[int, bytes]]:
-        for i, obs in enumerate(frames):
-            kind = FrameKind.QOS_DATA if i % 3 == 0 else FrameKind.PROBE_REQUEST
-            r1, r2 = (round(v) for v in obs.rssi_dbm)
-            info = RadiotapInfo(
-                tsft_us=obs.t_ns // 1000,
-                freq_mhz=2437,
-                rate_500kbps=2,
-                combined_dbm=max(r1, r2),
-                chains=[(r1, 0), (r2, 1)],
-            )
-            frame = dot11_frame(kind, obs.mac, obs.seq or 0, 6, obs.t_ns, peer=0x0A0B0C0D0E0F)
-            yield obs.t_ns, radiotap_header(info) + with_fcs(frame)
-
-    return write_capture(path, records(), "pcap")
 
 
 def test_replay_command_end_to_end_leaks_no_mac(tmp_path: Path) -> None:

@@ -12,6 +12,7 @@ EXTRAS = {
     "gymnasium": "sim",
     "pygame": "sim",
     "stable_baselines3": "rl",
+    "PIL": "plot",
 }
 
 

@@ -58,7 +58,7 @@ def _env_config(
 @click.option(
     "--steps",
     type=click.IntRange(min=1),
-    default=50_000,
+    default=40_000,
     show_default=True,
     help="Environment steps to train.",
 )

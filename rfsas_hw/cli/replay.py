@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import click
 from rich.console import Console
@@ -75,7 +76,11 @@ def replay(
     pipeline = build_pipeline(calibration_path, sensor_id, where, min_snr_db)
     if speed is not None and speed <= 0:
         raise ConfigError(f"--speed must be positive, got {speed}")
-    source = rfsas_hw.sources.open(capture_spec(capture), errors=errors, n_antennas=n_antennas)
+    spec = capture_spec(capture)
+    options: dict[str, Any] = {"errors": errors}
+    if spec.startswith("pcap:"):
+        options["n_antennas"] = n_antennas
+    source = rfsas_hw.sources.open(spec, **options)
     try:
         listeners = build_listeners(out, fmt, send, keys_dir, where)
     except BaseException:

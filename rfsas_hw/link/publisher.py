@@ -160,8 +160,9 @@ class Publisher:
             if len(batch) == 0:
                 return
         epochs = batch.t_ns // self.epoch_ns
-        for epoch in np.unique(epochs).tolist():
-            rows = batch.select(epochs == epoch) if epochs[0] != epochs[-1] else batch
+        distinct = np.unique(epochs).tolist()
+        for epoch in distinct:
+            rows = batch if len(distinct) == 1 else batch.select(epochs == epoch)
             for start in range(0, len(rows), self.chunk):
                 self._send(int(epoch), rows.select(slice(start, start + self.chunk)))
 

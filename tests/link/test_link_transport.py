@@ -77,8 +77,8 @@ def test_unicast_publish_split_by_size_and_epoch(signer: Signer, trust: TrustedK
     rx = Receiver.listen(url, trust, config=ReceiverConfig(check_epoch=False), clock=lambda: NOW_NS)
     batch = bearings("ignored-name", 100, NOW_NS)
     k = SCHEDULE.epoch_of(NOW_NS)
-    # the last 10 bearings were captured in the previous epoch
-    batch.t_ns[-10:] = SCHEDULE.start_ns(k) - 1_000_000
+    # 10 bearings, not in time order, were captured in the previous epoch
+    batch.t_ns[40:50] = SCHEDULE.start_ns(k) - 1_000_000
     batch.azimuth_deg[0] = np.nan  # an invalid row is dropped, not sent
     pub = Publisher.to_url(url, signer, POSE, max_datagram=600, clock=lambda: NOW_NS)
     try:

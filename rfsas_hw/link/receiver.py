@@ -292,6 +292,8 @@ class Receiver:
         except MessageFormatError as err:
             raise _RejectError(err.reason, str(err)) from None
         if head.kind == TYPE_NONCE:
+            if shed:  # opening one costs two key agreements
+                raise _RejectError("overload", "nonce envelope")
             self._envelope(datagram, now_ns)
             return None
         key = self.trust.signing_key(head.sender_id)
@@ -355,8 +357,8 @@ class Receiver:
 
         Under overload (more than ``config.backlog`` datagrams queued) the newest are
         checked first, and once ``config.shed_after_s`` has been spent the rest still
-        get the cheap structural checks but no signature check: those that pass them
-        are counted as ``overload``. A flood of forged signatures then delays valid
+        get the cheap structural checks but no signature check (nor envelope
+        decryption): those that pass them are counted as ``overload``. A flood of forged signatures then delays valid
         messages by at most that long instead of by the whole socket queue.
 
         Raises:

@@ -358,8 +358,9 @@ class Receiver:
         Under overload (more than ``config.backlog`` datagrams queued) the newest are
         checked first, and once ``config.shed_after_s`` has been spent the rest still
         get the cheap structural checks but no signature check (nor envelope
-        decryption): those that pass them are counted as ``overload``. A flood of forged signatures then delays valid
-        messages by at most that long instead of by the whole socket queue.
+        decryption): those that pass them are counted as ``overload``. A flood of
+        forged signatures then delays valid messages by at most that long instead of
+        by the whole socket queue.
 
         Raises:
             LinkError: the receiver has no transport.

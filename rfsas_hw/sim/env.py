@@ -170,10 +170,12 @@ class IntersectionEnv(gym.Env[ObsArray, np.int64]):
         """East coordinate of the obstacle at ``t_s`` (float or array), metres."""
         assert self.episode is not None
         e = self.episode
+        return self._path_x(t_s, e.obstacle_speed_mps, e.obstacle_arrival_s)
+
+    def _path_x(self, t_s: Any, speed_mps: float, arrival_s: float) -> Any:
+        """East coordinate at ``t_s`` of an obstacle reaching the car's lane at ``arrival_s``."""
         sign = 1.0 if self.config.obstacle.direction == "east" else -1.0
-        return self.config.vehicle.lane_x_m + sign * e.obstacle_speed_mps * (
-            t_s - e.obstacle_arrival_s
-        )
+        return self.config.vehicle.lane_x_m + sign * speed_mps * (t_s - arrival_s)
 
     def sensor_poses(self) -> SensorPoses:
         """Poses of the roadside units and the on-board unit now."""
@@ -186,7 +188,7 @@ class IntersectionEnv(gym.Env[ObsArray, np.int64]):
 
     # -- reset -------------------------------------------------------------------------
 
-    def _los_s(self, u0: float) -> float:
+    def _los_s(self, u0: float, speed_mps: float, arrival_s: float) -> float:
         """First time the front of a car holding ``u0`` sees the obstacle past the buildings."""
         c = self.config
         t = np.arange(0.0, c.vehicle.start_distance_m / u0 + c.dt_s, c.dt_s / 4)
@@ -194,7 +196,7 @@ class IntersectionEnv(gym.Env[ObsArray, np.int64]):
             [np.full(len(t), c.vehicle.lane_x_m), u0 * t - c.vehicle.start_distance_m], 1
         )
         target = np.stack(
-            [self._obstacle_x(t), np.full(len(t), c.obstacle.crossing_y_m)],
+            [self._path_x(t, speed_mps, arrival_s), np.full(len(t), c.obstacle.crossing_y_m)],
             axis=1,
         )
         blocked = segment_crossings(eyes, target, self._rects).any(axis=1)
@@ -210,8 +212,7 @@ class IntersectionEnv(gym.Env[ObsArray, np.int64]):
         arrival = float(rng.uniform(*o.lane_arrival_s))
         intercept = float(rng.uniform(*c.sensing.intercept_s))
         d0 = c.vehicle.start_distance_m
-        self.episode = Episode(u0, speed, arrival, 0.0, 0.0, 0.0)
-        los = self._los_s(u0)
+        los = self._los_s(u0, speed, arrival)
         delay = c.sensing.reaction_delay_s
         unknown = set(options) - {"reaction_distance_m"}
         if unknown:

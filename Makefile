@@ -10,7 +10,7 @@ STAMP  := $(VENV)/.installed-core
 TORCH_PIN := torch==2.13.0
 RL_STAMP  := $(VENV)/.installed-rl
 
-.PHONY: demo test lint pytest ctest bench fuzz clean venv rl
+.PHONY: demo calibration-demo test lint pytest ctest bench fuzz clean venv rl
 
 venv: $(STAMP)
 
@@ -28,6 +28,9 @@ $(RL_STAMP): $(STAMP)
 rl: $(RL_STAMP)
 
 demo: $(STAMP)
+	$(VENV)/bin/rfsas demo
+
+calibration-demo: $(STAMP)
 	mkdir -p out
 	$(VENV)/bin/rfsas calibrate calibration/example_turntable.csv -o out/example_cal.yaml --plot out/example_cal.png
 	$(VENV)/bin/rfsas calibrate --check out/example_cal.yaml calibration/example_turntable_check.csv

@@ -160,11 +160,33 @@ MAX_REPAIRS = 16
 """Segments re-walked from a verified position before the walk gives up on a buffer."""
 
 
+def _step(
+    u32: npt.NDArray[np.uint32], p: npt.NDArray[np.int64], end: int, pcapng: bool
+) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.bool_], npt.NDArray[np.bool_]]:
+    """One record (pcap) or enhanced packet block (pcapng) at each offset in ``p``.
+
+    Returns (offset of the next one, this one is whole and plausible, this one
+    is plausible but cut by ``end``).
+    """
+    if not pcapng:
+        length = u32[p + 8].astype(np.int64)
+        nxt = p + 16 + length
+        plausible = length <= MAX_CAPLEN
+        return nxt, plausible & (nxt <= end), plausible & (nxt > end)
+    blen = u32[p + 4].astype(np.int64)
+    nxt = p + blen
+    plausible = (u32[p] == BT_EPB) & (blen >= 32) & (blen % 4 == 0) & (blen <= MAX_BLOCK)
+    whole = plausible & (nxt <= end)
+    whole &= u32[np.where(whole, nxt - 4, p)] == blen
+    return nxt, whole, plausible & (nxt > end)
+
+
 def _lockstep(
     u32: npt.NDArray[np.uint32],
     starts: npt.NDArray[np.int64],
     seg_end: npt.NDArray[np.int64],
     end: int,
+    pcapng: bool = False,
 ) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.int64]]:
     """Walk the record chains from ``starts`` in lock step until each leaves its segment.
 
@@ -180,9 +202,7 @@ def _lockstep(
     idx = np.flatnonzero(starts >= 0)
     while len(idx):
         p = at[idx]
-        length = u32[p + 8].astype(np.int64)
-        nxt = p + 16 + length
-        good = (length <= MAX_CAPLEN) & (nxt <= end)
+        nxt, good, cut = _step(u32, p, end, pcapng)
         row = np.full(k, -1, np.int64)
         row[idx] = np.where(good, p, -1)
         rows.append(row)
@@ -190,7 +210,6 @@ def _lockstep(
         crossed = good & (nxt >= seg_end[idx])
         crossing[idx[crossed]] = nxt[crossed]
         # A plausible record cut by the end of the buffer ends its chain cleanly.
-        cut = (length <= MAX_CAPLEN) & (nxt > end)
         crossing[idx[cut]] = p[cut]
         idx = idx[good & ~crossed]
     grid = np.stack(rows) if rows else np.full((0, k), -1, np.int64)
@@ -198,9 +217,12 @@ def _lockstep(
 
 
 def find_pcap_records(
-    buf: bytes, endian: str, pos: int, end: int, mean_record: float
+    buf: bytes, endian: str, pos: int, end: int, mean_record: float, pcapng: bool = False
 ) -> tuple[npt.NDArray[np.int64], int]:
     """Offsets of consecutive pcap records from ``pos`` (a known record start), found with numpy.
+
+    With ``pcapng`` the records are enhanced packet blocks (any other block
+    ends the walk; the caller handles it).
 
     A record's offset depends on every record before it, so one walk is
     sequential. Instead the buffer is cut into segments; a record start is
@@ -231,6 +253,9 @@ def find_pcap_records(
     seg_len = int(max(4096, 32 * mean_record))
     window = int(min(seg_len // 2, max(128, 3 * mean_record)))
     # The last window must end inside the buffer.
+    if pcapng:
+        seg_len -= seg_len % 4  # blocks stay 4-aligned relative to pos
+        window -= window % 4
     k = (end - pos - window - 16) // seg_len
     if k < 2:
         return none, pos
@@ -238,21 +263,36 @@ def find_pcap_records(
     seg_end = seg + seg_len
     # The last chain stops where a full record header no longer fits.
     seg_end[-1] = end - 15
-    high = int(u32[pos]) >> 16
-    high_at = 2 if endian == "<" else 0
-    # Row j of this view is the window after segment j+1's start, one u16 per byte offset.
-    base = u16[int(seg[1]) + high_at :]
-    windows = np.lib.stride_tricks.as_strided(
-        base, shape=(k - 1, window), strides=(seg_len, 1), writeable=False
-    )
-    match = windows == high
     rows = np.arange(k - 1)
-    guess = seg[1:] + match.argmax(axis=1)
-    first = guess - seg[1:]
-    length = u32[guess + 8].astype(np.int64)
-    plausible = match[rows, first] & (length <= MAX_CAPLEN) & (u32[guess + 12] >= length)
+    if pcapng:
+        # Row j: every 4-aligned offset after segment j+1's start; look for a packet block type.
+        windows = np.lib.stride_tricks.as_strided(
+            u32[int(seg[1]) :], shape=(k - 1, window // 4), strides=(seg_len, 4), writeable=False
+        )
+        match = windows == BT_EPB
+        first = match.argmax(axis=1)
+        guess = seg[1:] + 4 * first
+        blen = u32[guess + 4].astype(np.int64)
+        fits = (blen >= 32) & (blen % 4 == 0) & (guess + blen <= end)
+        trailer = u32[np.where(fits, guess + blen - 4, guess)] == blen
+        plausible = match[rows, first] & fits & trailer
+    else:
+        high = int(u32[pos]) >> 16
+        high_at = 2 if endian == "<" else 0
+        # Row j: the window after segment j+1's start, one u16 per byte offset.
+        windows = np.lib.stride_tricks.as_strided(
+            u16[int(seg[1]) + high_at :],
+            shape=(k - 1, window),
+            strides=(seg_len, 1),
+            writeable=False,
+        )
+        match = windows == high
+        first = match.argmax(axis=1)
+        guess = seg[1:] + first
+        length = u32[guess + 8].astype(np.int64)
+        plausible = match[rows, first] & (length <= MAX_CAPLEN) & (u32[guess + 12] >= length)
     starts = np.concatenate(([pos], np.where(plausible, guess, -1)))
-    grid, crossing = _lockstep(u32, starts, seg_end, end)
+    grid, crossing = _lockstep(u32, starts, seg_end, end, pcapng)
     redone: dict[int, npt.NDArray[np.int64]] = {}
     n_ok = 0
     for _ in range(MAX_REPAIRS + 1):
@@ -263,7 +303,7 @@ def find_pcap_records(
             break
         # Chain n_ok started off the true chain: walk it again from where it must start.
         one = np.array([crossing[n_ok - 1]], np.int64)
-        sub, cross = _lockstep(u32, one, seg_end[n_ok : n_ok + 1], end)
+        sub, cross = _lockstep(u32, one, seg_end[n_ok : n_ok + 1], end, pcapng)
         starts[n_ok] = one[0]
         crossing[n_ok] = cross[0]
         column = sub[:, 0]
@@ -594,9 +634,11 @@ class CaptureParser:
         lost_at: list[int] = []
         counter = self._frame_no
 
+        fast = np.empty(0, np.int64)
+
         def lose(reason: str, at: int, detail: str) -> None:
-            lost_at.append(len(frames))
-            number = counter + len(frames) + len(lost_at)
+            lost_at.append(len(fast) + len(frames))
+            number = counter + len(fast) + len(frames) + len(lost_at)
             problems.append(FrameProblem(reason, number, self._base + at, detail))
 
         if self._resync_from is not None:
@@ -605,11 +647,31 @@ class CaptureParser:
                 return None
             pos = found
             self._resync_from = None
+        budget = max_frames
+        if (
+            self._resync_from is None
+            and self.interfaces
+            and end - pos >= FAST_MIN_BYTES
+            and struct.unpack_from(self._endian + "I", buf, pos)[0] == BT_EPB
+        ):
+            region = min(end, pos + int(max_frames * self._mean_record * 1.25) + FAST_MIN_BYTES)
+            fast, pos = find_pcap_records(
+                buf, self._endian, pos, region, self._mean_record, pcapng=True
+            )
+            if len(fast) > 1:
+                self._mean_record = (pos - int(fast[0])) / len(fast)
+            if len(fast) > max_frames:
+                pos = int(fast[max_frames])
+                fast = fast[:max_frames]
+            if len(fast) and pos >= region - MAX_CAPLEN - 16:
+                budget = len(fast)  # the walk reached its region: the next call goes on
+            else:
+                budget = min(max_frames, len(fast) + SLOW_RECORDS)
         head = struct.Struct(self._endian + "II")
         tail = struct.Struct(self._endian + "I")
-        while len(frames) < max_frames and pos + 12 <= end:
+        while len(fast) + len(frames) < budget and pos + 12 <= end:
             if struct.unpack_from("<I", buf, pos)[0] == PCAPNG_SHB:
-                if frames:
+                if frames or len(fast):
                     break  # a chunk never spans sections: the byte order may change
                 try:
                     blen = self._read_shb(buf, pos, end)
@@ -688,7 +750,8 @@ class CaptureParser:
                     )
                 )
             pos += blen
-        if final and self._resync_from is None and len(frames) < max_frames and 0 < end - pos < 12:
+        n_rec = len(fast) + len(frames)
+        if final and self._resync_from is None and n_rec < budget and 0 < end - pos < 12:
             problems.append(
                 FrameProblem(
                     R_TRUNCATED,
@@ -699,14 +762,15 @@ class CaptureParser:
             )
             pos = end
         self._pos = pos
-        self._frame_no = counter + len(frames) + len(lost_at)
-        if not frames and not problems:
+        self._frame_no = counter + n_rec + len(lost_at)
+        if not n_rec and not problems:
             return None
-        return self._pcapng_spans(buf, frames, kinds, lost_at, counter, problems, pos)
+        return self._pcapng_spans(buf, fast, frames, kinds, lost_at, counter, problems, pos)
 
     def _pcapng_spans(
         self,
         buf: bytes,
+        fast: npt.NDArray[np.int64],
         frames: list[int],
         kinds: list[int],
         lost_at: list[int],
@@ -714,11 +778,11 @@ class CaptureParser:
         problems: list[FrameProblem],
         pos: int,
     ) -> Chunk:
-        o = np.asarray(frames, np.int64)
+        o = np.concatenate((fast, np.asarray(frames, np.int64))) if frames else fast
         e = self._endian
         u32 = _u32_view(buf, e)
         u16 = _u16_view(buf, e)
-        is_pb = np.asarray(kinds, np.int64) == BT_PB
+        is_pb = np.concatenate((np.zeros(len(fast), bool), np.asarray(kinds, np.int64) == BT_PB))
         blen = u32[o + 4].astype(np.int64)
         iface = np.where(is_pb, u16[o + 8], u32[o + 8]).astype(np.int64)
         ts = (u32[o + 12].astype(np.uint64) << np.uint64(32)) | u32[o + 16].astype(np.uint64)

@@ -323,3 +323,61 @@ def test_filename_with_plus_is_a_single_file(tmp_path: Path, data_dir: Path) -> 
     path.write_bytes((data_dir / "ieee802.11_meshid.pcap").read_bytes())
     obs, _ = read_all(f"pcap:{path}")
     assert len(obs) == 3
+
+
+def _big_capture(kind: str, big_endian: bool, corrupt: bool) -> bytes:
+    """~6,000 frames of varied sizes (several MB), optionally with damage in the middle."""
+    rng = np.random.default_rng(11)
+    header = w.mac80211_header(-40, -44)
+    frames = [
+        header + w.dot11(ta=0xC0FFEE, seq=i % 4096, payload=bytes(int(rng.integers(0, 900))))
+        for i in range(6000)
+    ]
+    if kind == "pcap":
+        stamped = [(1_700_000_000 * 10**9 + i * 10**6, f) for i, f in enumerate(frames)]
+        data = bytearray(w.pcap(stamped, big_endian=big_endian))
+        if corrupt:
+            pos = 24
+            for _ in range(3000):
+                pos += 16 + struct.unpack_from(">I" if big_endian else "<I", data, pos + 8)[0]
+            struct.pack_into(">I" if big_endian else "<I", data, pos + 8, 0x7FFFFFFF)
+        return bytes(data)
+    extra = [(k, 5, bytes(32)) for k in range(100, 6000, 700)]  # statistics blocks in between
+    data = bytearray(
+        w.pcapng([(127, 9)], [(0, i * 10**6, f) for i, f in enumerate(frames)], big_endian, extra)
+    )
+    if corrupt:
+        e = ">" if big_endian else "<"
+        pos = 0
+        for _ in range(3000):  # the 3000th block: its trailing length no longer matches
+            pos += struct.unpack_from(e + "I", data, pos + 4)[0]
+        blen = struct.unpack_from(e + "I", data, pos + 4)[0]
+        struct.pack_into(e + "I", data, pos + blen - 4, blen + 4)
+    return bytes(data)
+
+
+@pytest.mark.parametrize("kind", ["pcap", "pcapng"])
+@pytest.mark.parametrize("big_endian", [False, True])
+@pytest.mark.parametrize("corrupt", [False, True])
+def test_numpy_record_walk_equals_record_by_record(
+    monkeypatch: pytest.MonkeyPatch, kind: str, big_endian: bool, corrupt: bool
+) -> None:
+    """The lock-step numpy walk over large buffers finds exactly what the plain loop finds."""
+    from rfsas_hw.sources import pcapfile
+
+    data = _big_capture(kind, big_endian, corrupt)
+    assert len(data) > 20 * pcapfile.FAST_MIN_BYTES
+
+    def run(max_frames: int) -> tuple[list[int], list[int], list[str]]:
+        chunks = iter_chunks(data, max_frames=max_frames)
+        offsets = [int(x) for c in chunks for x in c.file_offset]
+        numbers = [int(x) for c in chunks for x in c.frame_no]
+        return offsets, numbers, [p.detail for c in chunks for p in c.problems]
+
+    fast = run(2500)
+    whole = run(1 << 30)
+    monkeypatch.setattr(pcapfile, "FAST_MIN_BYTES", 1 << 60)
+    plain = run(2500)
+    assert fast == plain
+    assert whole == plain
+    assert len(plain[0]) >= 5990 and bool(plain[2]) == corrupt

@@ -299,3 +299,17 @@ def test_live_cli_on_a_veth_for_a_duration(veth: tuple[str, str], tmp_path: Path
     assert proc.returncode == 0, proc.stderr
     assert "duration" in proc.stdout
     assert len(out.read_text().splitlines()) > 20
+
+
+@pytest.mark.hardware
+def test_a_real_monitor_interface(request: pytest.FixtureRequest) -> None:
+    """Opt-in: ``pytest --wifi-iface wlan0mon`` reads real frames from a monitor interface."""
+    iface = request.config.getoption("--wifi-iface")
+    if not iface:
+        pytest.skip("opt-in hardware test: pass --wifi-iface IFACE (an interface in monitor mode)")
+    with WifiSource(str(iface)) as src:
+        obs = _read_until(src, 20, timeout_s=15.0)
+        stats = src.stats
+    assert len(obs) > 0, f"no frames in 15 s; skipped: {dict(stats.skipped)}"
+    assert (obs.t_ns > 1_600_000_000 * 10**9).all()
+    assert stats.frames == len(obs)

@@ -42,6 +42,13 @@ def read_yaml(path: str | Path) -> Any:
         raise ConfigError(f"{p}:{where}: invalid YAML: {problem}") from err
 
 
+def _key_path(where: str, key: str) -> str:
+    """``file.yaml: key`` at the top of a file, ``section.key`` below it."""
+    if where.endswith((".yaml", ".yml", ".json")):
+        return f"{where}: {key}"
+    return f"{where}.{key}"
+
+
 def _convert(value: Any, hint: Any, where: str) -> Any:
     origin = typing.get_origin(hint)
     args = typing.get_args(hint)
@@ -85,7 +92,10 @@ def _convert(value: Any, hint: Any, where: str) -> Any:
         if not isinstance(value, Mapping):
             raise ConfigError(f"{where}: expected a mapping, got {type(value).__name__}")
         kt, vt = args if args else (Any, Any)
-        return {_convert(k, kt, where): _convert(v, vt, f"{where}.{k}") for k, v in value.items()}
+        return {
+            _convert(k, kt, where): _convert(v, vt, _key_path(where, str(k)))
+            for k, v in value.items()
+        }
     if hint is bool:
         if isinstance(value, bool):
             return value
@@ -143,7 +153,7 @@ def from_mapping(cls: type[T], data: Mapping[str, Any], where: str = "config") -
     kwargs: dict[str, Any] = {}
     for name, f in fields.items():
         if name in data:
-            kwargs[name] = _convert(data[name], hints[name], f"{where}.{name}")
+            kwargs[name] = _convert(data[name], hints[name], _key_path(where, name))
         elif f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING:
             raise ConfigError(f"{where}: missing required key {name!r}")
     try:

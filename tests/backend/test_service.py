@@ -214,5 +214,5 @@ def test_backend_settings_from_yaml(tmp_path: Path) -> None:
         load_backend_config(long)
     bad = tmp_path / "bad.yaml"
     bad.write_text("triangulation: {max_condition: 0.5}\n")
-    with pytest.raises(ConfigError, match=r"bad\.yaml: max_condition must be > 1"):
+    with pytest.raises(ConfigError, match=r"bad\.yaml: triangulation: max_condition must be > 1"):
         load_backend_config(bad)

@@ -29,6 +29,7 @@ COMMANDS: list[str] = [
     "rfsas_hw.cli.live:live",
     "rfsas_hw.cli.keys:keys",
     "rfsas_hw.cli.nonces:nonces",
+    "rfsas_hw.cli.link:link",
     "rfsas_hw.cli.backend:backend",
     "rfsas_hw.cli.board:board",
 ]

@@ -56,7 +56,6 @@ F_SENTINEL = "sentinel chain value"
 F_NO_SIGNAL = "no signal at all"
 F_EXTRA_CHAIN = "chain index beyond n_antennas"
 
-_EMPTY: dict[int, FrameTable] = {}
 _U16 = struct.Struct("<H").unpack_from
 _U32 = struct.Struct("<I").unpack_from
 _U64 = struct.Struct("<Q").unpack_from
@@ -259,7 +258,7 @@ class FrameDecoder:
             raise ValueError(f"n_antennas must be at least 1, got {n_antennas}")
         self.width = n_antennas
         self.vector_min = vector_min
-        _EMPTY.setdefault(n_antennas, FrameTable.allocate(0, n_antennas))
+        self._empty = FrameTable.allocate(0, n_antennas)
         # (present words, vendor skip length or -1) -> layout
         self._layouts: dict[tuple[tuple[int, ...], int], radiotap.Layout] = {}
         # present words -> the first layout compiled for them
@@ -269,33 +268,26 @@ class FrameDecoder:
 
     def decode(self, buf: bytes, spans: FrameSpans) -> DecodeResult:
         """Decode every frame in ``spans`` (offsets into ``buf``)."""
-        result = DecodeResult(_EMPTY.get(self.width) or FrameTable.allocate(0, self.width))
+        result = DecodeResult(self._empty)
         if len(spans) == 0:
             return result
         # Reads are bounds-checked against their frame; rows found bad read offset 0
         # instead, which a tiny buffer might not have.
         padded = buf if len(buf) >= 64 else bytes(buf) + bytes(64)
-        tables: list[tuple[npt.NDArray[np.int64], FrameTable]] = []
+        tables: list[FrameTable] = []
         first = int(spans.linktype[0])
         single = bool((spans.linktype == first).all())
         for lt in [first] if single else np.unique(spans.linktype).tolist():
-            if single:
-                rows, part = np.arange(len(spans)), spans
+            part = spans if single else spans.select(spans.linktype == lt)
+            if lt in (LINKTYPE_RADIOTAP, LINKTYPE_IEEE802_11):
+                tables.append(self._decode_group(padded, part, lt == LINKTYPE_RADIOTAP, result))
             else:
-                rows = np.flatnonzero(spans.linktype == lt)
-                part = spans.select(rows)
-            if lt == LINKTYPE_RADIOTAP:
-                table = self._decode_group(padded, part, True, result)
-            elif lt == LINKTYPE_IEEE802_11:
-                table = self._decode_group(padded, part, False, result)
-            else:
-                result.dropped[f"{R_LINKTYPE} {lt}"] += len(rows)
-                continue
-            tables.append((table.frame_no, table))
+                result.dropped[f"{R_LINKTYPE} {lt}"] += len(part)
         if len(tables) == 1:
-            result.table = tables[0][1]
+            result.table = tables[0]
         elif tables:
-            merged = FrameTable.concat([t for _, t in tables], self.width)
+            # Several link types (pcapng interfaces): back into capture order.
+            merged = FrameTable.concat(tables, self.width)
             result.table = merged.select(np.argsort(merged.frame_no, kind="stable"))
         result.problems.sort(key=lambda p: p.frame_no)
         return result

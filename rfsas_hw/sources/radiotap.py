@@ -212,7 +212,7 @@ def read_present_words(buf: bytes | memoryview, start: int, it_len: int) -> tupl
 class _Walk:
     """One pass over a header's data fields, recording where each one sits."""
 
-    __slots__ = ("after_vendor", "buf", "it_len", "start", "stopped", "vendor_at", "vendors")
+    __slots__ = ("buf", "it_len", "start", "stopped", "vendor_at", "vendors")
 
     def __init__(self, buf: bytes | memoryview, start: int, it_len: int) -> None:
         self.buf = buf
@@ -220,8 +220,6 @@ class _Walk:
         self.it_len = it_len
         self.vendors: list[VendorNamespace] = []
         self.stopped: int | None = None
-        self.after_vendor = False
-        """True when any field or namespace header lies after vendor data."""
         self.vendor_at = -1
         """Header offset of the first vendor namespace field."""
 
@@ -280,8 +278,6 @@ class _Walk:
                     pos = (pos + align - 1) & -align
                     if pos + size > it_len:
                         raise _err(f"field {name} at header offset {pos} runs past it_len {it_len}")
-                    if self.vendors:
-                        self.after_vendor = True
                     if ns_no == 0:
                         ns0[index] = pos
                     elif index == BIT_DBM_ANTSIGNAL:
@@ -297,9 +293,7 @@ class _Walk:
                     raise _err(
                         f"vendor namespace field at header offset {pos} runs past it_len {it_len}"
                     )
-                if self.vendors:
-                    self.after_vendor = True
-                else:
+                if not self.vendors:
                     self.vendor_at = pos
                 oui, subns, skip = _VENDOR.unpack_from(self.buf, self.start + pos)
                 self.vendors.append(VendorNamespace(int.from_bytes(oui, "big"), subns, skip))

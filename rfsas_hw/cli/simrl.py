@@ -132,11 +132,11 @@ def _fmt(x: float, digits: int = 3) -> str:
 
 def _table(rows: list[EvalRow], per: dict[float, float], pooled: float, names: list[str]) -> Table:
     table = Table(title="learned vs rule-based braking, by reaction distance")
-    table.add_column("distance (m)", justify="right")
+    table.add_column("distance\n(m)", justify="right")
     for name in names:
         for col in ("P(coll)", "P_f", "risk"):
-            table.add_column(f"{name} {col}", justify="right")
-    table.add_column("risk reduction", justify="right")
+            table.add_column(f"{name}\n{col}", justify="right")
+    table.add_column("risk\nreduction", justify="right")
     by = {(r.distance_m, r.policy): r for r in rows}
     for d in sorted({r.distance_m for r in rows}):
         cells = [f"{d:g}"]
@@ -274,10 +274,10 @@ def render(
         else rl.RulePolicy(config.risk_threshold)
     )
     info = rl.record_episode(policy, output, distance_m=distance, config=config, seed=seed)
-    outcome = (
-        f"collision at {info['impact_speed_mps'] * 3.6:.0f} km/h"
-        if info["collision"]
-        else f"no collision, {info['distance_m']:.1f} m from the centre at "
-        f"{info['speed_mps'] * 3.6:.0f} km/h"
-    )
+    if info["collision"]:
+        outcome = f"collision at {info['impact_speed_mps'] * 3.6:.0f} km/h"
+    elif info["speed_mps"] == 0:
+        outcome = f"stopped {info['distance_m']:.1f} m before the centre"
+    else:
+        outcome = f"no collision, crossed at {info['speed_mps'] * 3.6:.0f} km/h"
     click.echo(f"wrote {output}: {policy.name} policy, {info['t_s']:.1f} s, {outcome}")

@@ -38,7 +38,7 @@ def test_unknown_key_is_named_with_file_and_path(tmp_path: Path) -> None:
     data = small_mapping()
     data["sensors"][0]["antena"] = {}
     p = _write(tmp_path, data)
-    with pytest.raises(ConfigError, match=r"scenario\.yaml\.sensors\[0\]: unknown key 'antena'"):
+    with pytest.raises(ConfigError, match=r"scenario\.yaml: sensors\[0\]: unknown key 'antena'"):
         load_scenario(p)
 
 

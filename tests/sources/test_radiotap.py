@@ -147,7 +147,7 @@ def headers(draw: st.DrawFn) -> tuple[list[w.Namespace], dict[str, object]]:
     return namespaces, expected
 
 
-@settings(max_examples=300, deadline=None)
+@settings(max_examples=150, deadline=None)
 @given(headers(), st.binary(max_size=8))
 def test_round_trip_independent_writer(
     case: tuple[list[w.Namespace], dict[str, object]], tail: bytes
@@ -189,7 +189,7 @@ SCAPY_FIELDS = ["TSFT", "Flags", "Rate", "Channel", "dBm_AntSignal", "dBm_AntNoi
 SCAPY_FIELDS.append("RXFlags")
 
 
-@settings(max_examples=100, deadline=None)
+@settings(max_examples=60, deadline=None)
 @given(
     tsft=st.integers(0, 2**64 - 1),
     flags=st.integers(0, 255),

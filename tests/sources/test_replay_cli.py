@@ -15,7 +15,6 @@ from click.testing import CliRunner
 
 import rfsas_hw.sources
 from rfsas_hw.cli.main import _load_commands, cli
-from rfsas_hw.df import fit_calibration, read_samples_csv, save_calibration
 from rfsas_hw.pipeline import SensorPipeline
 from rfsas_hw.privacy.hashing import FixedNonce, MacHasher
 from rfsas_hw.records import BearingBatch, Pose
@@ -25,17 +24,7 @@ from rfsas_hw.stream import Fanout
 _load_commands()
 
 
-REPO = Path(__file__).resolve().parents[2]
 COPY = "import sys; sys.stdout.buffer.write(open(sys.argv[1], 'rb').read())"
-
-
-@pytest.fixture(scope="module")
-def cal_path(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """A single-table calibration (valid on every channel) from the example turntable log."""
-    samples = read_samples_csv(REPO / "calibration" / "example_turntable.csv")
-    path = tmp_path_factory.mktemp("cal") / "cal.yaml"
-    save_calibration(fit_calibration(samples, per_channel=False), path)
-    return path
 
 
 @pytest.fixture(scope="module")

@@ -262,14 +262,10 @@ def _one_antenna(signal: int, tsft_us: int) -> bytes:
     )
 
 
-def test_live_cli_on_a_veth_for_a_duration(veth: tuple[str, str], tmp_path: Path) -> None:
-    from test_replay_cli import REPO
-
-    from rfsas_hw.df import fit_calibration, read_samples_csv, save_calibration
-
-    cal = tmp_path / "cal.yaml"
-    samples = read_samples_csv(REPO / "calibration" / "example_turntable.csv")
-    save_calibration(fit_calibration(samples, per_channel=False), cal)
+def test_live_cli_on_a_veth_for_a_duration(
+    veth: tuple[str, str], tmp_path: Path, cal_path: Path
+) -> None:
+    cal = cal_path
     rx, tx = veth
     out = tmp_path / "b.jsonl"
     stop = threading.Event()
@@ -290,7 +286,7 @@ def test_live_cli_on_a_veth_for_a_duration(veth: tuple[str, str], tmp_path: Path
     try:
         proc = subprocess.run(
             [sys.executable, "-m", "rfsas_hw.cli.main", "live", f"wifi:{rx}", "--any-link-type",
-             "--duration", "1.5", "--calibration", str(cal), "--out", str(out)],
+             "--duration", "1.0", "--calibration", str(cal), "--out", str(out)],
             capture_output=True, text=True, timeout=60, check=False,
         )  # fmt: skip
     finally:
@@ -313,3 +309,28 @@ def test_a_real_monitor_interface(request: pytest.FixtureRequest) -> None:
     assert len(obs) > 0, f"no frames in 15 s; skipped: {dict(stats.skipped)}"
     assert (obs.t_ns > 1_600_000_000 * 10**9).all()
     assert stats.frames == len(obs)
+
+
+def test_live_cli_hops_channels_with_iw(
+    veth: tuple[str, str], tmp_path: Path, cal_path: Path
+) -> None:
+    """``--channels 1,6 --dwell 0.2`` runs ``iw dev IFACE set channel N`` along the plan."""
+    cal = cal_path
+    bin_dir = tmp_path / "bin"
+    bin_dir.mkdir()
+    calls = tmp_path / "iw-calls.txt"
+    fake = bin_dir / "iw"
+    fake.write_text(f'#!/bin/sh\necho "$@" >> {calls}\n')
+    fake.chmod(0o755)
+    env = {**os.environ, "PATH": f"{bin_dir}:{os.environ.get('PATH', '')}"}
+    proc = subprocess.run(
+        [sys.executable, "-m", "rfsas_hw.cli.main", "live", f"wifi:{veth[0]}", "--any-link-type",
+         "--channels", "1,6", "--dwell", "0.2", "--duration", "1.0",
+         "--calibration", str(cal), "--out", str(tmp_path / "b.jsonl")],
+        capture_output=True, text=True, timeout=60, check=False, env=env,
+    )  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    lines = calls.read_text().splitlines()
+    assert lines[:2] == [f"dev {veth[0]} set channel 1", f"dev {veth[0]} set channel 6"]
+    assert 3 <= len(lines) <= 7  # about one hop per 0.2 s for 1 s
+    assert "scan plan" in proc.stdout

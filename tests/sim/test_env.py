@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import gymnasium as gym
 import numpy as np
 import pytest
@@ -11,7 +13,7 @@ import rfsas_hw.sim
 from rfsas_hw.backend.risk import fatality_risk
 from rfsas_hw.errors import ConfigError
 from rfsas_hw.sim.env import ACCELERATE, BRAKE, COAST, IntersectionEnv
-from rfsas_hw.sim.envconfig import EnvConfig, env_config_from_mapping
+from rfsas_hw.sim.envconfig import EnvConfig, env_config_from_mapping, load_env_config
 from rfsas_hw.sim.threat import SensorPoses, make_locator
 
 
@@ -248,3 +250,14 @@ def test_estimated_risk_rises_for_a_conflict_and_stays_low_without_one() -> None
     assert hit and miss
     assert min(hit) > EnvConfig().risk_threshold
     assert np.median(miss) < min(hit)
+
+
+def test_config_file_errors_name_the_file(tmp_path: Path) -> None:
+    good = tmp_path / "env.yaml"
+    good.write_text("risk_threshold: 0.01\nsensing:\n  detail: medium\n")
+    config = load_env_config(good)
+    assert config.risk_threshold == 0.01 and config.sensing.detail == "medium"
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("sensing:\n  detial: medium\n")
+    with pytest.raises(ConfigError, match=r"bad\.yaml.*'detial'"):
+        load_env_config(bad)

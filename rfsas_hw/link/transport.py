@@ -9,9 +9,12 @@ URLs::
     udp://239.255.42.1:47000           multicast group, on the loopback interface
     udp://239.255.42.1:47000?iface=192.168.1.10&ttl=4
                                        multicast on another interface, TTL 4
+    udp://0.0.0.0:47000?rcvbuf=262144  a listener with a 256 KiB receive buffer
 
 Multicast defaults to the loopback interface with TTL 1, so nothing leaves
-the machine unless asked for.
+the machine unless asked for. A listener asks for a 1 MiB receive buffer: a
+flood it cannot keep up with then costs at most that much queueing delay
+(the kernel may grant more or less; ``net.core.rmem_max`` caps it).
 """
 
 from __future__ import annotations
@@ -29,6 +32,8 @@ from rfsas_hw.errors import LinkError
 
 RECV_BUFFER = 65_536
 """Bytes read per datagram: the largest UDP payload, so oversized datagrams are seen whole."""
+DEFAULT_RCVBUF = 1 << 20
+"""Receive buffer a listener asks the kernel for, bytes."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -41,6 +46,8 @@ class UdpEndpoint:
     """Interface address for multicast (ignored for unicast)."""
     ttl: int = 1
     """Multicast TTL (ignored for unicast)."""
+    rcvbuf: int = DEFAULT_RCVBUF
+    """Receive buffer a listener asks for, bytes."""
 
     @property
     def multicast(self) -> bool:
@@ -75,18 +82,23 @@ def parse_url(url: str) -> UdpEndpoint:
     if not parts.hostname or port is None:
         raise LinkError(f"{url!r}: expected udp://HOST:PORT")
     query = parse_qs(parts.query, strict_parsing=False)
-    unknown = set(query) - {"iface", "ttl"}
+    unknown = set(query) - {"iface", "ttl", "rcvbuf"}
     if unknown:
-        raise LinkError(f"{url!r}: unknown option(s) {', '.join(sorted(unknown))}; use iface, ttl")
+        raise LinkError(
+            f"{url!r}: unknown option(s) {', '.join(sorted(unknown))}; use iface, ttl, rcvbuf"
+        )
     iface = query.get("iface", ["127.0.0.1"])[-1]
     try:
         ttl = int(query.get("ttl", ["1"])[-1])
+        rcvbuf = int(query.get("rcvbuf", [str(DEFAULT_RCVBUF)])[-1])
         ipaddress.IPv4Address(iface)
     except ValueError as err:
-        raise LinkError(f"{url!r}: bad iface or ttl: {err}") from err
+        raise LinkError(f"{url!r}: bad iface, ttl or rcvbuf: {err}") from err
     if not 0 <= ttl <= 255:
         raise LinkError(f"{url!r}: ttl {ttl} outside 0-255")
-    return UdpEndpoint(parts.hostname, port, iface, ttl)
+    if not 4096 <= rcvbuf <= 1 << 30:
+        raise LinkError(f"{url!r}: rcvbuf {rcvbuf} outside 4096 bytes - 1 GiB")
+    return UdpEndpoint(parts.hostname, port, iface, ttl, rcvbuf)
 
 
 class Transport(ABC):
@@ -126,15 +138,12 @@ class UdpTransport(Transport):
     Args:
         endpoint: where to send to, or what to listen on.
         mode: ``send`` (connect-less sender) or ``recv`` (bound listener).
-        rcvbuf: receive buffer to ask the kernel for, bytes (listeners only).
 
     Raises:
         LinkError: the socket cannot be created, bound, or join its group.
     """
 
-    def __init__(
-        self, endpoint: UdpEndpoint, mode: Literal["send", "recv"], rcvbuf: int = 4 << 20
-    ) -> None:
+    def __init__(self, endpoint: UdpEndpoint, mode: Literal["send", "recv"]) -> None:
         self.endpoint = endpoint
         self.mode = mode
         self._closed = False
@@ -143,7 +152,7 @@ class UdpTransport(Transport):
         sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         try:
             if mode == "recv":
-                self._setup_recv(sock, rcvbuf)
+                self._setup_recv(sock, endpoint.rcvbuf)
             else:
                 self._setup_send(sock)
         except OSError as err:

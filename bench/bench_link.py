@@ -246,8 +246,9 @@ def _flood(port: int, rate: int, seconds: float, kind: str, out: MpQueue[int]) -
             with contextlib.suppress(OSError):  # a full socket buffer is the point of a flood
                 sock.sendto(payloads[sent % len(payloads)], ("127.0.0.1", port))
             sent += 1
+    elapsed = time.perf_counter() - t0
     sock.close()
-    out.put(sent)
+    out.put(round(sent / elapsed))
 
 
 def flood(kind: str, rate: int, seconds: float, hz: float = 50.0) -> dict[str, Any]:
@@ -277,12 +278,12 @@ def flood(kind: str, rate: int, seconds: float, hz: float = 50.0) -> dict[str, A
         p.join(5)
     rx.close()
     sent_valid = q_sensor.get(timeout=5)
-    sent_junk = q_flood.get(timeout=5) if rate > 0 else 0
+    achieved = q_flood.get(timeout=5) if rate > 0 else 0
     arr = np.asarray(ages) if ages else np.asarray([np.nan])
     return {
         "kind": kind if rate else "none",
-        "junk_sent": sent_junk,
-        "junk_rate": rate,
+        "junk_sent": int(rate * seconds),
+        "junk_rate": achieved,
         "valid_sent": sent_valid,
         "verified": rx.stats.verified,
         "seen": rx.stats.datagrams,
@@ -299,6 +300,7 @@ def flood(kind: str, rate: int, seconds: float, hz: float = 50.0) -> dict[str, A
 COLUMNS = [
     ("flood", "kind", "<8", ""),
     ("junk sent", "junk_sent", ">10", ","),
+    ("junk/s", "junk_rate", ">7", ","),
     ("seen", "seen", ">8", ","),
     ("shed", "shed", ">7", ","),
     ("valid sent", "valid_sent", ">10", ","),

@@ -43,12 +43,12 @@ lint: $(STAMP)
 ctest:
 	$(MAKE) -C firmware_protocol/c test
 
-pytest: $(STAMP)
+pytest: $(RL_STAMP)
 	$(PY) -m pytest -q
 
 test: lint ctest pytest
 
-bench: $(STAMP)
+bench: $(RL_STAMP)
 	@for f in bench/bench_*.py; do echo "== $$f"; $(PY) $$f || exit 1; done
 
 fuzz: $(STAMP)

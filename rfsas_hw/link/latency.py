@@ -8,7 +8,8 @@ and a state:
 - ``ok``: the budget is being met;
 - ``late``: at least ``enter_fraction`` of the window missed the budget (a
   message lost on the way, seen as a gap in the sender's sequence numbers,
-  counts as one that missed it). The
+  counts as one that missed it; a jump of more than 4096 is taken as the
+  sender restarting). The
   state only returns to ``ok`` once the late fraction drops to
   ``exit_fraction`` or below (hysteresis, so a borderline link does not
   flap);
@@ -34,6 +35,8 @@ log = logging.getLogger(__name__)
 
 NS_PER_S = 1_000_000_000
 SEQ_MOD = 1 << 32
+MAX_GAP = 4096
+"""A jump in sequence numbers larger than this is a sender restart, not a loss."""
 
 
 class LinkState(enum.Enum):
@@ -160,16 +163,7 @@ class LatencyWatch:
             track = self._tracks[sender_id] = self._new_track(now_ns)
         cfg = self.config
         if seq is not None:
-            if track.last_seq is not None:
-                gap = (seq - track.last_seq) % SEQ_MOD
-                if 1 < gap < SEQ_MOD // 2:
-                    missing = gap - 1
-                    track.lost += missing
-                    track.late_flags.extend([True] * min(missing, cfg.window))
-                if gap < SEQ_MOD // 2:
-                    track.last_seq = seq
-            else:
-                track.last_seq = seq
+            self._count_gap(track, seq)
         age = max(0.0, float(age_s))
         track.ages_s.append(age)
         track.late_flags.append(age > cfg.budget_s)
@@ -184,6 +178,24 @@ class LatencyWatch:
             track.late = n >= cfg.min_samples and fraction >= cfg.enter_fraction
         self._set(sender_id, track, LinkState.LATE if track.late else LinkState.OK)
         return track.state
+
+    def _count_gap(self, track: _Track, seq: int) -> None:
+        last = track.last_seq
+        if last is None:
+            track.last_seq = seq
+            return
+        ahead = (seq - last) % SEQ_MOD
+        behind = (last - seq) % SEQ_MOD
+        if 0 < ahead <= MAX_GAP:
+            missing = ahead - 1
+            if missing:
+                track.lost += missing
+                track.late_flags.extend([True] * min(missing, self.config.window))
+            track.last_seq = seq
+        elif behind > MAX_GAP:
+            # far from anything recent: the sender restarted with a new sequence
+            track.last_seq = seq
+        # otherwise a late, reordered message: no gap, and the newest stays the reference
 
     def poll(self, now_ns: int) -> None:
         """Mark senders not heard for ``silent_s`` seconds at ``now_ns`` as ``silent``."""

@@ -118,3 +118,15 @@ def test_sequence_gaps_count_as_missed_budget() -> None:
         watch2.observe("rsu-1", 0.001, T0, seq)
     assert watch2.snapshot(T0)["rsu-1"].lost == 0
     assert watch2.state("rsu-1") is LinkState.OK
+
+
+def test_a_sender_restart_is_not_a_loss() -> None:
+    watch = LatencyWatch(LatencyConfig(window=20, min_samples=5))
+    t = T0
+    for seq in [*range(100, 110), *range(3_000_000_000, 3_000_000_010), *range(5, 15)]:
+        watch.observe("rsu-1", 0.001, t, seq)
+        t += S // 10
+    snap = watch.snapshot(t)["rsu-1"]
+    assert snap.lost == 0 and snap.state is LinkState.OK
+    watch.observe("rsu-1", 0.001, t, 16)  # and losses after the restart still count
+    assert watch.snapshot(t)["rsu-1"].lost == 1

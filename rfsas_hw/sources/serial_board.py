@@ -106,6 +106,8 @@ class SerialSource(Source[ObservationBatch]):
         backoff_s: first reconnect delay, seconds (doubles up to ``max_backoff_s``).
         max_backoff_s: longest reconnect delay, seconds.
         time_sync_s: seconds between clock syncs while streaming.
+        batch_s: once measurements arrive, keep reading this long (within the
+            read timeout) to hand out fewer, larger batches, seconds.
         port_factory: opens the port (default :func:`serial.serial_for_url`).
         errors: ``skip`` counts bad frames; ``raise`` raises the first one.
         filter: optional keep-mask function per batch.
@@ -131,6 +133,7 @@ class SerialSource(Source[ObservationBatch]):
         backoff_s: float = 0.1,
         max_backoff_s: float = 5.0,
         time_sync_s: float = 10.0,
+        batch_s: float = 0.02,
         port_factory: PortFactory | None = None,
         errors: ErrorPolicy = "skip",
         filter: BatchFilter | None = None,
@@ -162,6 +165,7 @@ class SerialSource(Source[ObservationBatch]):
         self.backoff_s = backoff_s
         self.max_backoff_s = max_backoff_s
         self.time_sync_s = time_sync_s
+        self.batch_s = batch_s
         self._factory: PortFactory = port_factory or serial.serial_for_url
         self.decoder = FrameDecoder()
         self.clock = TimeMapper()
@@ -311,7 +315,9 @@ class SerialSource(Source[ObservationBatch]):
         wait = 0.1 if timeout is None else timeout
         if self._port is None and not self._try_reconnect(wait):
             return None
-        deadline = time.monotonic() + wait
+        start = time.monotonic()
+        deadline = start + wait
+        first: float | None = None
         try:
             while True:
                 self._pump()
@@ -324,7 +330,10 @@ class SerialSource(Source[ObservationBatch]):
                 if self.start_streaming and now >= self._next_sync:
                     self._write(TimeSyncRequest(time.time_ns()))
                     self._next_sync = now + self.time_sync_s
-                if self._pending or now >= deadline:
+                if self._pending and first is None:
+                    first = now
+                # gather for a short window: fewer, larger batches cost less per frame
+                if now >= deadline or (first is not None and now - first >= self.batch_s):
                     break
         except (serial.SerialException, OSError) as err:
             self._lost(err)

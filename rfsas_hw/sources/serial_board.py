@@ -108,6 +108,8 @@ class SerialSource(Source[ObservationBatch]):
         time_sync_s: seconds between clock syncs while streaming.
         batch_s: once measurements arrive, keep reading this long (within the
             read timeout) to hand out fewer, larger batches, seconds.
+        silence_s: with no byte from the board for this long, repeat the
+            handshake (and reconnect if that fails), seconds.
         port_factory: opens the port (default :func:`serial.serial_for_url`).
         errors: ``skip`` counts bad frames; ``raise`` raises the first one.
         filter: optional keep-mask function per batch.
@@ -134,6 +136,7 @@ class SerialSource(Source[ObservationBatch]):
         max_backoff_s: float = 5.0,
         time_sync_s: float = 10.0,
         batch_s: float = 0.02,
+        silence_s: float = 5.0,
         port_factory: PortFactory | None = None,
         errors: ErrorPolicy = "skip",
         filter: BatchFilter | None = None,
@@ -166,6 +169,8 @@ class SerialSource(Source[ObservationBatch]):
         self.max_backoff_s = max_backoff_s
         self.time_sync_s = time_sync_s
         self.batch_s = batch_s
+        self.silence_s = silence_s
+        self._heard_at = time.monotonic()
         self._factory: PortFactory = port_factory or serial.serial_for_url
         self.decoder = FrameDecoder()
         self.clock = TimeMapper()
@@ -181,7 +186,7 @@ class SerialSource(Source[ObservationBatch]):
         self._backoff = backoff_s
         self._down_since: float | None = None
         self.stats.extra.update(
-            disconnects=0, reconnects=0, board_restarts=0, error_reports=0, naks=0
+            disconnects=0, reconnects=0, board_restarts=0, error_reports=0, naks=0, silences=0
         )
         self._connect()
         self._closed = False
@@ -228,6 +233,7 @@ class SerialSource(Source[ObservationBatch]):
         if self.start_streaming:
             self._request(Start(), Ack)
         self._next_sync = time.monotonic() + self.time_sync_s
+        self._heard_at = time.monotonic()
         self._configured = True
         self._restarted = False
 
@@ -276,6 +282,7 @@ class SerialSource(Source[ObservationBatch]):
         data = port.read(max(1, port.in_waiting))
         if not data:
             return []
+        self._heard_at = time.monotonic()
         arrival = time.time_ns()
         out: list[Message] = []
         recs, others = self.decoder.feed_columns(data)
@@ -327,6 +334,15 @@ class SerialSource(Source[ObservationBatch]):
                     log.warning("board at %s restarted; configuring it again", self.url)
                     self._handshake()
                 now = time.monotonic()
+                if now - self._heard_at > self.silence_s:
+                    # heartbeats come every second: a board this quiet is hung
+                    # or was re-flashed; ask it again, reconnect if it stays mute
+                    self.stats.extra["silences"] += 1
+                    log.warning(
+                        "board at %s silent for %.1f s; asking it again", self.url, self.silence_s
+                    )
+                    self._handshake()
+                    now = time.monotonic()
                 if self.start_streaming and now >= self._next_sync:
                     self._write(TimeSyncRequest(time.time_ns()))
                     self._next_sync = now + self.time_sync_s

@@ -165,6 +165,24 @@ def test_garbage_costs_only_touched_frames(make_board: Callable[..., Board]) -> 
     assert len(obs) >= emu.counters.measurements_sent - touched
 
 
+def test_stalls_cost_nothing_and_a_mute_board_is_asked_again(
+    make_board: Callable[..., Board],
+) -> None:
+    _, runner, path = make_board(faults=Faults(stall_every_s=0.5, stall_s=0.3))
+    with SerialSource(path, channel=6) as src:
+        obs = _collect(src, 1.5)
+        extra = dict(src.stats.extra)
+    assert runner.stats.stalls >= 2 and len(obs) > 0
+    assert extra["lost"] == 0 and extra["disconnects"] == 0 and extra["silences"] == 0
+    _, runner, path = make_board(faults=Faults(stall_every_s=0.6, stall_s=1.2))
+    with SerialSource(path, channel=6, silence_s=0.4, handshake_timeout_s=0.2) as src:
+        before = _collect(src, 0.5)
+        after = _collect(src, 2.5)
+        extra = dict(src.stats.extra)
+    assert extra["silences"] >= 1
+    assert len(before) > 0 and len(after) > 0
+
+
 def test_batched_board_over_tcp(make_board: Callable[..., Board]) -> None:
     emu, _, url = make_board(tcp=True, batch=8)
     assert url.startswith("socket://")

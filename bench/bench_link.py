@@ -39,6 +39,7 @@ from cryptography.hazmat.primitives import hashes
 from cryptography.hazmat.primitives.asymmetric import ec
 
 from rfsas_hw.link import Publisher, Receiver, ReceiverConfig, Signer, TrustedKeys, open_transport
+from rfsas_hw.link.latency import LinkState
 from rfsas_hw.link.message import SafetyMessage
 from rfsas_hw.privacy import FixedNonce, MacHasher
 from rfsas_hw.records import BearingBatch, Pose
@@ -266,12 +267,21 @@ def flood(kind: str, rate: int, seconds: float, hz: float = 50.0) -> dict[str, A
         procs.append(ctx.Process(target=_flood, args=(port, rate, seconds, kind, q_flood)))
     ages: list[float] = []
     alarms: list[str] = []
-    rx.latency.add_callback(lambda s, old, new: alarms.append(f"{old.value}->{new.value}"))
+    running = [True]
+
+    def note(sender: str, old: LinkState, new: LinkState) -> None:
+        if running[0]:  # the silence after the sensor stops is not part of the run
+            alarms.append(f"{old.value}->{new.value}")
+
+    rx.latency.add_callback(note)
     for p in procs:
         p.start()
     deadline = time.monotonic() + seconds + 30
-    while any(p.is_alive() for p in procs) and time.monotonic() < deadline:
+    while procs[0].is_alive() and time.monotonic() < deadline:
         ages += [m.age_s * 1e3 for m in rx.receive(timeout=0.05)]
+    ages += [m.age_s * 1e3 for m in rx.receive(timeout=0.05)]
+    state = rx.latency.snapshot(time.time_ns())["rsu-1"].state.value
+    running[0] = False
     for _ in range(10):  # drain what is still queued
         ages += [m.age_s * 1e3 for m in rx.receive(timeout=0.05)]
     for p in procs:
@@ -289,7 +299,7 @@ def flood(kind: str, rate: int, seconds: float, hz: float = 50.0) -> dict[str, A
         "seen": rx.stats.datagrams,
         "rejected": rx.stats.rejected_total,
         "shed": rx.stats.rejected["overload"],
-        "state": rx.latency.snapshot(time.time_ns())["rsu-1"].state.value,
+        "state": state,
         "p50": float(np.percentile(arr, 50)),
         "p99": float(np.percentile(arr, 99)),
         "max": float(np.max(arr)),

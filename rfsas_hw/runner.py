@@ -122,6 +122,11 @@ class Runner:
         duration_s: stop after this long on the clock (None: until the input ends).
         progress: called after each batch with bytes read and total.
         poll_s: longest wait for the source before checking for stop/duration.
+        retime: shift capture times so that the first frame is "now" on
+            ``utc_ns`` (keeps the recorded spacing). A receiver rejects
+            bearings from an old capture as stale or from the wrong nonce
+            epoch; retimed, a replay feeds a live backend like a sensor would.
+        utc_ns: wall clock for ``retime``, UTC nanoseconds.
 
     Raises:
         ConfigError: a non-positive speed or duration.
@@ -139,6 +144,8 @@ class Runner:
         duration_s: float | None = None,
         progress: ProgressFn | None = None,
         poll_s: float = 0.2,
+        retime: bool = False,
+        utc_ns: Callable[[], int] = time.time_ns,
     ) -> None:
         if speed <= 0:
             raise ConfigError(f"--speed must be positive, got {speed}")
@@ -160,6 +167,9 @@ class Runner:
         self._last_due = -(2**62)
         self._first_t: int | None = None
         self._last_t: int | None = None
+        self.retime = retime
+        self._utc_ns = utc_ns
+        self._retime_offset_ns: int | None = None
 
     def stop(self) -> None:
         """Ask the loop to end after the current batch (safe from another thread)."""
@@ -211,6 +221,11 @@ class Runner:
 
     def _deliver(self, batch: ObservationBatch) -> bool:
         """Process ``batch`` (paced in realtime mode); False when the run must end."""
+        if self.retime:
+            if self._retime_offset_ns is None:
+                self._retime_offset_ns = self._utc_ns() - int(batch.t_ns.min())
+            batch = batch.select(slice(None))
+            batch.t_ns = batch.t_ns + np.int64(self._retime_offset_ns)
         if not self.realtime:
             self._process(batch)
             return True

@@ -43,6 +43,11 @@ def capture_spec(capture: str) -> str:
     help="Pace factor for recorded timing (implies --realtime): 2 = twice as fast.",
 )
 @click.option(
+    "--retime",
+    is_flag=True,
+    help="Shift capture times so the first frame is now (to feed a live backend with --send).",
+)
+@click.option(
     "--antennas",
     "n_antennas",
     type=click.IntRange(2, 8),
@@ -63,6 +68,7 @@ def replay(
     keys_dir: Path | None,
     realtime: bool,
     speed: float | None,
+    retime: bool,
     n_antennas: int,
 ) -> None:
     """Turn CAPTURE (pcap/pcapng, or A.pcap+B.pcap from two receivers) into bearings.
@@ -70,6 +76,7 @@ def replay(
     \b
     rfsas replay capture.pcapng --calibration cal.yaml --out bearings.jsonl
     rfsas replay a.pcap+b.pcap --calibration cal.yaml --out bearings.csv --realtime --speed 4
+    rfsas replay old.pcap --calibration cal.yaml --keys keys/rsu-1 --send udp://HOST:47000 --retime
     """
     console = Console(stderr=True)
     where = parse_pose(pose)
@@ -93,6 +100,7 @@ def replay(
         listeners,
         realtime=realtime or speed is not None,
         speed=speed or 1.0,
+        retime=retime,
     )
     if total and total >= PROGRESS_MIN_BYTES:
         with progress_bar(console) as bar:

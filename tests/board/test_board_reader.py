@@ -57,8 +57,9 @@ def _touch(frame: bytes, how: str, pos: int, bit: int) -> bytes:
     elif how == "drop":
         del b[pos]
     else:
-        # inside the frame (a byte in front of it would only be garbage)
-        b.insert(1 + pos % (len(b) - 1), (pos * 37 + bit) & 0xFF)
+        # after the code byte and the magic: a byte in front of the magic
+        # equal to the code byte would leave the frame intact behind garbage
+        b.insert(2 + pos % (len(b) - 2), (pos * 37 + bit) & 0xFF)
     return bytes(b)
 
 

@@ -122,10 +122,11 @@ class Runner:
         duration_s: stop after this long on the clock (None: until the input ends).
         progress: called after each batch with bytes read and total.
         poll_s: longest wait for the source before checking for stop/duration.
-        retime: shift capture times so that the first frame is "now" on
-            ``utc_ns`` (keeps the recorded spacing). A receiver rejects
-            bearings from an old capture as stale or from the wrong nonce
-            epoch; retimed, a replay feeds a live backend like a sensor would.
+        retime: map capture times to "now" on ``utc_ns``: the first frame gets
+            the start time, later ones their recorded spacing divided by
+            ``speed``. A receiver rejects bearings from an old capture as stale
+            or from the wrong nonce epoch; retimed and paced (``realtime``), a
+            replay feeds a live backend the way a sensor would.
         utc_ns: wall clock for ``retime``, UTC nanoseconds.
 
     Raises:
@@ -170,6 +171,7 @@ class Runner:
         self.retime = retime
         self._utc_ns = utc_ns
         self._retime_offset_ns: int | None = None
+        self._retime_t0 = 0
 
     def stop(self) -> None:
         """Ask the loop to end after the current batch (safe from another thread)."""
@@ -223,9 +225,11 @@ class Runner:
         """Process ``batch`` (paced in realtime mode); False when the run must end."""
         if self.retime:
             if self._retime_offset_ns is None:
-                self._retime_offset_ns = self._utc_ns() - int(batch.t_ns.min())
+                self._retime_t0 = int(batch.t_ns.min())
+                self._retime_offset_ns = self._utc_ns()
             batch = batch.select(slice(None))
-            batch.t_ns = batch.t_ns + np.int64(self._retime_offset_ns)
+            elapsed = (batch.t_ns - self._retime_t0) / self.speed
+            batch.t_ns = self._retime_offset_ns + elapsed.astype(np.int64)
         if not self.realtime:
             self._process(batch)
             return True

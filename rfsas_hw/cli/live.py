@@ -64,6 +64,7 @@ def live(
     sensor_id: str,
     pose: str,
     min_snr_db: float | None,
+    nonce_secret: Path | None,
     errors: str,
     send: str | None,
     keys_dir: Path | None,
@@ -83,7 +84,9 @@ def live(
     console = Console(stderr=True)
     where = parse_pose(pose)
     inbox = nonce_inbox(nonces, keys_dir) if nonces is not None else None
-    pipeline = build_pipeline(calibration_path, sensor_id, where, min_snr_db, inbox)
+    pipeline = build_pipeline(
+        calibration_path, sensor_id, where, min_snr_db, inbox, nonce_secret=nonce_secret
+    )
     scheme, _ = parse_spec(spec)
     options: dict[str, Any] = {"errors": errors}
     if channels is not None:

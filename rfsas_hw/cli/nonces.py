@@ -12,6 +12,7 @@ from rfsas_hw.link.distribution import NonceDistributor, NonceInbox
 from rfsas_hw.link.keys import KeyStore
 from rfsas_hw.link.transport import Transport, open_transport
 from rfsas_hw.privacy.epochs import DEFAULT_EPOCH_S, DEFAULT_GRACE_S, EpochSchedule
+from rfsas_hw.privacy.hashing import write_secret
 
 KEYS_HELP = "Key directory (rfsas keys new); its trust/ holds the enrolled cards."
 
@@ -166,3 +167,23 @@ def listen(keys_dir: Path, url: str, epoch_s: float, grace_s: float, duration: f
     click.echo(f"envelopes accepted {inbox.accepted}, refused {inbox.rejected}")
     if inbox.accepted == 0:
         raise ConfigError(f"{url}: no nonce envelope for {store.receiver_id!r} arrived")
+
+
+@nonces.command("secret")
+@click.option(
+    "-o",
+    "--output",
+    required=True,
+    type=click.Path(dir_okay=False, path_type=Path),
+    help="File to create (mode 0600; an existing file is never overwritten).",
+)
+def secret(output: Path) -> None:
+    """Create a shared nonce secret for sensors without a nonce authority.
+
+    Sensors given the same file (`--nonce-secret FILE` on replay and live)
+    derive the same emitter ids, so a backend can associate their bearings.
+    Whoever holds the file can link ids across every epoch: prefer
+    `rfsas nonces serve` for a deployment.
+    """
+    write_secret(output)
+    click.echo(f"wrote a 32-byte nonce secret to {output} (mode 0600)")

@@ -45,7 +45,8 @@ def capture_spec(capture: str) -> str:
 @click.option(
     "--retime",
     is_flag=True,
-    help="Shift capture times so the first frame is now (to feed a live backend with --send).",
+    help="Give frames the time they are replayed at (implies --realtime): feeds a live "
+    "backend with --send as a sensor would.",
 )
 @click.option(
     "--antennas",
@@ -63,6 +64,7 @@ def replay(
     sensor_id: str,
     pose: str,
     min_snr_db: float | None,
+    nonce_secret: Path | None,
     errors: str,
     send: str | None,
     keys_dir: Path | None,
@@ -80,7 +82,9 @@ def replay(
     """
     console = Console(stderr=True)
     where = parse_pose(pose)
-    pipeline = build_pipeline(calibration_path, sensor_id, where, min_snr_db)
+    pipeline = build_pipeline(
+        calibration_path, sensor_id, where, min_snr_db, nonce_secret=nonce_secret
+    )
     if speed is not None and speed <= 0:
         raise ConfigError(f"--speed must be positive, got {speed}")
     spec = capture_spec(capture)
@@ -98,7 +102,7 @@ def replay(
         source,
         pipeline,
         listeners,
-        realtime=realtime or speed is not None,
+        realtime=realtime or retime or speed is not None,
         speed=speed or 1.0,
         retime=retime,
     )

@@ -22,7 +22,7 @@ from rfsas_hw.df import load_calibration
 from rfsas_hw.errors import ConfigError
 from rfsas_hw.output import BearingWriter
 from rfsas_hw.pipeline import SensorPipeline
-from rfsas_hw.privacy.hashing import FixedNonce, MacHasher, NonceProvider
+from rfsas_hw.privacy.hashing import DerivedNonces, FixedNonce, MacHasher, NonceProvider
 from rfsas_hw.records import Pose
 from rfsas_hw.runner import RunSummary
 from rfsas_hw.stream import Fanout
@@ -84,6 +84,14 @@ def sensor_options(func: F) -> F:
             show_default=True,
             help="Bad frames: skip and count them, or stop at the first.",
         ),
+        click.option(
+            "--nonce-secret",
+            "nonce_secret",
+            type=click.Path(dir_okay=False, path_type=Path),
+            help="Derive epoch nonces from this shared secret (rfsas nonces secret), so that "
+            "sensors given the same file produce the same emitter ids. "
+            "Default: a random key per run.",
+        ),
         send_options,
     ]
     for option in reversed(options):
@@ -97,14 +105,21 @@ def build_pipeline(
     pose: Pose,
     min_snr_db: float | None,
     nonces: NonceProvider | None = None,
+    nonce_secret: Path | None = None,
 ) -> SensorPipeline:
-    """The pipeline hashing with ``nonces`` (the deployment's epoch nonces), or by
-    default with a per-run random key (ids unlinkable across runs).
+    """The pipeline hashing with ``nonces`` (the deployment's epoch nonces), with
+    nonces derived from the secret in ``nonce_secret``, or by default with a
+    per-run random key (ids unlinkable across runs).
 
     Raises:
         CalibrationError / ConfigError: the calibration file is unusable.
+        KeyStoreError: the secret file is unreadable, too short or not private.
     """
+    if nonces is not None and nonce_secret is not None:
+        raise ConfigError("give --nonces or --nonce-secret, not both")
     calibration = load_calibration(calibration_path)
+    if nonce_secret is not None:
+        nonces = DerivedNonces.from_file(nonce_secret)
     hasher = MacHasher(nonces if nonces is not None else FixedNonce(os.urandom(32)))
     return SensorPipeline(calibration, hasher, sensor_id, pose, min_snr_db=min_snr_db)
 

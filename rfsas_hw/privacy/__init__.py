@@ -3,18 +3,21 @@
 from rfsas_hw.privacy.epochs import DEFAULT_GRACE_S, EpochSchedule
 from rfsas_hw.privacy.hashing import (
     DEFAULT_EPOCH_S,
+    DerivedNonces,
     FixedNonce,
     MacHasher,
     NonceProvider,
     NonceUnavailableError,
     epoch_of,
     hash_mac,
+    write_secret,
 )
 from rfsas_hw.privacy.nonces import NonceAuthority, NonceEnvelopeError, NonceStore
 
 __all__ = [
     "DEFAULT_EPOCH_S",
     "DEFAULT_GRACE_S",
+    "DerivedNonces",
     "EpochSchedule",
     "FixedNonce",
     "MacHasher",
@@ -25,4 +28,5 @@ __all__ = [
     "NonceUnavailableError",
     "epoch_of",
     "hash_mac",
+    "write_secret",
 ]

@@ -19,13 +19,16 @@ from __future__ import annotations
 
 import hashlib
 import hmac
+import os
+import stat
 from collections import OrderedDict
+from pathlib import Path
 from typing import Protocol
 
 import numpy as np
 import numpy.typing as npt
 
-from rfsas_hw.errors import DataFormatError, RfsasError
+from rfsas_hw.errors import DataFormatError, KeyStoreError, RfsasError
 from rfsas_hw.privacy.epochs import DEFAULT_EPOCH_S, NS_PER_S, epoch_of
 from rfsas_hw.records import MAC_MASK
 
@@ -188,3 +191,70 @@ class FixedNonce:
     def nonce_for(self, epoch: int) -> bytes:
         """The same key for every epoch."""
         return self._key
+
+
+SECRET_MIN_BYTES = 16
+
+
+class DerivedNonces:
+    """Epoch nonces derived from one shared secret, for deployments without an authority.
+
+    ``nonce(epoch) = HMAC-SHA256(secret, "rfsas-epoch-nonce" ‖ epoch as 8 bytes BE)``.
+    Every sensor holding the secret derives the same ids; to anyone without
+    it, ids of different epochs are unlinkable as with authority nonces. The
+    difference: whoever obtains the secret can open every epoch, past and
+    future, at once. The nonce authority (fresh random nonces, sealed to each
+    receiver) does not have that weakness; use this for replaying recordings
+    and for small test deployments.
+    """
+
+    def __init__(self, secret: bytes) -> None:
+        if len(secret) < SECRET_MIN_BYTES:
+            raise ValueError(f"the nonce secret must be at least {SECRET_MIN_BYTES} bytes")
+        self._key = hmac.new(secret, b"", hashlib.sha256)
+
+    @classmethod
+    def from_file(cls, path: str | Path) -> DerivedNonces:
+        """Read the secret from a file (raw bytes).
+
+        Raises:
+            KeyStoreError: unreadable, too short, or readable by other users.
+        """
+        p = Path(path)
+        try:
+            mode = p.stat().st_mode
+            secret = p.read_bytes()
+        except OSError as err:
+            raise KeyStoreError(
+                f"{p}: cannot read the nonce secret: {err.strerror or err}"
+            ) from err
+        if mode & (stat.S_IRWXG | stat.S_IRWXO):
+            raise KeyStoreError(f"{p}: the nonce secret is readable by others; chmod 600 {p}")
+        if len(secret) < SECRET_MIN_BYTES:
+            raise KeyStoreError(
+                f"{p}: {len(secret)} bytes; a nonce secret needs {SECRET_MIN_BYTES}+"
+            )
+        return cls(secret)
+
+    def nonce_for(self, epoch: int) -> bytes:
+        """The nonce of ``epoch``."""
+        mac = self._key.copy()
+        mac.update(b"rfsas-epoch-nonce" + int(epoch).to_bytes(8, "big", signed=True))
+        return mac.digest()
+
+
+def write_secret(path: str | Path, n_bytes: int = 32) -> None:
+    """Create a new random nonce secret file with mode 0600; never overwrite one.
+
+    Raises:
+        KeyStoreError: the file exists or cannot be created.
+    """
+    p = Path(path)
+    try:
+        fd = os.open(p, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
+    except FileExistsError as err:
+        raise KeyStoreError(f"{p}: exists; refusing to overwrite a nonce secret") from err
+    except OSError as err:
+        raise KeyStoreError(f"{p}: cannot create: {err.strerror or err}") from err
+    with os.fdopen(fd, "wb") as handle:
+        handle.write(os.urandom(n_bytes))

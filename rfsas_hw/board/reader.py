@@ -35,7 +35,7 @@ from rfsas_hw.board.framing import (
     cobs_decode,
     recover_suffix,
 )
-from rfsas_hw.board.messages import CompatFlag, Message, PayloadError
+from rfsas_hw.board.messages import CompatFlag, Measurement, Message, PayloadError
 from rfsas_hw.errors import BoardProtocolError
 
 MAX_KEPT_ERRORS = 20
@@ -100,6 +100,8 @@ class FrameDecoder:
         self._expect: int | None = None
         self.new_errors: list[FrameError] = []
         """Errors raised by the last :meth:`feed` (for a raise-on-error policy)."""
+        self.vector_min_bytes = 4096
+        """Buffers at least this long are decoded with the column-wise fast path."""
 
     def _note(self, err: FrameError, offset: int) -> None:
         err.offset = offset
@@ -177,6 +179,8 @@ class FrameDecoder:
         self.new_errors = []
         self.stats.bytes += len(data)
         buf = self._buf + data if self._buf else data
+        if len(buf) >= self.vector_min_bytes:
+            return self._feed_vectorised(buf)
         parts = buf.split(b"\x00")
         tail = parts.pop()
         pos = self._offset
@@ -189,6 +193,48 @@ class FrameDecoder:
                     out.append(got)
             pos += len(seg) + 1
         self._keep_tail(tail, pos)
+        return out
+
+    def _feed_vectorised(self, buf: bytes) -> list[tuple[bytes, Frame]]:
+        """:meth:`feed` for a large buffer: measurement frames checked column-wise."""
+        arr = np.frombuffer(buf, dtype=np.uint8)
+        starts_a, ends_a = segments(arr)
+        base = self._offset
+        if ends_a.size == 0:
+            self._keep_tail(buf, base)
+            return []
+        row_of = np.full(ends_a.size, -1, dtype=np.int64)
+        cand = np.flatnonzero(ends_a - starts_a == WIRE)
+        blob = b""
+        if cand.size:
+            rows = arr[starts_a[cand, None] + np.arange(WIRE)]
+            ok, decoded = decode_measurement_rows(rows)
+            good = cand[ok]
+            row_of[good] = np.arange(good.size)
+            blob = decoded[ok].tobytes()
+        out: list[tuple[bytes, Frame]] = []
+        track = self._track
+        body = WIRE - 1
+        meas = Measurement.TYPE
+        n_fast = 0
+        for s, e, r in zip(starts_a.tolist(), ends_a.tolist(), row_of.tolist(), strict=True):
+            if r >= 0:
+                o = r * body
+                seq = blob[o + 3] | (blob[o + 4] << 8)
+                compat = blob[o + 2]
+                track(seq, compat)
+                out.append(
+                    (buf[s : e + 1], Frame(meas, seq, blob[o + 8 : o + body - 2], 0, compat))
+                )
+                n_fast += 1
+            elif e > s:
+                got = self._segment(buf[s:e], base + s)
+                if got is not None:
+                    track(got[1].seq, got[1].compat)
+                    out.append(got)
+        self.stats.frames += n_fast
+        last = int(ends_a[-1]) + 1
+        self._keep_tail(buf[last:], base + last)
         return out
 
     def feed_columns(self, data: bytes) -> tuple[npt.NDArray[np.void], list[tuple[bytes, Frame]]]:

@@ -169,11 +169,14 @@ def test_columnar_path_equals_per_frame_path(msgs: list[Message], data: st.DataO
             )
         stream += data.draw(st.binary(max_size=8)) + w
     chunk = data.draw(st.integers(1, 300))
-    slow, fast = FrameDecoder(), FrameDecoder()
+    slow, fast, vec = FrameDecoder(), FrameDecoder(), FrameDecoder()
+    slow.vector_min_bytes = 1 << 30  # always one segment at a time
+    vec.vector_min_bytes = 0  # always column-wise
     slow_recs, slow_other, fast_recs, fast_other = [], [], [], []
     for i in range(0, len(stream), chunk):
         piece = bytes(stream[i : i + chunk])
         frames = slow.feed(piece)
+        assert vec.feed(piece) == frames
         slow_recs.append(records(f for _, f in frames))
         slow_other += [(raw, f) for raw, f in frames if not is_measurement(f)]
         recs, other = fast.feed_columns(piece)
@@ -181,4 +184,4 @@ def test_columnar_path_equals_per_frame_path(msgs: list[Message], data: st.DataO
         fast_other += other
     assert np.concatenate(fast_recs).tobytes() == np.concatenate(slow_recs).tobytes()
     assert fast_other == slow_other
-    assert fast.stats == slow.stats
+    assert fast.stats == slow.stats == vec.stats

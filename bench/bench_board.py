@@ -168,7 +168,11 @@ def decode_table() -> bool:
     for name, n, dt, fps in results:
         print(f"{name:34s} {n:8d} {dt:8.3f} {fps:10.0f} {fps / naive_fps:8.1f}")
     ok = results[0][3] >= GOAL_FPS
-    print(f"goal ≥ {GOAL_FPS} frames/s on the driver path: {'met' if ok else 'NOT met'}")
+    per_frame = "met" if results[1][3] >= GOAL_FPS else "not met"
+    print(
+        f"goal ≥ {GOAL_FPS} frames/s: driver path {'met' if ok else 'NOT met'}, "
+        f"per-frame messages {per_frame}"
+    )
     return ok
 
 

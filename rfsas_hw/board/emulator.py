@@ -386,7 +386,11 @@ class BoardEmulator:
 
     def receive(self, data: bytes) -> None:
         """Bytes from the host: decode and answer every complete command."""
-        for _, frame in self._decoder.feed(data):
+        frames = self._decoder.feed(data)
+        for err in self._decoder.new_errors:
+            if err.kind == "unknown_type" and err.header is not None:
+                self._nak(err.header[1], err.header[0], NakCode.UNKNOWN_TYPE)
+        for _, frame in frames:
             name = f"0x{frame.msg_type:02x}"
             try:
                 msg = decode_payload(frame)

@@ -50,6 +50,8 @@ class FrameError(BoardProtocolError):
         self.kind = kind
         self.offset: int | None = None
         """Stream offset of the segment, bytes, when a stream decoder raised it."""
+        self.header: tuple[int, int] | None = None
+        """``(msg_type, seq)`` of a well-formed frame of unknown type (for a NAK)."""
 
 
 ERROR_KINDS = ("cobs", "short", "magic", "incompatible", "length", "unknown_type", "crc")
@@ -214,7 +216,9 @@ def check_frame(decoded: bytes | bytearray, crc_starts: dict[int, int]) -> Frame
         )
     start = crc_starts.get(msg_type)
     if start is None:
-        raise FrameError("unknown_type", f"unknown message type 0x{msg_type:02x}")
+        err = FrameError("unknown_type", f"unknown message type 0x{msg_type:02x}")
+        err.header = (msg_type, seq)
+        raise err
     # The CRC is stored most significant byte first, so the CRC over the
     # whole frame including it is zero when it matches (one C call).
     if binascii.crc_hqx(decoded, start):

@@ -10,6 +10,7 @@ import pytest
 from rfsas_hw.board.codec import decode_payload, encode
 from rfsas_hw.board.emulator import BoardEmulator, CaptureFeed, Emitter, Scenario
 from rfsas_hw.board.faults import FaultInjector, Faults
+from rfsas_hw.board.framing import encode_frame
 from rfsas_hw.board.messages import (
     Ack,
     Heartbeat,
@@ -86,6 +87,14 @@ def test_commands_ack_nak_and_scan_plan() -> None:
     ]
     t = np.array([0, 99_999, 100_000, 250_000, 300_000], np.int64) + emu.board_us()
     assert emu.tuned(t).tolist() == [2412, 2412, 2437, 2462, 2412]
+
+
+def test_unknown_command_type_is_naked() -> None:
+    emu, _, dec = _board()
+    _replies(emu, dec)
+    emu.receive(encode_frame(0x7E, 33, b"new", 0x55) + encode(Start(), 34))
+    got = [m for _, m in _replies(emu, dec)]
+    assert got == [Nak(33, 0x7E, int(NakCode.UNKNOWN_TYPE), 0), Ack(34, Start.TYPE)]
 
 
 def test_streaming_follows_the_antenna_model() -> None:

@@ -178,7 +178,9 @@ class SerialSource(Source[ObservationBatch]):
         self.heartbeat: Heartbeat | None = None
         self._encoder = Encoder()
         self._port: Any = None
-        self._pending: list[npt.NDArray[np.void]] = []
+        # records with their host times, mapped on arrival: a later reboot
+        # or re-sync must not re-map what was measured before it
+        self._pending: list[tuple[npt.NDArray[np.void], npt.NDArray[np.int64]]] = []
         self._configured = False
         self._restarted = False
         self._next_sync = 0.0
@@ -287,7 +289,9 @@ class SerialSource(Source[ObservationBatch]):
         out: list[Message] = []
         recs, others = self.decoder.feed_columns(data)
         if len(recs):
-            self._pending.append(recs)
+            t_us = recs["t_us"]
+            self.clock.observe_arrival(int(t_us.max()), arrival)
+            self._pending.append((recs, self.clock.to_host_ns(t_us)))
         for _, frame in others:
             try:
                 msg = decode_payload(frame)
@@ -364,11 +368,13 @@ class SerialSource(Source[ObservationBatch]):
         if not self._pending:
             return None
         parts, self._pending = self._pending, []
-        rec = parts[0] if len(parts) == 1 else np.concatenate(parts)
-        t_us = rec["t_us"]
-        self.clock.observe_arrival(int(t_us.max()), time.time_ns())
+        if len(parts) == 1:
+            rec, t_ns = parts[0]
+        else:
+            rec = np.concatenate([p[0] for p in parts])
+            t_ns = np.concatenate([p[1] for p in parts])
         n_ant = self.info.n_antennas if self.info is not None else 2
-        return to_observations(rec, self.clock.to_host_ns(t_us), max(1, min(n_ant, 4)))
+        return to_observations(rec, t_ns, max(1, min(n_ant, 4)))
 
     def _publish_counters(self) -> None:
         link = self.decoder.stats

@@ -264,3 +264,18 @@ def test_time_mapper_falls_back_to_arrival_times() -> None:
     mapper.observe_arrival(6_000_000, 1_000_900_000_000)  # a faster delivery: tighter bound
     t = int(mapper.to_host_ns(np.array([6_000_000]))[0])
     assert t == 1_000_900_000_000
+
+
+@pytest.mark.hardware
+def test_real_board_handshakes_and_streams(request: pytest.FixtureRequest) -> None:
+    """The same checks on a real board: ``pytest --serial-url /dev/ttyUSB0 -m hardware``."""
+    url = request.config.getoption("--serial-url")
+    if not url:
+        pytest.skip("no --serial-url given: the emulator tests above cover this")
+    with SerialSource(str(url)) as src:
+        assert src.info is not None and src.info.protocol_version == 1
+        obs = _collect(src, 5.0)
+        extra = src.stats.extra
+    assert extra["crc_errors"] == 0 and extra["lost"] == 0
+    if len(obs):
+        assert (np.abs(obs.t_ns - time.time_ns()) < 10e9).all()

@@ -130,7 +130,10 @@ class Emitter:
             raise ConfigError(f"emitter {text!r}: {err}") from err
         if em.distance_m <= 0 or em.rate_hz < 0:
             raise ConfigError(f"emitter {text!r}: distance must be > 0 and rate ≥ 0")
-        em.freq_mhz  # noqa: B018 - validates the channel
+        try:
+            channel_to_freq_mhz(em.channel, ble=em.radio == "bt")
+        except ConfigError as err:
+            raise ConfigError(f"emitter {text!r}: {err}") from err
         return em
 
 

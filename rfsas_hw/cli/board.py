@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import logging
+import shutil
 import tempfile
 from datetime import UTC, datetime
 from pathlib import Path
@@ -151,11 +152,13 @@ def emulate(
     fault_plan = Faults.parse(faults)
     emulator = BoardEmulator(feed, batch_size=batch)
     endpoint: PtyEndpoint | TcpEndpoint
+    made_dir: Path | None = None
     if tcp is not None:
         endpoint = TcpEndpoint(tcp)
     else:
         if link is None:
-            link = Path(tempfile.mkdtemp(prefix="rfsas-board-")) / "ttyBOARD"
+            made_dir = Path(tempfile.mkdtemp(prefix="rfsas-board-"))
+            link = made_dir / "ttyBOARD"
         try:
             endpoint = PtyEndpoint(link)
         except OSError as err:
@@ -173,6 +176,8 @@ def emulate(
         pass
     finally:
         endpoint.close()
+        if made_dir is not None:
+            shutil.rmtree(made_dir, ignore_errors=True)
     c, r = emulator.counters, runner.stats
     click.echo(
         f"sent {c.frames_sent} frames ({c.measurements_sent} measurements, "

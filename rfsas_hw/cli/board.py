@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import logging
 import shutil
+import signal
 import tempfile
 from datetime import UTC, datetime
 from pathlib import Path
@@ -170,6 +171,8 @@ def emulate(
         err=True,
     )
     runner = EmulatorRunner(emulator, endpoint, baud=baud or None, faults=fault_plan)
+    # a terminated emulator still removes its pty link
+    signal.signal(signal.SIGTERM, lambda *_: runner.stop_event.set())
     try:
         runner.run(duration)
     except KeyboardInterrupt:

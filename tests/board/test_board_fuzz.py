@@ -1,10 +1,11 @@
 """Fuzzing the board stream decoder with mutated streams.
 
 Each case is a mutated stream of up to 30 frames, so ``RFSAS_FUZZ_CASES``
-counts frames: the test runs one stream per 50 of them, at least 200 (``make
-fuzz`` sets 1,000,000: 20,000 streams, a few minutes). Nothing may raise; every non-delimiter byte must be
-accounted for (delivered in a frame, discarded, or still buffered); the
-per-frame, column-wise and columnar paths must agree.
+counts frames: the test runs one stream per 50 of them, at least 200
+(``make fuzz`` sets 1,000,000: 20,000 streams, a few minutes). Nothing may
+raise; every non-delimiter byte must be accounted for (delivered in a frame,
+discarded, or still buffered); the per-frame, column-wise and columnar paths
+must agree.
 """
 
 from __future__ import annotations

@@ -22,7 +22,6 @@ from typing import Protocol
 import numpy as np
 import numpy.typing as npt
 
-from rfsas_hw.board.channels import channel_to_freq_mhz, freq_to_channel
 from rfsas_hw.board.codec import Encoder, decode_payload
 from rfsas_hw.board.messages import (
     RSSI_SLOTS,
@@ -50,6 +49,7 @@ from rfsas_hw.board.reader import FrameDecoder
 from rfsas_hw.errors import ConfigError
 from rfsas_hw.records import FrameKind, ObservationBatch, mac_to_int
 from rfsas_hw.rf.antenna import GaussianBeamPair
+from rfsas_hw.rf.channels import channel_to_freq_mhz, freq_to_channel
 from rfsas_hw.rf.link_budget import link_budget
 from rfsas_hw.rf.synth import ReceiverModel, rssi_pairs
 
@@ -89,7 +89,7 @@ class Emitter:
     @property
     def freq_mhz(self) -> int:
         """Centre frequency of its channel, MHz."""
-        return channel_to_freq_mhz(self.channel, ble=self.radio == "bt")
+        return channel_to_freq_mhz(self.channel, self.radio)
 
     @classmethod
     def parse(cls, text: str, index: int = 0) -> Emitter:
@@ -131,7 +131,7 @@ class Emitter:
         if em.distance_m <= 0 or em.rate_hz < 0:
             raise ConfigError(f"emitter {text!r}: distance must be > 0 and rate ≥ 0")
         try:
-            channel_to_freq_mhz(em.channel, ble=em.radio == "bt")
+            channel_to_freq_mhz(em.channel, em.radio)
         except ConfigError as err:
             raise ConfigError(f"emitter {text!r}: {err}") from err
         return em

@@ -25,6 +25,7 @@ from typing import Any, Literal
 from rfsas_hw.config import from_mapping, read_yaml
 from rfsas_hw.errors import ConfigError, DataFormatError
 from rfsas_hw.records import mac_to_int
+from rfsas_hw.rf.channels import channel_to_freq_mhz
 from rfsas_hw.rf.link_budget import MAX_EIRP_DBM
 
 SCHEMA_VERSION = 1
@@ -535,7 +536,7 @@ def _check(spec: ScenarioSpec, where: str) -> None:
                 _mac(tr.peer_mac, f"{tat}.peer_mac")
             for ch in tr.effective_channels():
                 try:
-                    channel_freq_mhz(ch, e.tech)
+                    channel_to_freq_mhz(ch, e.tech)
                 except ConfigError as err:
                     raise ConfigError(f"{tat}.channels: {err}") from err
 
@@ -545,28 +546,6 @@ def _mac(text: str, where: str) -> int:
         return mac_to_int(text)
     except DataFormatError as err:
         raise ConfigError(f"{where}: {err}") from err
-
-
-def channel_freq_mhz(channel: int, tech: str = "wifi") -> int:
-    """Centre frequency of a Wi-Fi or BLE channel, MHz.
-
-    Raises:
-        ConfigError: not a channel of that technology.
-    """
-    if tech == "ble":
-        ble = {37: 2402, 38: 2426, 39: 2480}
-        if channel in ble:
-            return ble[channel]
-        if 0 <= channel <= 36:
-            return 2404 + 2 * channel + (2 if channel >= 11 else 0)
-        raise ConfigError(f"{channel} is not a BLE channel (0–39)")
-    if 1 <= channel <= 13:
-        return 2407 + 5 * channel
-    if channel == 14:
-        return 2484
-    if 32 <= channel <= 177:
-        return 5000 + 5 * channel
-    raise ConfigError(f"{channel} is not a Wi-Fi channel (1–14, 32–177)")
 
 
 def scenario_from_mapping(

@@ -41,6 +41,7 @@ from rfsas_hw.privacy.hashing import FixedNonce, MacHasher
 from rfsas_hw.records import FrameKind, ObservationBatch, Pose
 from rfsas_hw.rf.antenna import GaussianBeamPair
 from rfsas_hw.rf.aoa import sigma_monopulse_deg
+from rfsas_hw.rf.channels import channel_to_freq_mhz
 from rfsas_hw.rf.noise import quantise_db, rssi_sigma_db
 from rfsas_hw.sim.envconfig import EnvConfig, SensingConfig
 from rfsas_hw.sim.rfworld import blockage_db, building_array, link_path_loss_db
@@ -48,7 +49,6 @@ from rfsas_hw.sim.scenario import (
     DEFAULT_THRESHOLD_DBM,
     RfSpec,
     Scenario,
-    channel_freq_mhz,
     scenario_from_mapping,
 )
 
@@ -166,7 +166,7 @@ class SnrLocator:
         self.antenna = GaussianBeamPair(
             squint_deg=self.sensing.squint_deg, beamwidth_deg=self.sensing.beamwidth_deg
         )
-        self.freq_mhz = channel_freq_mhz(self.channel)
+        self.freq_mhz = channel_to_freq_mhz(self.channel)
         self.threshold_dbm = DEFAULT_THRESHOLD_DBM["wifi"]
         self.options = TriangulationOptions(max_range_fraction=self.sensing.max_range_fraction)
 

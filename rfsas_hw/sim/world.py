@@ -31,6 +31,7 @@ from rfsas_hw.angles import math_rad_to_compass, wrap_deg_180
 from rfsas_hw.records import ObservationBatch, ObsFlag, mac_to_int
 from rfsas_hw.rf.antenna import GaussianBeamPair
 from rfsas_hw.rf.aoa import sigma_monopulse_deg
+from rfsas_hw.rf.channels import channel_to_freq_mhz
 from rfsas_hw.rf.noise import quantise_db, rssi_sigma_db
 from rfsas_hw.sim.motion import Track, static_track
 from rfsas_hw.sim.rfworld import (
@@ -42,7 +43,7 @@ from rfsas_hw.sim.rfworld import (
 )
 from rfsas_hw.sim.rng import stream
 from rfsas_hw.sim.scan import ScanPlan
-from rfsas_hw.sim.scenario import Detail, Scenario, SensorSpec, channel_freq_mhz
+from rfsas_hw.sim.scenario import Detail, Scenario, SensorSpec
 from rfsas_hw.sim.traffic import Transmissions, emitter_transmissions
 
 Array = npt.NDArray[np.float64]
@@ -282,7 +283,7 @@ class World:
         freq = np.zeros(n, np.int32)
         for code, name in enumerate(TECH_CODES):
             for ch in np.unique(c["channel"][tech == code]):
-                freq[(tech == code) & (c["channel"] == ch)] = channel_freq_mhz(int(ch), name)
+                freq[(tech == code) & (c["channel"] == ch)] = channel_to_freq_mhz(int(ch), name)
         exy = np.empty((n, 2))
         for i in np.unique(e_idx):
             sel = e_idx == i

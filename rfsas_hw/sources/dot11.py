@@ -167,36 +167,3 @@ def has_transmitter_batch(
     ctrl_ta = (ftype == TYPE_CTRL) & (((_CTRL_TA_MASK >> np.asarray(subtype, np.int64)) & 1) == 1)
     out: npt.NDArray[np.bool_] = (ftype == TYPE_MGMT) | (ftype == TYPE_DATA) | ctrl_ta
     return out
-
-
-def _channel(f: int) -> int:
-    if 2412 <= f <= 2472:
-        return (f - 2407) // 5
-    if f == 2484:
-        return 14
-    if 4910 <= f <= 4980:
-        return (f - 4000) // 5
-    if 5000 <= f <= 5925:
-        return (f - 5000) // 5
-    if f == 5935:
-        return 2
-    if 5950 < f <= 7125:
-        return (f - 5950) // 5
-    return 0
-
-
-_MAX_FREQ = 7200
-_CHANNEL = np.array([_channel(f) for f in range(_MAX_FREQ)], np.int16)
-
-
-def freq_to_channel(freq_mhz: npt.NDArray[np.integer]) -> npt.NDArray[np.int16]:
-    """IEEE channel numbers for centre frequencies in MHz (0 where unknown).
-
-    2.4 GHz: 2412 + 5·(n − 1), channel 14 at 2484; 5 GHz: 5000 + 5·n;
-    6 GHz: 5950 + 5·n (channel 2 at 5935); 4.9 GHz (Japan): 4000 + 5·n.
-    """
-    f = np.asarray(freq_mhz, np.int64)
-    out: npt.NDArray[np.int16] = np.where(
-        (f >= 0) & (f < _MAX_FREQ), _CHANNEL[np.clip(f, 0, _MAX_FREQ - 1)], 0
-    ).astype(np.int16)
-    return out

@@ -29,6 +29,7 @@ import numpy.typing as npt
 
 from rfsas_hw.errors import CaptureFormatError
 from rfsas_hw.records import NO_SEQ, ObservationBatch, ObsFlag
+from rfsas_hw.rf.channels import freq_to_channel
 from rfsas_hw.sources import dot11, radiotap
 from rfsas_hw.sources.pcapfile import FrameProblem
 
@@ -179,7 +180,7 @@ class FrameTable:
             t_ns=self.t_ns,
             mac=self.mac,
             freq_mhz=self.freq_mhz,
-            channel=dot11.freq_to_channel(self.freq_mhz),
+            channel=freq_to_channel(self.freq_mhz),
             rssi_dbm=rssi,
             seq=self.seq,
             kind=dot11.kind_of(self.ftype, self.subtype),

@@ -33,6 +33,7 @@ import numpy.typing as npt
 
 from rfsas_hw.errors import ConfigError
 from rfsas_hw.records import ObservationBatch, ObsFlag
+from rfsas_hw.rf.channels import freq_to_channel
 from rfsas_hw.sources import dot11
 from rfsas_hw.sources.frames import SENTINEL_DBM, FrameTable
 from rfsas_hw.sources.pcapfile import FrameProblem
@@ -281,7 +282,7 @@ def pair_tables(a: FrameTable, b: FrameTable, cfg: PairingConfig) -> PairResult:
         t_ns=a.t_ns[rows_a],
         mac=a.mac[rows_a],
         freq_mhz=a.freq_mhz[rows_a],
-        channel=dot11.freq_to_channel(a.freq_mhz[rows_a]),
+        channel=freq_to_channel(a.freq_mhz[rows_a]),
         rssi_dbm=rssi,
         seq=a.seq[rows_a],
         kind=dot11.kind_of(a.ftype[rows_a], a.subtype[rows_a]),

@@ -24,7 +24,6 @@ import numpy as np
 import numpy.typing as npt
 import serial
 
-from rfsas_hw.board.channels import channel_to_freq_mhz
 from rfsas_hw.board.codec import Encoder, decode_payload, message_name
 from rfsas_hw.board.columns import to_observations
 from rfsas_hw.board.framing import Frame
@@ -51,6 +50,7 @@ from rfsas_hw.board.reader import FrameDecoder
 from rfsas_hw.board.timesync import TimeMapper
 from rfsas_hw.errors import BoardProtocolError, ConfigError, SourceError
 from rfsas_hw.records import ObservationBatch
+from rfsas_hw.rf.channels import channel_to_freq_mhz
 from rfsas_hw.sources.base import BatchFilter, ErrorPolicy, Source
 
 log = logging.getLogger(__name__)

@@ -8,9 +8,9 @@ import pytest
 import yaml
 
 from rfsas_hw.errors import ConfigError
+from rfsas_hw.rf.channels import channel_to_freq_mhz
 from rfsas_hw.sim.scenario import (
     SCHEMA_VERSION,
-    channel_freq_mhz,
     load_scenario,
     parse_utc_ns,
     scenario_from_mapping,
@@ -85,14 +85,14 @@ def test_missing_file_and_bad_yaml(tmp_path: Path) -> None:
 
 
 def test_channel_frequencies() -> None:
-    assert channel_freq_mhz(1) == 2412
-    assert channel_freq_mhz(6) == 2437
-    assert channel_freq_mhz(14) == 2484
-    assert channel_freq_mhz(36) == 5180
-    assert channel_freq_mhz(37, "ble") == 2402
-    assert channel_freq_mhz(39, "ble") == 2480
-    assert channel_freq_mhz(0, "ble") == 2404
-    assert channel_freq_mhz(11, "ble") == 2428
+    assert channel_to_freq_mhz(1) == 2412
+    assert channel_to_freq_mhz(6) == 2437
+    assert channel_to_freq_mhz(14) == 2484
+    assert channel_to_freq_mhz(36) == 5180
+    assert channel_to_freq_mhz(37, "ble") == 2402
+    assert channel_to_freq_mhz(39, "ble") == 2480
+    assert channel_to_freq_mhz(0, "ble") == 2404
+    assert channel_to_freq_mhz(11, "ble") == 2428
 
 
 def test_parse_utc() -> None:

@@ -13,6 +13,7 @@ from hypothesis import strategies as st
 
 from rfsas_hw.errors import CaptureFormatError
 from rfsas_hw.records import mac_to_int
+from rfsas_hw.rf.channels import freq_to_channel
 from rfsas_hw.sources import dot11, radiotap
 from rfsas_hw.sources.frames import FrameDecoder, FrameSpans
 from rfsas_hw.sources.pcapfile import iter_chunks
@@ -314,4 +315,4 @@ def test_flags_properties() -> None:
 def test_freq_to_channel() -> None:
     freqs = np.array([2412, 2437, 2472, 2484, 5180, 5745, 5825, 5955, 5935, 4920, 0, 1234])
     expected = [1, 6, 13, 14, 36, 149, 165, 1, 2, 184, 0, 0]
-    assert dot11.freq_to_channel(freqs).tolist() == expected
+    assert freq_to_channel(freqs).tolist() == expected

@@ -14,6 +14,7 @@ are generated from these classes and checked by the tests.
 
 from __future__ import annotations
 
+import dataclasses
 import enum
 import struct
 from dataclasses import dataclass, field
@@ -144,21 +145,16 @@ def _pack_error(cls: type[Message], err: Exception) -> PayloadError:
     return PayloadError(f"{cls.__name__}: field out of range: {err}")
 
 
-@dataclass(slots=True)
-class Hello(Message):
-    """Host → board: ask for :class:`Info`; also resets nothing on the board."""
+class FixedMessage(Message):
+    """A message whose payload is its dataclass fields, in order, packed by ``_S``."""
 
-    TYPE: ClassVar[int] = 0x01
-    LAYOUT: ClassVar[str] = "HELLO u8 protocol_version"
-    FROM_BOARD: ClassVar[bool] = False
-    _S: ClassVar[struct.Struct] = struct.Struct("<B")
-
-    protocol_version: int = 1
-    """Protocol version the host speaks."""
+    __slots__ = ()
+    _S: ClassVar[struct.Struct]
 
     def pack(self) -> bytes:
+        values = (getattr(self, f.name) for f in dataclasses.fields(self))  # type: ignore[arg-type]
         try:
-            return self._S.pack(self.protocol_version)
+            return self._S.pack(*values)
         except struct.error as err:
             raise _pack_error(type(self), err) from err
 
@@ -170,7 +166,20 @@ class Hello(Message):
 
 
 @dataclass(slots=True)
-class Info(Message):
+class Hello(FixedMessage):
+    """Host → board: ask for :class:`Info`; also resets nothing on the board."""
+
+    TYPE: ClassVar[int] = 0x01
+    LAYOUT: ClassVar[str] = "HELLO u8 protocol_version"
+    FROM_BOARD: ClassVar[bool] = False
+    _S: ClassVar[struct.Struct] = struct.Struct("<B")
+
+    protocol_version: int = 1
+    """Protocol version the host speaks."""
+
+
+@dataclass(slots=True)
+class Info(FixedMessage):
     """Board → host: who the board is (answer to :class:`Hello`, also sent at boot)."""
 
     TYPE: ClassVar[int] = 0x02
@@ -195,26 +204,6 @@ class Info(Message):
     """:class:`Capability` bits."""
     board_id: int
     """Unique id of the board (e.g. the MCU's serial number), 64 bits."""
-
-    def pack(self) -> bytes:
-        try:
-            return self._S.pack(
-                self.protocol_version,
-                self.fw_major,
-                self.fw_minor,
-                self.fw_patch,
-                self.n_antennas,
-                self.capabilities,
-                self.board_id,
-            )
-        except struct.error as err:
-            raise _pack_error(type(self), err) from err
-
-    @classmethod
-    def unpack(cls, payload: bytes) -> Self:
-        if len(payload) < cls._S.size:
-            raise _short(cls, payload, cls._S.size)
-        return cls(*cls._S.unpack_from(payload))
 
     @property
     def firmware(self) -> str:
@@ -371,7 +360,7 @@ def batch_header(payload: bytes) -> tuple[int, int]:
 
 
 @dataclass(slots=True)
-class SetChannel(Message):
+class SetChannel(FixedMessage):
     """Host → board: listen on one channel (ends any scan plan)."""
 
     TYPE: ClassVar[int] = 0x20
@@ -381,18 +370,6 @@ class SetChannel(Message):
 
     freq_mhz: int
     """Centre frequency, MHz."""
-
-    def pack(self) -> bytes:
-        try:
-            return self._S.pack(self.freq_mhz)
-        except struct.error as err:
-            raise _pack_error(type(self), err) from err
-
-    @classmethod
-    def unpack(cls, payload: bytes) -> Self:
-        if len(payload) < cls._S.size:
-            raise _short(cls, payload, cls._S.size)
-        return cls(*cls._S.unpack_from(payload))
 
 
 @dataclass(slots=True)
@@ -433,39 +410,27 @@ class SetScanPlan(Message):
 
 
 @dataclass(slots=True)
-class Start(Message):
+class Start(FixedMessage):
     """Host → board: start streaming measurements."""
 
     TYPE: ClassVar[int] = 0x22
     LAYOUT: ClassVar[str] = "START"
     FROM_BOARD: ClassVar[bool] = False
-
-    def pack(self) -> bytes:
-        return b""
-
-    @classmethod
-    def unpack(cls, payload: bytes) -> Self:
-        return cls()
+    _S: ClassVar[struct.Struct] = struct.Struct("<")
 
 
 @dataclass(slots=True)
-class Stop(Message):
+class Stop(FixedMessage):
     """Host → board: stop streaming measurements."""
 
     TYPE: ClassVar[int] = 0x23
     LAYOUT: ClassVar[str] = "STOP"
     FROM_BOARD: ClassVar[bool] = False
-
-    def pack(self) -> bytes:
-        return b""
-
-    @classmethod
-    def unpack(cls, payload: bytes) -> Self:
-        return cls()
+    _S: ClassVar[struct.Struct] = struct.Struct("<")
 
 
 @dataclass(slots=True)
-class Heartbeat(Message):
+class Heartbeat(FixedMessage):
     """Board → host, about once a second: counters and state."""
 
     TYPE: ClassVar[int] = 0x30
@@ -491,29 +456,9 @@ class Heartbeat(Message):
     freq_mhz: int
     """Frequency the radio is on now, MHz."""
 
-    def pack(self) -> bytes:
-        try:
-            return self._S.pack(
-                self.uptime_us,
-                self.frames_heard,
-                self.frames_dropped,
-                self.queue_depth,
-                self.queue_capacity,
-                self.state,
-                self.freq_mhz,
-            )
-        except struct.error as err:
-            raise _pack_error(type(self), err) from err
-
-    @classmethod
-    def unpack(cls, payload: bytes) -> Self:
-        if len(payload) < cls._S.size:
-            raise _short(cls, payload, cls._S.size)
-        return cls(*cls._S.unpack_from(payload))
-
 
 @dataclass(slots=True)
-class Ack(Message):
+class Ack(FixedMessage):
     """Board → host: a command was accepted."""
 
     TYPE: ClassVar[int] = 0x40
@@ -526,21 +471,9 @@ class Ack(Message):
     acked_type: int
     """Message type of the command."""
 
-    def pack(self) -> bytes:
-        try:
-            return self._S.pack(self.acked_seq, self.acked_type)
-        except struct.error as err:
-            raise _pack_error(type(self), err) from err
-
-    @classmethod
-    def unpack(cls, payload: bytes) -> Self:
-        if len(payload) < cls._S.size:
-            raise _short(cls, payload, cls._S.size)
-        return cls(*cls._S.unpack_from(payload))
-
 
 @dataclass(slots=True)
-class Nak(Message):
+class Nak(FixedMessage):
     """Board → host: a command was refused."""
 
     TYPE: ClassVar[int] = 0x41
@@ -556,18 +489,6 @@ class Nak(Message):
     """:class:`NakCode`."""
     detail: int = 0
     """Code-specific detail (e.g. the offending frequency, MHz)."""
-
-    def pack(self) -> bytes:
-        try:
-            return self._S.pack(self.acked_seq, self.acked_type, self.error, self.detail)
-        except struct.error as err:
-            raise _pack_error(type(self), err) from err
-
-    @classmethod
-    def unpack(cls, payload: bytes) -> Self:
-        if len(payload) < cls._S.size:
-            raise _short(cls, payload, cls._S.size)
-        return cls(*cls._S.unpack_from(payload))
 
 
 @dataclass(slots=True)
@@ -605,7 +526,7 @@ class ErrorReport(Message):
 
 
 @dataclass(slots=True)
-class TimeSyncRequest(Message):
+class TimeSyncRequest(FixedMessage):
     """Host → board: ask for the board clock; ``host_time_ns`` is echoed back."""
 
     TYPE: ClassVar[int] = 0x50
@@ -616,21 +537,9 @@ class TimeSyncRequest(Message):
     host_time_ns: int
     """Host clock when the request was sent, ns (opaque to the board)."""
 
-    def pack(self) -> bytes:
-        try:
-            return self._S.pack(self.host_time_ns)
-        except struct.error as err:
-            raise _pack_error(type(self), err) from err
-
-    @classmethod
-    def unpack(cls, payload: bytes) -> Self:
-        if len(payload) < cls._S.size:
-            raise _short(cls, payload, cls._S.size)
-        return cls(*cls._S.unpack_from(payload))
-
 
 @dataclass(slots=True)
-class TimeSync(Message):
+class TimeSync(FixedMessage):
     """Board → host: answer to :class:`TimeSyncRequest`."""
 
     TYPE: ClassVar[int] = 0x51
@@ -644,18 +553,6 @@ class TimeSync(Message):
     """Board time when the request arrived, µs."""
     board_tx_us: int
     """Board time when this answer was queued, µs."""
-
-    def pack(self) -> bytes:
-        try:
-            return self._S.pack(self.host_time_ns, self.board_rx_us, self.board_tx_us)
-        except struct.error as err:
-            raise _pack_error(type(self), err) from err
-
-    @classmethod
-    def unpack(cls, payload: bytes) -> Self:
-        if len(payload) < cls._S.size:
-            raise _short(cls, payload, cls._S.size)
-        return cls(*cls._S.unpack_from(payload))
 
 
 MESSAGE_TYPES: tuple[type[Message], ...] = (

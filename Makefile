@@ -35,7 +35,7 @@ calibration-demo: $(STAMP)
 	$(VENV)/bin/rfsas calibrate calibration/example_turntable.csv -o out/example_cal.yaml --plot out/example_cal.png
 	$(VENV)/bin/rfsas calibrate --check out/example_cal.yaml calibration/example_turntable_check.csv
 
-lint: $(STAMP)
+lint: $(RL_STAMP)
 	$(VENV)/bin/ruff check .
 	$(VENV)/bin/ruff format --check .
 	$(VENV)/bin/mypy rfsas_hw

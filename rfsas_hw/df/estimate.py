@@ -122,9 +122,11 @@ def estimate(
     if channel is None or (len(cal.tables) == 1 and cal.tables[0].channel is None):
         groups: list[tuple[int | None, npt.NDArray[np.bool_] | None]] = [(None, None)]
     else:
-        ch = np.asarray(channel, dtype=np.int64)
-        uniq = np.unique(ch)
-        groups = [(int(uniq[0]), None)] if len(uniq) == 1 else [(int(c), ch == c) for c in uniq]
+        ch = np.asarray(channel)
+        if n and ch.min() == ch.max():  # the usual case: one channel, no sort
+            groups = [(int(ch[0]), None)]
+        else:
+            groups = [(int(c), ch == c) for c in np.unique(ch)]
     angle = sigma = None
     for c, mask in groups:
         table = cal.table_for(c)

@@ -60,16 +60,15 @@ class UniformLut:
 
     def __call__(self, x: Array) -> tuple[Array, Array, npt.NDArray[np.bool_]]:
         """(angle in degrees, factor, outside-the-table mask) for each input."""
-        top = np.float32(len(self.angle) - 1)
-        u = (x - np.float32(self.x0)) * np.float32(self.scale)
-        outside = ~((u >= 0.0) & (u <= top))
-        # fmin/fmax (unlike clip) map NaN to a bound, so the cast below is defined
-        np.fmin(u, top, out=u)
-        np.fmax(u, np.float32(0.0), out=u)
+        last = len(self.angle) - 1
+        u = x - np.float32(self.x0)
+        u *= np.float32(self.scale)
+        outside = ~((u >= 0.0) & (u <= np.float32(last)))
         cell = np.floor(u)
-        np.minimum(cell, top - 1, out=cell)
-        frac = u - cell
-        i = cell.astype(np.int32)
+        frac = u - cell  # in [0, 1) for every finite input, inside the table or not
+        with np.errstate(invalid="ignore"):  # NaN inputs (flagged upstream) cast to garbage
+            i = cell.astype(np.int32)
+        np.clip(i, 0, last - 1, out=i)
         angle = self.angle[i]
         angle += frac * self.angle_step[i]
         factor = self.factor[i]

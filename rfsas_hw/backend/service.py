@@ -36,7 +36,12 @@ from rfsas_hw.backend.association import AssociationConfig, Associator
 from rfsas_hw.backend.encounter import EncounterConfig, assess_encounter
 from rfsas_hw.backend.risk import Advisory
 from rfsas_hw.backend.tracking import Tracker, TrackerConfig
-from rfsas_hw.backend.triangulation import FixStatus, TriangulationOptions, triangulate_batch
+from rfsas_hw.backend.triangulation import (
+    FixStatus,
+    TriangulationOptions,
+    triangulate,
+    triangulate_batch,
+)
 from rfsas_hw.backend.vehicle import VehicleFeed, VehicleState
 from rfsas_hw.config import from_mapping, read_yaml
 from rfsas_hw.errors import BackendError, ConfigError
@@ -45,6 +50,8 @@ from rfsas_hw.records import Assessment, BearingBatch, Fix, Pose, emitter_hex
 log = logging.getLogger(__name__)
 
 NS_PER_S = 1_000_000_000
+SMALL_BATCH = 8
+"""Up to this many emitters per step are triangulated one by one (faster than the batch path)."""
 
 __all__ = [
     "BackendConfig",
@@ -330,31 +337,37 @@ class BackendService:
         groups = self.associator.groups(now)
         if len(groups) == 0:
             return []
-        tri = triangulate_batch(
-            groups.stations_xy, groups.azimuth_deg, groups.sigma_deg, self.config.triangulation
-        )
+        opts = self.config.triangulation
+        if len(groups) <= SMALL_BATCH:
+            # a few emitters: the scalar path avoids the batch path's fixed numpy cost
+            tris = [
+                triangulate(groups.stations_xy[i], groups.azimuth_deg[i], groups.sigma_deg[i], opts)
+                for i in range(len(groups))
+            ]
+        else:
+            batch = triangulate_batch(
+                groups.stations_xy, groups.azimuth_deg, groups.sigma_deg, opts
+            )
+            tris = [batch[i] for i in range(len(groups))]
         out = []
-        for i in range(len(groups)):
+        for i, tri in enumerate(tris):
             emitter = int(groups.emitter[i])
-            status = FixStatus(int(tri.status[i]))
             fix = _fix_record(
                 emitter,
                 int(groups.t_ns[i]),
                 groups.sensors[i],
-                tri.position[i],
-                tri.covariance[i],
-                status,
-                tri.reason(i),
-                tri.gdop[i],
-                tri.condition[i],
+                tri.position,
+                tri.covariance,
+                tri.status,
+                tri.reason,
+                tri.gdop,
+                tri.condition,
             )
             self.stats.fixes[fix.status] += 1
             self.fixes[emitter] = fix
             out.append(fix)
             if fix.ok:
-                self.tracker.update(
-                    emitter, fix.t_ns, tri.position[i], tri.covariance[i], fix.sensors
-                )
+                self.tracker.update(emitter, fix.t_ns, tri.position, tri.covariance, fix.sensors)
         return out
 
     def _vehicle_at(self, now: int) -> VehicleState | None:

@@ -216,3 +216,32 @@ def test_backend_settings_from_yaml(tmp_path: Path) -> None:
     bad.write_text("triangulation: {max_condition: 0.5}\n")
     with pytest.raises(ConfigError, match=r"bad\.yaml: triangulation: max_condition must be > 1"):
         load_backend_config(bad)
+
+
+@pytest.mark.parametrize("n_emitters", [3, 20])
+def test_scalar_and_batch_triangulation_paths_give_the_same_fixes(n_emitters: int) -> None:
+    """A few emitters go through the scalar path, many through the batch path: same fixes."""
+    from rfsas_hw.backend.service import SMALL_BATCH
+    from rfsas_hw.backend.triangulation import triangulate
+
+    assert 3 <= SMALL_BATCH < 20  # the two cases take the two paths
+    rng = np.random.default_rng(n_emitters)
+    targets = rng.uniform([-20.0, 5.0], [20.0, 40.0], size=(n_emitters, 2))
+    emitters = [EMITTER + i for i in range(n_emitters)]
+    service = BackendService()
+    t = time.time_ns()
+    measured: dict[str, np.ndarray] = {}
+    for sid, pose in STATIONS.items():
+        az = np.array([true_azimuth(pose, p) for p in targets]) + rng.normal(
+            0, SIGMA_DEG, n_emitters
+        )
+        measured[sid] = az
+        service.on_bearings(bearing_batch(sid, t, az.tolist(), emitters), pose)
+    service.step(t)
+    stations = np.array([[p.x_m, p.y_m] for p in STATIONS.values()])
+    for i, emitter in enumerate(emitters):
+        fix = service.fixes[emitter]
+        az = [measured[sid][i] for sid in STATIONS]
+        direct = triangulate(stations, az, [SIGMA_DEG] * 2)
+        assert fix.ok == direct.ok
+        assert np.allclose([fix.x_m, fix.y_m], direct.position, atol=1e-6)

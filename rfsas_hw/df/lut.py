@@ -68,7 +68,8 @@ class UniformLut:
         frac = u - cell  # in [0, 1) for every finite input, inside the table or not
         with np.errstate(invalid="ignore"):  # NaN inputs (flagged upstream) cast to garbage
             i = cell.astype(np.int32)
-        np.clip(i, 0, last - 1, out=i)
+        np.maximum(i, 0, out=i)
+        np.minimum(i, last - 1, out=i)
         angle = self.angle[i]
         angle += frac * self.angle_step[i]
         factor = self.factor[i]

@@ -81,6 +81,10 @@ def _hash_many(nonce: bytes, macs: list[int]) -> list[int]:
     return out
 
 
+SMALL_BATCH = 8
+"""Batches up to this size are hashed frame by frame (no sorting)."""
+
+
 class MacHasher:
     """Vectorised MAC → emitter-id hashing with a per-epoch cache.
 
@@ -155,6 +159,11 @@ class MacHasher:
         if too_big.size:
             # the row, not the value: the value is (part of) a MAC
             raise DataFormatError(f"MAC at row {int(too_big[0])} does not fit 48 bits")
+        if len(macs) <= SMALL_BATCH:
+            # a live sensor's few frames: sorting costs more than it saves
+            for i, (mac, t) in enumerate(zip(macs.tolist(), t_ns.tolist(), strict=True)):
+                out[i] = self.hash_one(mac, t)
+            return out
         epochs = np.asarray(t_ns, dtype=np.int64) // self._epoch_ns
         for epoch in np.unique(epochs):
             sel = epochs == epoch

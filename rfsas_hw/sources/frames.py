@@ -155,18 +155,18 @@ class FrameTable:
         ``flagged`` (if given) counts frames kept with a flag: no per-antenna
         signal, sentinel chain values, no signal at all.
         """
-        rssi = self.chain_dbm.copy()
-        sentinel = np.isin(rssi, SENTINEL_DBM)
-        rssi[sentinel] = np.nan
-        any_sentinel = sentinel.any(axis=1)
-        no_chains = np.isnan(self.chain_dbm).all(axis=1)
+        chains = self.chain_dbm
+        sentinel = chains == np.float32(SENTINEL_DBM[0])
+        for value in SENTINEL_DBM[1:]:
+            sentinel |= chains == np.float32(value)
+        rssi = np.where(sentinel, np.float32(np.nan), chains)
+        any_sentinel = _rows_any(sentinel)
+        no_chains = _rows_all(np.isnan(chains))
         no_signal = no_chains & np.isnan(self.signal_dbm)
-        flags = (
-            np.where(self.retry, int(ObsFlag.RETRY), 0)
-            | np.where(any_sentinel, int(ObsFlag.SENTINEL_CHAIN), 0)
-            | np.where(np.isnan(rssi).any(axis=1), int(ObsFlag.MISSING_CHAIN), 0)
-            | np.where(no_signal, int(ObsFlag.NO_SIGNAL), 0)
-        ).astype(np.uint16)
+        flags = self.retry * np.uint16(ObsFlag.RETRY)
+        flags |= any_sentinel * np.uint16(ObsFlag.SENTINEL_CHAIN)
+        flags |= _rows_any(np.isnan(rssi)) * np.uint16(ObsFlag.MISSING_CHAIN)
+        flags |= no_signal * np.uint16(ObsFlag.NO_SIGNAL)
         if flagged is not None:
             for key, mask in (
                 (F_NO_CHAINS, no_chains),
@@ -647,6 +647,22 @@ def _groups(columns: list[npt.NDArray[np.uint64]]) -> list[npt.NDArray[np.int64]
     bounds = np.flatnonzero(np.diff(inverse[order])) + 1
     groups.extend(rest[part] for part in np.split(order, bounds))
     return groups
+
+
+def _rows_any(mask: npt.NDArray[np.bool_]) -> npt.NDArray[np.bool_]:
+    """Per row: any column true (a column loop: numpy's ``any(axis=1)`` is slow on few columns)."""
+    out = np.zeros(mask.shape[0], bool)
+    for k in range(mask.shape[1]):
+        out |= mask[:, k]
+    return out
+
+
+def _rows_all(mask: npt.NDArray[np.bool_]) -> npt.NDArray[np.bool_]:
+    """Per row: every column true (see :func:`_rows_any`)."""
+    out = np.ones(mask.shape[0], bool)
+    for k in range(mask.shape[1]):
+        out &= mask[:, k]
+    return out
 
 
 def _trim(words: tuple[int, ...]) -> tuple[int, ...]:

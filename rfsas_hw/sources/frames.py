@@ -234,7 +234,7 @@ def _view(buf: bytes, dtype: str, size: int) -> npt.NDArray[Any]:
 
 
 class _Views:
-    __slots__ = ("i8", "u8", "u16", "u16be", "u32", "u32be", "u64")
+    __slots__ = ("i8", "u8", "u16", "u16be", "u32", "u32be", "u64", "u64be")
 
     def __init__(self, buf: bytes) -> None:
         self.u8 = np.frombuffer(buf, np.uint8)
@@ -244,6 +244,7 @@ class _Views:
         self.u32 = _view(buf, "<u4", 4)
         self.u32be = _view(buf, ">u4", 4)
         self.u64 = _view(buf, "<u8", 8)
+        self.u64be = _view(buf, ">u8", 8)
 
 
 class FrameDecoder:
@@ -473,16 +474,17 @@ class FrameDecoder:
                 result.dropped[reason] += count
         keep &= ~(bad_fcs | no_ta)
         good = ok & ~bad_fcs & has_ta
-        gs = s_safe[good]
-        table.ftype[good] = ftype[good]
-        table.subtype[good] = subtype[good]
-        table.retry[good] = (fc[good] & dot11.FC_RETRY) != 0
-        mac = (v.u32be[gs + 10].astype(np.uint64) << np.uint64(16)) | v.u16be[gs + 14]
-        table.mac[good] = mac
+        # Whole-column writes: rows that are not good are either dropped or decoded
+        # again by the walk, which overwrites these columns.
+        table.ftype[:] = ftype
+        table.subtype[:] = subtype
+        table.retry[:] = (fc & dot11.FC_RETRY) != 0
+        # addr2 is the low 48 bits of the big-endian 8 bytes from offset 8.
+        table.mac[:] = v.u64be[np.where(good, s_safe, 0) + 8] & np.uint64(0xFFFF_FFFF_FFFF)
         with_seq = good & ((ftype == dot11.TYPE_MGMT) | (ftype == dot11.TYPE_DATA))
-        sc = v.u16[s_safe[with_seq] + 22]
-        table.seq[with_seq] = sc >> 4
-        table.frag[with_seq] = sc & 0xF
+        sc = v.u16[np.where(with_seq, s_safe, 0) + 22]
+        table.seq[:] = np.where(with_seq, (sc >> 4).astype(np.int32), np.int32(NO_SEQ))
+        table.frag[:] = np.where(with_seq, (sc & 0xF).astype(np.int16), np.int16(-1))
         return np.flatnonzero(slow)
 
     def _fast_radiotap(
@@ -498,11 +500,14 @@ class FrameDecoder:
         n = len(h)
         slow |= avail < radiotap.MIN_HEADER_LEN
         hs = np.where(slow, 0, h)
-        it_len = v.u16[hs + 2].astype(np.int64)
-        slow |= (v.u8[hs] != 0) | (it_len < radiotap.MIN_HEADER_LEN) | (it_len > avail)
+        # Version, pad, it_len and the first present word: one 8-byte read.
+        head = v.u64[hs]
+        it_len = ((head >> np.uint64(16)) & np.uint64(0xFFFF)).astype(np.int64)
+        version = head & np.uint64(0xFF)
+        slow |= (version != 0) | (it_len < radiotap.MIN_HEADER_LEN) | (it_len > avail)
         # Present words, one array per position, zero after a header's last word.
         limit = len(buf) - 4
-        words: list[npt.NDArray[np.uint32]] = [v.u32[hs + 4]]
+        words: list[npt.NDArray[np.uint32]] = [(head >> np.uint64(32)).astype(np.uint32)]
         more = ~slow & ((words[0] >> 31) != 0)
         while more.any():
             k = len(words)
@@ -511,8 +516,7 @@ class FrameDecoder:
                 break
             slow |= more & (it_len < 8 + 4 * (k + 1))
             more &= ~slow
-            word = v.u32[np.minimum(hs + 4 + 4 * k, limit)]
-            word[~more] = 0
+            word = np.where(more, v.u32[np.minimum(hs + 4 + 4 * k, limit)], np.uint32(0))
             words.append(word)
             more &= (word >> 31) != 0
         live = np.flatnonzero(~slow)

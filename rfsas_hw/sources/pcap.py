@@ -86,6 +86,8 @@ class FrameStream:
             self._owned = True
             self.total_bytes = Path(path).stat().st_size
         self._pipe = path == "-" or not self._owned
+        # A regular file is re-read from the first unconsumed byte (see CaptureParser.refeed).
+        self._seekable = self._owned and self._stream.seekable()
         try:
             self._fd: int | None = self._stream.fileno()
         except (OSError, AttributeError, ValueError):
@@ -104,6 +106,15 @@ class FrameStream:
                 if not ready:
                     return False
             data = os.read(self._fd, PIPE_BYTES)
+        elif self._seekable:
+            kept = self.parser.buffered
+            self._stream.seek(self.parser.position)
+            data = self._stream.read(kept + BLOCK_BYTES)
+            if len(data) <= kept:
+                self.eof = True
+            else:
+                self.parser.refeed(data)
+            return True
         else:
             data = self._stream.read(BLOCK_BYTES)
         if not data:

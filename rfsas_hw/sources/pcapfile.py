@@ -360,6 +360,23 @@ class CaptureParser:
         else:
             self._buf += data
 
+    def refeed(self, data: bytes) -> None:
+        """Replace the unconsumed bytes by ``data``, which starts with them (read again).
+
+        For a seekable input: re-reading the few unconsumed bytes along with the
+        next block costs less than copying the whole block behind them.
+
+        Raises:
+            ValueError: ``data`` is shorter than the unconsumed bytes.
+        """
+        if len(data) < self.buffered:
+            raise ValueError(
+                f"refeed needs at least the {self.buffered} unconsumed bytes, got {len(data)}"
+            )
+        self._base += self._pos
+        self._buf = data
+        self._pos = 0
+
     @property
     def buffered(self) -> int:
         """Bytes fed but not yet consumed."""

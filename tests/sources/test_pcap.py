@@ -381,3 +381,26 @@ def test_numpy_record_walk_equals_record_by_record(
     assert fast == plain
     assert whole == plain
     assert len(plain[0]) >= 5990 and bool(plain[2]) == corrupt
+
+
+@pytest.mark.parametrize("kind", ["pcap", "pcapng"])
+@pytest.mark.parametrize("corrupt", [False, True])
+@pytest.mark.parametrize("block", [700, 100_003])
+def test_file_read_in_small_blocks_equals_one_read(
+    monkeypatch: pytest.MonkeyPatch, tmp_path: Path, kind: str, corrupt: bool, block: int
+) -> None:
+    """Each read starts again at the first unconsumed byte; records wider than a block still fit."""
+    from rfsas_hw.sources import pcap
+
+    path = tmp_path / f"big.{kind}"
+    path.write_bytes(_big_capture(kind, False, corrupt))
+    whole, src = read_all(f"pcap:{path}")
+    monkeypatch.setattr(pcap, "BLOCK_BYTES", block)
+    pieces, small = read_all(f"pcap:{path}")
+    assert len(whole) >= 5990
+    for name in ("t_ns", "mac", "seq", "rssi_dbm", "flags"):
+        assert np.array_equal(getattr(pieces, name), getattr(whole, name), equal_nan=True)
+    assert small.stats.skipped == src.stats.skipped
+    assert small.stats.errors == src.stats.errors
+    assert bool(src.stats.errors) == corrupt
+    assert small.stats.extra["bytes_read"] == path.stat().st_size

@@ -135,7 +135,7 @@ class FrameTable:
 
     def select(self, index: npt.NDArray[Any] | slice) -> FrameTable:
         """Rows picked by a mask, an index array or a slice."""
-        return FrameTable(**{f.name: getattr(self, f.name)[index] for f in fields(self)})
+        return FrameTable(**{f.name: _rows(getattr(self, f.name), index) for f in fields(self)})
 
     @staticmethod
     def concat(tables: list[FrameTable], width: int) -> FrameTable:
@@ -651,6 +651,20 @@ def _groups(columns: list[npt.NDArray[np.uint64]]) -> list[npt.NDArray[np.int64]
     bounds = np.flatnonzero(np.diff(inverse[order])) + 1
     groups.extend(rest[part] for part in np.split(order, bounds))
     return groups
+
+
+def _rows(column: npt.NDArray[Any], index: npt.NDArray[Any] | slice) -> npt.NDArray[Any]:
+    """``column[index]``; a 2-D column's rows are picked as single opaque items.
+
+    numpy picks rows of a narrow 2-D array by a mask about ten times slower
+    than items of a 1-D array of the same bytes.
+    """
+    if column.ndim != 2 or isinstance(index, slice) or column.shape[1] * column.itemsize == 0:
+        return column[index]
+    whole = np.ascontiguousarray(column)
+    rows = whole.view(np.dtype((np.void, whole.shape[1] * whole.itemsize))).ravel()
+    picked: npt.NDArray[Any] = rows[index].view(column.dtype).reshape(-1, column.shape[1])
+    return picked
 
 
 def _rows_any(mask: npt.NDArray[np.bool_]) -> npt.NDArray[np.bool_]:

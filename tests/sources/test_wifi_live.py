@@ -332,5 +332,5 @@ def test_live_cli_hops_channels_with_iw(
     assert proc.returncode == 0, proc.stderr
     lines = calls.read_text().splitlines()
     assert lines[:2] == [f"dev {veth[0]} set channel 1", f"dev {veth[0]} set channel 6"]
-    assert 3 <= len(lines) <= 7  # about one hop per 0.2 s for 1 s
+    assert 2 <= len(lines) <= 8  # about one hop per 0.2 s for 1 s (fewer on a loaded machine)
     assert "scan plan" in proc.stdout

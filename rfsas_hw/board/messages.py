@@ -145,11 +145,35 @@ def _pack_error(cls: type[Message], err: Exception) -> PayloadError:
     return PayloadError(f"{cls.__name__}: field out of range: {err}")
 
 
+_LAYOUT_CODES = {"u8": "B", "u16": "H", "u32": "I", "u64": "Q", "i8": "b", "i16": "h"}
+
+
+def layout_struct(layout: str) -> struct.Struct:
+    """The little-endian ``struct`` of a fixed layout, e.g. ``"ACK u16 acked_seq, u8 acked_type"``.
+
+    Raises:
+        ValueError: a field that is not a fixed-size integer (arrays, nested records).
+    """
+    _, _, fields_text = layout.partition(" ")
+    codes = []
+    for item in filter(None, (f.strip() for f in fields_text.split(","))):
+        kind = item.split()[0]
+        if kind not in _LAYOUT_CODES:
+            raise ValueError(f"{layout!r}: {kind!r} is not a fixed-size integer field")
+        codes.append(_LAYOUT_CODES[kind])
+    return struct.Struct("<" + "".join(codes))
+
+
 class FixedMessage(Message):
-    """A message whose payload is its dataclass fields, in order, packed by ``_S``."""
+    """A message whose payload is its dataclass fields, in order, laid out as ``LAYOUT`` says."""
 
     __slots__ = ()
     _S: ClassVar[struct.Struct]
+
+    def __init_subclass__(cls, **kwargs: object) -> None:
+        super().__init_subclass__(**kwargs)
+        if "LAYOUT" in cls.__dict__:
+            cls._S = layout_struct(cls.LAYOUT)
 
     def pack(self) -> bytes:
         values = (getattr(self, f.name) for f in dataclasses.fields(self))  # type: ignore[arg-type]
@@ -172,7 +196,6 @@ class Hello(FixedMessage):
     TYPE: ClassVar[int] = 0x01
     LAYOUT: ClassVar[str] = "HELLO u8 protocol_version"
     FROM_BOARD: ClassVar[bool] = False
-    _S: ClassVar[struct.Struct] = struct.Struct("<B")
 
     protocol_version: int = 1
     """Protocol version the host speaks."""
@@ -188,7 +211,6 @@ class Info(FixedMessage):
         "u8 n_antennas, u32 capabilities, u64 board_id"
     )
     FROM_BOARD: ClassVar[bool] = True
-    _S: ClassVar[struct.Struct] = struct.Struct("<BBBBBIQ")
 
     protocol_version: int
     """Protocol version the board speaks (1)."""
@@ -366,7 +388,6 @@ class SetChannel(FixedMessage):
     TYPE: ClassVar[int] = 0x20
     LAYOUT: ClassVar[str] = "SET_CHANNEL u16 freq_mhz"
     FROM_BOARD: ClassVar[bool] = False
-    _S: ClassVar[struct.Struct] = struct.Struct("<H")
 
     freq_mhz: int
     """Centre frequency, MHz."""
@@ -416,7 +437,6 @@ class Start(FixedMessage):
     TYPE: ClassVar[int] = 0x22
     LAYOUT: ClassVar[str] = "START"
     FROM_BOARD: ClassVar[bool] = False
-    _S: ClassVar[struct.Struct] = struct.Struct("<")
 
 
 @dataclass(slots=True)
@@ -426,7 +446,6 @@ class Stop(FixedMessage):
     TYPE: ClassVar[int] = 0x23
     LAYOUT: ClassVar[str] = "STOP"
     FROM_BOARD: ClassVar[bool] = False
-    _S: ClassVar[struct.Struct] = struct.Struct("<")
 
 
 @dataclass(slots=True)
@@ -439,7 +458,6 @@ class Heartbeat(FixedMessage):
         "u16 queue_depth, u16 queue_capacity, u8 state, u16 freq_mhz"
     )
     FROM_BOARD: ClassVar[bool] = True
-    _S: ClassVar[struct.Struct] = struct.Struct("<QIIHHBH")
 
     uptime_us: int
     """Board time now, microseconds (same clock as :attr:`Measurement.t_us`)."""
@@ -464,7 +482,6 @@ class Ack(FixedMessage):
     TYPE: ClassVar[int] = 0x40
     LAYOUT: ClassVar[str] = "ACK u16 acked_seq, u8 acked_type"
     FROM_BOARD: ClassVar[bool] = True
-    _S: ClassVar[struct.Struct] = struct.Struct("<HB")
 
     acked_seq: int
     """Sequence number of the command's frame."""
@@ -479,7 +496,6 @@ class Nak(FixedMessage):
     TYPE: ClassVar[int] = 0x41
     LAYOUT: ClassVar[str] = "NAK u16 acked_seq, u8 acked_type, u8 error, u16 detail"
     FROM_BOARD: ClassVar[bool] = True
-    _S: ClassVar[struct.Struct] = struct.Struct("<HBBH")
 
     acked_seq: int
     """Sequence number of the command's frame."""
@@ -532,7 +548,6 @@ class TimeSyncRequest(FixedMessage):
     TYPE: ClassVar[int] = 0x50
     LAYOUT: ClassVar[str] = "TIME_SYNC_REQUEST u64 host_time_ns"
     FROM_BOARD: ClassVar[bool] = False
-    _S: ClassVar[struct.Struct] = struct.Struct("<Q")
 
     host_time_ns: int
     """Host clock when the request was sent, ns (opaque to the board)."""
@@ -545,7 +560,6 @@ class TimeSync(FixedMessage):
     TYPE: ClassVar[int] = 0x51
     LAYOUT: ClassVar[str] = "TIME_SYNC u64 host_time_ns, u64 board_rx_us, u64 board_tx_us"
     FROM_BOARD: ClassVar[bool] = True
-    _S: ClassVar[struct.Struct] = struct.Struct("<QQQ")
 
     host_time_ns: int
     """The request's ``host_time_ns``, echoed."""

@@ -22,7 +22,7 @@ import numpy as np
 
 from rfsas_hw.errors import ConfigError
 from rfsas_hw.pipeline import SensorPipeline
-from rfsas_hw.records import ObservationBatch
+from rfsas_hw.records import BearingBatch, ObservationBatch
 from rfsas_hw.sources.base import Source
 from rfsas_hw.stream import BearingListener
 
@@ -114,7 +114,8 @@ class Runner:
 
     Args:
         source: where observations come from (opened; the runner closes it).
-        pipeline: observations → bearings.
+        pipeline: observations → bearings; None for a source that yields
+            bearings itself (they go to the listener as they are).
         listener: receives every bearing batch (a Fanout for several).
         clock: time source (``SystemClock`` by default).
         realtime: pace the frames at their recorded times.
@@ -135,8 +136,8 @@ class Runner:
 
     def __init__(
         self,
-        source: Source[ObservationBatch],
-        pipeline: SensorPipeline,
+        source: Source[Any],
+        pipeline: SensorPipeline | None,
         listener: BearingListener,
         *,
         clock: Clock | None = None,
@@ -172,6 +173,7 @@ class Runner:
         self._utc_ns = utc_ns
         self._retime_offset_ns: int | None = None
         self._retime_t0 = 0
+        self._source_emitters: set[int] = set()
 
     def stop(self) -> None:
         """Ask the loop to end after the current batch (safe from another thread)."""
@@ -258,8 +260,15 @@ class Runner:
             self.clock.sleep(min(max(wait_s, 0.0), 1.0))
         return True
 
-    def _process(self, batch: ObservationBatch) -> None:
+    def _process(self, batch: ObservationBatch | BearingBatch) -> None:
         s = self.summary
+        if isinstance(batch, BearingBatch):
+            s.bearings += len(batch)
+            self._source_emitters.update(batch.emitter.tolist())
+            self.listener.on_bearings(batch)
+            return
+        if self.pipeline is None:
+            raise ConfigError("observations need a calibration: this source does not give bearings")
         s.observations += len(batch)
         present = ~np.isnan(batch.rssi_dbm)
         counts = present.sum(axis=0).tolist()
@@ -297,8 +306,11 @@ class Runner:
             for k, v in stats.extra.items()
             if k not in ("flagged", "bytes_read", "bytes_total")
         }
-        s.rejected = Counter(self.pipeline.stats.rejected)
-        s.emitters = len(self.pipeline.stats.emitters)
+        if self.pipeline is not None:
+            s.rejected = Counter(self.pipeline.stats.rejected)
+            s.emitters = len(self.pipeline.stats.emitters)
+        else:
+            s.emitters = len(self._source_emitters)
         s.elapsed_s = (self.clock.monotonic_ns() - self._start_ns) / NS_PER_S
         if self._first_t is not None and self._last_t is not None:
             s.capture_span_s = (self._last_t - self._first_t) / NS_PER_S

@@ -20,7 +20,7 @@ from rfsas_hw.cli.sensoropts import (
 )
 from rfsas_hw.errors import ConfigError
 from rfsas_hw.runner import Runner
-from rfsas_hw.sources.registry import parse_spec
+from rfsas_hw.sources.registry import parse_spec, source_class
 
 
 def parse_channels(text: str) -> list[int]:
@@ -58,7 +58,7 @@ def parse_channels(text: str) -> list[int]:
 )
 def live(
     spec: str,
-    calibration_path: Path,
+    calibration_path: Path | None,
     out: Path | None,
     fmt: str | None,
     sensor_id: str,
@@ -83,11 +83,13 @@ def live(
     """
     console = Console(stderr=True)
     where = parse_pose(pose)
-    inbox = nonce_inbox(nonces, keys_dir) if nonces is not None else None
-    pipeline = build_pipeline(
-        calibration_path, sensor_id, where, min_snr_db, inbox, nonce_secret=nonce_secret
-    )
     scheme, _ = parse_spec(spec)
+    pipeline = None
+    if not source_class(scheme).yields_bearings:
+        inbox = nonce_inbox(nonces, keys_dir) if nonces is not None else None
+        pipeline = build_pipeline(
+            calibration_path, sensor_id, where, min_snr_db, inbox, nonce_secret=nonce_secret
+        )
     options: dict[str, Any] = {"errors": errors}
     if channels is not None:
         if scheme != "wifi":

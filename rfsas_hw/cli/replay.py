@@ -58,7 +58,7 @@ def capture_spec(capture: str) -> str:
 )
 def replay(
     capture: str,
-    calibration_path: Path,
+    calibration_path: Path | None,
     out: Path | None,
     fmt: str | None,
     sensor_id: str,

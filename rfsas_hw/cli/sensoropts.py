@@ -53,9 +53,10 @@ def sensor_options(func: F) -> F:
         click.option(
             "--calibration",
             "calibration_path",
-            required=True,
+            default=None,
             type=click.Path(dir_okay=False, path_type=Path),
-            help="Calibration YAML of the antenna pair (rfsas calibrate).",
+            help="Calibration YAML of the antenna pair (rfsas calibrate); "
+            "required unless the source gives bearings itself (agrelo:).",
         ),
         click.option(
             "--out",
@@ -100,7 +101,7 @@ def sensor_options(func: F) -> F:
 
 
 def build_pipeline(
-    calibration_path: Path,
+    calibration_path: Path | None,
     sensor_id: str,
     pose: Pose,
     min_snr_db: float | None,
@@ -117,6 +118,8 @@ def build_pipeline(
     """
     if nonces is not None and nonce_secret is not None:
         raise ConfigError("give --nonces or --nonce-secret, not both")
+    if calibration_path is None:
+        raise ConfigError("--calibration CAL.yaml is required to turn RSSI pairs into bearings")
     calibration = load_calibration(calibration_path)
     if nonce_secret is not None:
         nonces = DerivedNonces.from_file(nonce_secret)

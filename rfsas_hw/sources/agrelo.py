@@ -123,6 +123,7 @@ class AgreloSource(Source[BearingBatch]):
     """
 
     scheme = "agrelo"
+    yields_bearings = True
 
     def __init__(
         self,

@@ -93,6 +93,8 @@ class Source(ABC, Generic[BatchT]):
 
     scheme: ClassVar[str] = ""
     """The spec prefix this driver is registered under (``pcap``, ``wifi``, …)."""
+    yields_bearings: ClassVar[bool] = False
+    """True for sources of finished bearings (no calibration or DF needed)."""
 
     def __init__(self, *, errors: ErrorPolicy = "skip", filter: BatchFilter | None = None) -> None:
         if errors not in ("raise", "skip"):

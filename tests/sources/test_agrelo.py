@@ -151,3 +151,39 @@ def test_unit_unplugged_ends_the_source(unit: tuple[int, str]) -> None:
     rest = list(src)
     src.close()
     assert len(first) == 1 and rest == [] and src.exhausted
+
+
+def test_live_command_writes_the_units_bearings_without_a_calibration(
+    unit: tuple[int, str], tmp_path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """`rfsas live agrelo:PTY --out FILE`: bearings from the unit go straight to the file."""
+    import json
+    import threading
+
+    from rfsas_hw.cli.main import main
+
+    master, path = unit
+
+    out = tmp_path / "b.jsonl"
+    done = threading.Event()
+
+    def feed() -> None:
+        # the port may be opened (and its input flushed) a moment after the command
+        # starts: repeat the unit's output until the command has written bearings
+        while not done.wait(0.3):
+            os.write(master, RMC + b"%045/7\r\n%350/9\r\n%123/8\r\n")
+
+    writer = threading.Thread(target=feed)
+    writer.start()
+    try:
+        with pytest.raises(SystemExit) as exc:
+            main(["live", f"agrelo:{path}", "--out", str(out), "--duration", "2.5"])
+            raise SystemExit(0)
+    finally:
+        done.set()
+        writer.join()
+    assert exc.value.code in (0, None), capsys.readouterr().err
+    rows = [json.loads(line) for line in out.read_text().splitlines()]
+    # course 090 + the unit's relative bearings 045, 350, 123, each at least once
+    assert {r["azimuth_deg"] for r in rows} == {135.0, 80.0, 213.0}
+    assert "bearings" in capsys.readouterr().out

@@ -17,6 +17,16 @@ from rfsas_hw.privacy.hashing import write_secret
 KEYS_HELP = "Key directory (rfsas keys new); its trust/ holds the enrolled cards."
 
 
+epoch_option = click.option(
+    "--epoch",
+    "epoch_s",
+    type=float,
+    default=DEFAULT_EPOCH_S,
+    show_default=True,
+    help="Epoch length, seconds.",
+)
+
+
 def _schedule(epoch_s: float, grace_s: float) -> EpochSchedule:
     try:
         return EpochSchedule(epoch_s, grace_s)
@@ -45,14 +55,7 @@ def nonces() -> None:
     required=True,
     help="Where an enrolled receiver listens (repeat for each).",
 )
-@click.option(
-    "--epoch",
-    "epoch_s",
-    type=float,
-    default=DEFAULT_EPOCH_S,
-    show_default=True,
-    help="Epoch length, seconds.",
-)
+@epoch_option
 @click.option(
     "--grace",
     "grace_s",
@@ -129,14 +132,7 @@ def serve(
     metavar="udp://HOST:PORT",
     help="Where envelopes for this receiver arrive.",
 )
-@click.option(
-    "--epoch",
-    "epoch_s",
-    type=float,
-    default=DEFAULT_EPOCH_S,
-    show_default=True,
-    help="Epoch length, seconds.",
-)
+@epoch_option
 @click.option(
     "--grace",
     "grace_s",

@@ -40,6 +40,15 @@ def _check_distance(d: Array) -> None:
         raise ValueError("distance must be positive (metres)")
 
 
+def _geometry(distance_m: float | Array, ht_m: float, hr_m: float) -> Array:
+    """Distances as an array, after checking distances and antenna heights are positive."""
+    if ht_m <= 0 or hr_m <= 0:
+        raise ValueError("antenna heights must be positive (metres)")
+    d = np.asarray(distance_m, dtype=np.float64)
+    _check_distance(d)
+    return d
+
+
 def free_space_path_loss_db(distance_m: float | Array, freq_mhz: float) -> Array:
     """Friis free-space path loss, dB, for isotropic antennas.
 
@@ -72,10 +81,7 @@ def two_ray_breakpoint_path_loss_db(
     Raises:
         ValueError: a distance or antenna height that is not positive.
     """
-    if ht_m <= 0 or hr_m <= 0:
-        raise ValueError("antenna heights must be positive (metres)")
-    d = np.asarray(distance_m, dtype=np.float64)
-    _check_distance(d)
+    d = _geometry(distance_m, ht_m, hr_m)
     breakpoint_m = 4.0 * ht_m * hr_m / wavelength_m(freq_mhz)
     far = 40.0 * np.log10(d) - 20.0 * np.log10(ht_m * hr_m)
     return np.where(d < breakpoint_m, free_space_path_loss_db(d, freq_mhz), far)
@@ -89,10 +95,7 @@ def two_ray_coherent_path_loss_db(
     Raises:
         ValueError: a distance or antenna height that is not positive.
     """
-    if ht_m <= 0 or hr_m <= 0:
-        raise ValueError("antenna heights must be positive (metres)")
-    d = np.asarray(distance_m, dtype=np.float64)
-    _check_distance(d)
+    d = _geometry(distance_m, ht_m, hr_m)
     lam = wavelength_m(freq_mhz)
     d_direct = np.hypot(d, ht_m - hr_m)
     d_reflect = np.hypot(d, ht_m + hr_m)

@@ -167,7 +167,10 @@ def test_cli_serve_and_listen(
     finally:
         stop.set()
         worker.join()
-    assert code == 0 and out.count("holding nonces of epochs") == 1
+    # the current and the next epoch's envelopes arrive together or one after the other
+    holding = [line for line in out.splitlines() if line.startswith("holding nonces of epochs")]
+    assert code == 0 and 1 <= len(holding) <= 2
+    assert len(holding[-1].split(",")) == 2
     assert "refused 0" in out and "accepted 0" not in out
 
     code, out, _ = run(

@@ -36,8 +36,22 @@ def live_cmd(
     return cmd + (["--nonces", nonces] if nonces else [])
 
 
+def _well_inside_an_epoch(epoch_s: float = 60.0, margin_s: float = 20.0) -> int:
+    """Now, or the start of the next epoch if this one ends within ``margin_s``.
+
+    The sensors start in subprocesses and wait for their nonces; a capture stamped
+    just before a boundary could outlive its epoch's nonce (and grace) meanwhile.
+    """
+    now = time.time_ns()
+    left_s = epoch_s - (now / 1e9) % epoch_s
+    if left_s < margin_s:
+        time.sleep(left_s + 0.1)
+        now = time.time_ns()
+    return now
+
+
 def test_two_sensors_with_distributed_nonces_agree_on_ids(tmp_path: Path) -> None:
-    t0 = time.time_ns()
+    t0 = _well_inside_an_epoch()
     capture = tmp_path / "heard.pcap"
     write_known_capture(capture, t0)
     auth = KeyStore.create(tmp_path / "rsu-0", "authority")

@@ -9,8 +9,11 @@ STAMP  := $(VENV)/.installed-core
 # extra never pulls a multi-gigabyte CUDA build.
 TORCH_PIN := torch==2.13.0
 RL_STAMP  := $(VENV)/.installed-rl
+# Every integration extra, so that its tests run in CI (MetaDrive has its own venv).
+EXTRAS    := sumo,highway,carla,mqtt,csi,ros2,web
+INT_STAMP := $(VENV)/.installed-integrations
 
-.PHONY: demo calibration-demo test lint pytest ctest bench fuzz clean venv rl
+.PHONY: demo calibration-demo test lint pytest ctest bench fuzz clean venv rl integrations
 
 venv: $(STAMP)
 
@@ -27,6 +30,12 @@ $(RL_STAMP): $(STAMP)
 
 rl: $(RL_STAMP)
 
+$(INT_STAMP): $(RL_STAMP)
+	$(PY) -m pip install --quiet -e '.[$(EXTRAS)]'
+	touch $@
+
+integrations: $(INT_STAMP)
+
 demo: $(STAMP)
 	$(VENV)/bin/rfsas demo
 
@@ -35,7 +44,7 @@ calibration-demo: $(STAMP)
 	$(VENV)/bin/rfsas calibrate calibration/example_turntable.csv -o out/example_cal.yaml --plot out/example_cal.png
 	$(VENV)/bin/rfsas calibrate --check out/example_cal.yaml calibration/example_turntable_check.csv
 
-lint: $(RL_STAMP)
+lint: $(INT_STAMP)
 	$(VENV)/bin/ruff check .
 	$(VENV)/bin/ruff format --check .
 	$(VENV)/bin/mypy rfsas_hw
@@ -43,12 +52,12 @@ lint: $(RL_STAMP)
 ctest:
 	$(MAKE) -C firmware_protocol/c test
 
-pytest: $(RL_STAMP)
+pytest: $(INT_STAMP)
 	$(PY) -m pytest -q
 
 test: lint ctest pytest
 
-bench: $(RL_STAMP)
+bench: $(INT_STAMP)
 	@for f in bench/bench_*.py; do echo "== $$f"; $(PY) $$f || exit 1; done
 
 fuzz: $(STAMP)

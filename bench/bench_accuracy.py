@@ -9,7 +9,7 @@ at the distance that gives the target SNR at the beam peak. Frames come from
 the twin at high detail (no fading, no buildings); bearings from the real
 estimator with the sensor's simulated-turntable calibration. For every frame
 the Cramér–Rao bound of quantised-RSSI monopulse is evaluated at the frame's
-true chain powers (:mod:`rfsas_hw.sim.crb`, derived in docs/simulation.md);
+true chain powers (:mod:`rfsas_hw.twin.crb`, derived in docs/simulation.md);
 the table compares the RMS error with the RMS bound. Side by side: the
 published estimator (brute-force search of the calibration grid) and the
 published σ formula ``β/(k_m·√SNR)``. Goal: DF RMS ≤ 1.2 × CRB at SNR ≥ 20 dB.
@@ -33,10 +33,10 @@ from rfsas_hw.df import estimate
 from rfsas_hw.df.monopulse import ratio
 from rfsas_hw.rf.aoa import sigma_monopulse_deg
 from rfsas_hw.rf.propagation import TABLE_OFFSET_DB
-from rfsas_hw.sim.crb import monopulse_crb_deg2, quantised_fisher_info
-from rfsas_hw.sim.scenario import scenario_from_mapping
-from rfsas_hw.sim.turntable import sensor_antenna, turntable_calibration
-from rfsas_hw.sim.world import World
+from rfsas_hw.twin.crb import monopulse_crb_deg2, quantised_fisher_info
+from rfsas_hw.twin.scenario import scenario_from_mapping
+from rfsas_hw.twin.turntable import sensor_antenna, turntable_calibration
+from rfsas_hw.twin.world import World
 
 SQUINT, BEAMWIDTH, FLOOR_DB = 15.0, 30.0, 0.7
 TX_DBM, THRESHOLD = 20.0, -90.89

@@ -37,8 +37,8 @@ from rfsas_hw.pipeline import SensorPipeline
 from rfsas_hw.privacy.hashing import FixedNonce, MacHasher
 from rfsas_hw.records import BearingBatch, ObservationBatch, Pose
 from rfsas_hw.rf.antenna import GaussianBeamPair
-from rfsas_hw.sim.scenario import scenario_from_mapping
-from rfsas_hw.sim.turntable import turntable_calibration
+from rfsas_hw.twin.scenario import scenario_from_mapping
+from rfsas_hw.twin.turntable import turntable_calibration
 
 GOAL_P99_MS = 5.0
 BUDGET_MS = 100.0

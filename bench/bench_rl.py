@@ -34,8 +34,8 @@ from pathlib import Path
 
 import numpy as np
 
-from rfsas_hw.sim.envconfig import EnvConfig, env_config_from_mapping
-from rfsas_hw.sim.rl import (
+from rfsas_hw.envs.envconfig import EnvConfig, env_config_from_mapping
+from rfsas_hw.envs.rl import (
     HoldPolicy,
     LearnedPolicy,
     RulePolicy,
@@ -61,7 +61,7 @@ def write_frame(model: LearnedPolicy, path: Path) -> None:
     os.environ.setdefault("SDL_VIDEODRIVER", "dummy")
     from PIL import Image
 
-    from rfsas_hw.sim.env import IntersectionEnv
+    from rfsas_hw.envs.env import IntersectionEnv
 
     config = env_config_from_mapping({"sensing": {"detail": "medium"}})
     env = IntersectionEnv(config, render_mode="rgb_array")

@@ -11,7 +11,7 @@ from rich import box
 from rich.console import Console
 from rich.table import Table
 
-from rfsas_hw.sim.demo import DemoResult, run_demo
+from rfsas_hw.studies.demo import DemoResult, run_demo
 
 
 def _f(value: float, digits: int = 2, unit: str = "") -> str:

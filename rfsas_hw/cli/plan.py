@@ -10,7 +10,7 @@ from rich.console import Console
 from rich.table import Table
 
 from rfsas_hw.errors import ConfigError
-from rfsas_hw.sim.intercept import plan_report, receiver_plans
+from rfsas_hw.twin.intercept import plan_report, receiver_plans
 
 
 def _channels(text: str) -> tuple[int, ...]:

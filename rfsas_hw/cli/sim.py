@@ -12,11 +12,11 @@ from rich.table import Table
 
 from rfsas_hw.df import save_calibration
 from rfsas_hw.errors import ConfigError
-from rfsas_hw.sim.braking import BrakingCase, plot_braking, run_braking
-from rfsas_hw.sim.capture_writer import write_captures
-from rfsas_hw.sim.scenario import Detail, load_scenario
-from rfsas_hw.sim.turntable import turntable_calibration
-from rfsas_hw.sim.world import World
+from rfsas_hw.studies.braking import BrakingCase, plot_braking, run_braking
+from rfsas_hw.twin.capture_writer import write_captures
+from rfsas_hw.twin.scenario import Detail, load_scenario
+from rfsas_hw.twin.turntable import turntable_calibration
+from rfsas_hw.twin.world import World
 
 
 @click.group()

@@ -1,6 +1,6 @@
 """``rfsas sim train | evaluate | render``: learning to brake (method.md §10).
 
-Thin shells over :mod:`rfsas_hw.sim.rl`; the library (and with it gymnasium,
+Thin shells over :mod:`rfsas_hw.envs.rl`; the library (and with it gymnasium,
 pygame and stable-baselines3) is imported only when a command runs.
 """
 
@@ -17,8 +17,8 @@ from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, Ti
 from rich.table import Table
 
 if TYPE_CHECKING:
-    from rfsas_hw.sim.envconfig import EnvConfig
-    from rfsas_hw.sim.rl import EvalRow
+    from rfsas_hw.envs.envconfig import EnvConfig
+    from rfsas_hw.envs.rl import EvalRow
 
 _config_option = click.option(
     "--config",
@@ -38,7 +38,7 @@ _detail_option = click.option(
 def _env_config(
     config_path: Path | None, detail: str | None, reward: str | None = None
 ) -> EnvConfig:
-    from rfsas_hw.sim.envconfig import EnvConfig, load_env_config
+    from rfsas_hw.envs.envconfig import EnvConfig, load_env_config
 
     config = load_env_config(config_path) if config_path is not None else EnvConfig()
     if detail is not None:
@@ -96,7 +96,7 @@ def train(
     detail: str | None,
 ) -> None:
     """Train a PPO agent (MlpPolicy, seed 0, batch 64, n_steps 64, lr 3e-4) to brake."""
-    from rfsas_hw.sim import rl
+    from rfsas_hw.envs import rl
 
     config = _env_config(config_path, detail, reward)
     logs = log_dir if log_dir is not None else model_path.with_name(model_path.stem + "-logs")
@@ -215,7 +215,7 @@ def evaluate(
     detail: str | None,
 ) -> None:
     """Compare the learned policy with the rule (brake above the risk threshold, else hold)."""
-    from rfsas_hw.sim import rl
+    from rfsas_hw.envs import rl
 
     config = _env_config(config_path, detail)
     dists = rl.parse_distances(distances)
@@ -265,7 +265,7 @@ def render(
     detail: str | None,
 ) -> None:
     """Render one episode of the learned (or rule) policy to a video."""
-    from rfsas_hw.sim import rl
+    from rfsas_hw.envs import rl
 
     config = _env_config(config_path, detail)
     policy: Any = (

@@ -1,6 +1,6 @@
 """The digital twin as a source: ``virtual:SCENARIO.yaml`` or ``virtual:SCENARIO.yaml#SENSOR``.
 
-Observations come from the twin's RF world (:mod:`rfsas_hw.sim.world`), the
+Observations come from the twin's RF world (:mod:`rfsas_hw.twin.world`), the
 same code that writes the twin's capture files: path loss, blockage, beams,
 fading, noise, quantisation and driver quirks. What a real driver would
 report is what the source yields (sentinel chains as NaN, flagged); nothing
@@ -22,9 +22,9 @@ import numpy as np
 
 from rfsas_hw.errors import ConfigError
 from rfsas_hw.records import ObservationBatch, Pose
-from rfsas_hw.sim.scenario import Detail, Scenario, load_scenario
-from rfsas_hw.sim.world import World
 from rfsas_hw.sources.base import Source
+from rfsas_hw.twin.scenario import Detail, Scenario, load_scenario
+from rfsas_hw.twin.world import World
 
 
 class VirtualSource(Source[ObservationBatch]):

@@ -8,8 +8,8 @@ from pathlib import Path
 import numpy as np
 
 from rfsas_hw.records import FrameKind, ObservationBatch
-from rfsas_hw.sim.capture_writer import write_capture
-from rfsas_hw.sim.frames import RadiotapInfo, dot11_frame, radiotap_header, with_fcs
+from rfsas_hw.twin.capture_writer import write_capture
+from rfsas_hw.twin.frames import RadiotapInfo, dot11_frame, radiotap_header, with_fcs
 
 REPO = Path(__file__).resolve().parents[2]
 CALIBRATION = REPO / "calibration" / "example_cal.yaml"

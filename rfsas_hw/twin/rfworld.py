@@ -1,0 +1,132 @@
+"""The physics of one link, vectorised over frames.
+
+Everything a frame goes through between the emitter's antenna and the
+numbers a driver reports: path loss (the published table model or a
+physical two-ray model), extra loss where the straight path crosses a
+building, the gain of each beam of the receiving antenna, small-scale fading
+(optional Rayleigh or Rician, correlated between the two co-located chains),
+measurement noise, quantisation to the card's step, missing chains, and the
+driver's combined signal.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from typing import Literal
+
+import numpy as np
+import numpy.typing as npt
+
+from rfsas_hw.rf.propagation import TABLE_OFFSET_DB, path_loss_db
+from rfsas_hw.twin.scenario import BuildingSpec, RfSpec
+
+Array = npt.NDArray[np.float64]
+
+
+def building_array(buildings: Sequence[BuildingSpec]) -> Array:
+    """Rectangles as an ``(m, 5)`` array: x_min, x_max, y_min, y_max, loss_db."""
+    if not buildings:
+        return np.empty((0, 5))
+    return np.array([[b.x_min_m, b.x_max_m, b.y_min_m, b.y_max_m, b.loss_db] for b in buildings])
+
+
+def segment_crossings(p0: Array, p1: Array, rects: Array) -> npt.NDArray[np.bool_]:
+    """Which segments cross which rectangles, shape ``(n, m)``.
+
+    ``p0`` and ``p1`` are ``(n, 2)`` end points, ``rects`` an ``(m, ≥4)``
+    array of x_min, x_max, y_min, y_max. A segment crosses a rectangle when
+    any part of it lies strictly inside (slab clipping, Liang–Barsky); a
+    segment that only grazes an edge does not count.
+    """
+    n, m = len(p0), len(rects)
+    if n == 0 or m == 0:
+        return np.zeros((n, m), dtype=bool)
+    d = (p1 - p0)[:, None, :]
+    o = p0[:, None, :]
+    lo = np.stack([rects[:, 0], rects[:, 2]], -1)[None, :, :]
+    hi = np.stack([rects[:, 1], rects[:, 3]], -1)[None, :, :]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t1 = (lo - o) / d
+        t2 = (hi - o) / d
+    parallel = d == 0
+    inside_slab = (o > lo) & (o < hi)
+    t_near = np.where(parallel, np.where(inside_slab, -np.inf, np.inf), np.minimum(t1, t2))
+    t_far = np.where(parallel, np.where(inside_slab, np.inf, -np.inf), np.maximum(t1, t2))
+    enter = np.maximum(np.max(t_near, axis=-1), 0.0)
+    leave = np.minimum(np.min(t_far, axis=-1), 1.0)
+    return np.asarray(leave - enter > 1e-9, dtype=bool)
+
+
+def blockage_db(p0: Array, p1: Array, rects: Array) -> tuple[Array, npt.NDArray[np.bool_]]:
+    """Extra loss of each path from the buildings it crosses, dB, and whether any was crossed."""
+    cross = segment_crossings(p0, p1, rects)
+    if cross.shape[1] == 0:
+        return np.zeros(len(p0)), np.zeros(len(p0), dtype=bool)
+    hit: npt.NDArray[np.bool_] = np.asarray(cross.any(axis=1), dtype=bool)
+    return cross.astype(np.float64) @ rects[:, 4], hit
+
+
+def link_path_loss_db(distance_m: Array, freq_mhz: npt.ArrayLike, rf: RfSpec) -> Array:
+    """Path loss per frame with the scenario's model, dB."""
+    d = np.maximum(np.asarray(distance_m, dtype=np.float64), rf.min_distance_m)
+    offset = TABLE_OFFSET_DB if rf.offset_db is None else rf.offset_db
+    if rf.path_loss == "table":
+        return path_loss_db(d, "table", offset_db=offset)
+    out = np.empty_like(d)
+    freqs = np.asarray(freq_mhz)
+    for f in np.unique(freqs):
+        sel = freqs == f
+        out[sel] = path_loss_db(
+            d[sel], rf.path_loss, freq_mhz=float(f), ht_m=rf.tx_height_m, hr_m=rf.rx_height_m
+        )
+    return out
+
+
+def fading_db(
+    n: int,
+    model: Literal["none", "rayleigh", "rician"],
+    k_db: float,
+    correlation: float,
+    rng: np.random.Generator,
+) -> Array:
+    """Power gain of small-scale fading on two chains, dB, shape ``(n, 2)``, mean power 1.
+
+    The complex gain of each chain is a common part plus an independent part,
+    ``h_i = √ρ·c + √(1−ρ)·u_i``, so ``ρ`` is the correlation between chains.
+    Rician adds a fixed direct component with power ratio ``K`` to the
+    scattered part.
+    """
+    if model == "none" or n == 0:
+        return np.zeros((n, 2))
+
+    def cn(shape: tuple[int, ...]) -> npt.NDArray[np.complex128]:
+        z = rng.standard_normal((*shape, 2))
+        return np.asarray((z[..., 0] + 1j * z[..., 1]) / math.sqrt(2.0))
+
+    common = cn((n, 1))
+    own = cn((n, 2))
+    scatter = math.sqrt(correlation) * common + math.sqrt(1.0 - correlation) * own
+    if model == "rician":
+        k = 10.0 ** (k_db / 10.0)
+        h = math.sqrt(k / (k + 1.0)) + math.sqrt(1.0 / (k + 1.0)) * scatter
+    else:
+        h = scatter
+    return np.asarray(10.0 * np.log10(np.maximum(np.abs(h) ** 2, 1e-12)), dtype=np.float64)
+
+
+def combine_chains(chain_dbm: Array, how: Literal["max", "power-sum"]) -> Array:
+    """The driver's combined signal from per-chain readings (NaN = chain absent), dBm.
+
+    Rows without any chain give NaN.
+    """
+    present = ~np.isnan(chain_dbm)
+    any_present = present.any(axis=1)
+    if how == "max":
+        filled = np.where(present, chain_dbm, -np.inf)
+        out = np.max(filled, axis=1)
+    else:
+        mw = np.where(present, np.power(10.0, np.nan_to_num(chain_dbm) / 10.0), 0.0)
+        with np.errstate(divide="ignore"):
+            out = 10.0 * np.log10(mw.sum(axis=1))
+    return np.where(any_present, out, np.nan)

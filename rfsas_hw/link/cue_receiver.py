@@ -1,0 +1,209 @@
+"""Receiving cues: verify, check time, validity and epoch, refuse replays, count.
+
+A vehicle's sensor obeys a cue only if it passed every check below, cheapest
+first; the first failure decides the reason it is counted under:
+
+1. structure: ``truncated``, ``oversized``, ``bad_magic``, ``bad_version``,
+   ``bad_type``, ``malformed`` (before any cryptography), ``unknown_sender``;
+2. ``bad_signature`` (forged or altered), then value checks (``malformed``);
+3. ``stale`` (generated longer than ``max_age_s`` ago), ``future`` (ahead of
+   the clock by more than ``max_future_s``), ``expired`` (its validity window
+   has ended), ``too_far`` (cueing unit farther than ``max_range_m``),
+   ``wrong_epoch`` (the nonce epoch is not one the receiver accepts now: the
+   vehicle could not make a matching hash);
+4. ``replay`` (a sequence number of that sender already seen in the window).
+
+:meth:`CueReceiver.feed` never raises into the caller's loop.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from collections import Counter
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+from rfsas_hw.errors import LinkError
+from rfsas_hw.link.cue import Cue, CueKind, decode_cue, peek_cue
+from rfsas_hw.link.message import SIGNATURE_BYTES, MessageFormatError
+from rfsas_hw.link.replay import ReplayGuard
+from rfsas_hw.link.signing import SenderKeys, verify
+from rfsas_hw.link.transport import Transport
+from rfsas_hw.privacy.epochs import DEFAULT_EPOCH_S, DEFAULT_GRACE_S, EpochSchedule
+
+log = logging.getLogger(__name__)
+
+US_PER_S = 1_000_000
+
+CUE_REASONS = (
+    "truncated",
+    "oversized",
+    "bad_magic",
+    "bad_version",
+    "bad_type",
+    "malformed",
+    "unknown_sender",
+    "bad_signature",
+    "stale",
+    "future",
+    "expired",
+    "too_far",
+    "wrong_epoch",
+    "replay",
+    "internal_error",
+)
+"""Every reason a cue can be rejected for, in check order."""
+
+
+@dataclass(frozen=True, slots=True)
+class CueReceiverConfig:
+    """Thresholds of a cue receiver.
+
+    Raises:
+        ValueError: a non-positive age or range, or a negative skew.
+    """
+
+    max_age_s: float = 1.0
+    """Cues generated longer ago than this are ``stale``, seconds."""
+    max_future_s: float = 0.2
+    """Allowed clock skew, seconds."""
+    max_range_m: float = 2000.0
+    """Cueing units farther than this from the receiver are ``too_far``, metres
+    (only bearing cues carry the unit's position; checked when the receiver knows its own)."""
+    epoch_s: float = DEFAULT_EPOCH_S
+    """Nonce epoch length, seconds."""
+    grace_s: float = DEFAULT_GRACE_S
+    """Grace at an epoch boundary, seconds."""
+    replay_capacity: int = 4096
+    """Most sequence numbers remembered per sender."""
+
+    def __post_init__(self) -> None:
+        if self.max_age_s <= 0 or self.max_future_s < 0 or self.max_range_m <= 0:
+            raise ValueError("max_age_s and max_range_m must be positive, max_future_s >= 0")
+
+
+@dataclass(slots=True)
+class CueReceiverStats:
+    """Cue datagrams seen, accepted, and rejected by reason."""
+
+    datagrams: int = 0
+    accepted: int = 0
+    rejected: Counter[str] = field(default_factory=Counter)
+
+    def as_dict(self) -> dict[str, int]:
+        """Flat counters."""
+        out = {"datagrams": self.datagrams, "accepted": self.accepted}
+        out.update({f"rejected.{k}": v for k, v in sorted(self.rejected.items())})
+        return out
+
+
+class _RejectError(Exception):
+    def __init__(self, reason: str, detail: str = "") -> None:
+        super().__init__(detail or reason)
+        self.reason = reason
+
+
+class CueReceiver:
+    """Verifies cues from enrolled cueing units (see the module docstring).
+
+    Args:
+        trust: enrolled signing keys by sender id.
+        config: thresholds.
+        position: the receiver's own (x_m, y_m), or None when unknown.
+        transport: where :meth:`receive` reads datagrams from.
+        clock: UTC ns.
+    """
+
+    def __init__(
+        self,
+        trust: SenderKeys,
+        config: CueReceiverConfig | None = None,
+        *,
+        position: Callable[[], tuple[float, float] | None] | None = None,
+        transport: Transport | None = None,
+        clock: Callable[[], int] = time.time_ns,
+    ) -> None:
+        self.trust = trust
+        self.config = config or CueReceiverConfig()
+        self.position = position
+        self.transport = transport
+        self.clock = clock
+        self.schedule = EpochSchedule(self.config.epoch_s, self.config.grace_s)
+        self.stats = CueReceiverStats()
+        window_us = int((self.config.max_age_s + self.config.max_future_s) * US_PER_S)
+        self.replay = ReplayGuard(window_us, self.config.replay_capacity)
+
+    def feed(self, datagram: bytes, t_recv_ns: int | None = None) -> Cue | None:
+        """Check one datagram received at ``t_recv_ns`` (UTC ns; default: the clock).
+
+        Returns the cue, or None (rejected and counted). Never raises.
+        """
+        now_ns = self.clock() if t_recv_ns is None else int(t_recv_ns)
+        self.stats.datagrams += 1
+        try:
+            cue = self._check(bytes(datagram), now_ns)
+        except (_RejectError, MessageFormatError) as rej:
+            self.stats.rejected[rej.reason] += 1
+            log.debug("cue rejected: %s (%s)", rej.reason, rej)
+            return None
+        except Exception:
+            self.stats.rejected["internal_error"] += 1
+            if self.stats.rejected["internal_error"] == 1:
+                log.exception("cue check failed on a %d-byte datagram", len(datagram))
+            return None
+        self.stats.accepted += 1
+        return cue
+
+    def _check(self, datagram: bytes, now_ns: int) -> Cue:
+        cfg = self.config
+        sender = peek_cue(datagram)
+        key = self.trust.signing_key(sender)
+        if key is None:
+            raise _RejectError("unknown_sender", sender)
+        if not verify(key, datagram[:-SIGNATURE_BYTES], datagram[-SIGNATURE_BYTES:]):
+            raise _RejectError("bad_signature", sender)
+        cue = decode_cue(datagram)
+        now_us = now_ns // 1000
+        age_us = now_us - cue.t_gen_us
+        if age_us > cfg.max_age_s * US_PER_S:
+            raise _RejectError("stale", f"{sender} age {age_us / 1e3:.1f} ms")
+        if -age_us > cfg.max_future_s * US_PER_S:
+            raise _RejectError("future", f"{sender} {-age_us / 1e3:.1f} ms ahead")
+        if now_us > cue.valid_until_us:
+            raise _RejectError("expired", f"{sender} seq {cue.seq}")
+        here = self.position() if self.position is not None else None
+        if here is not None and cue.kind is CueKind.BEARING:
+            dist_m = math.hypot(cue.x_m - here[0], cue.y_m - here[1])
+            if dist_m > cfg.max_range_m:
+                raise _RejectError("too_far", f"{sender} at {dist_m:.0f} m")
+        if not self.schedule.accepts(cue.epoch, now_ns):
+            raise _RejectError("wrong_epoch", f"{sender} epoch {cue.epoch}")
+        if not self.replay.check_and_record(sender, cue.seq, cue.t_gen_us, now_us):
+            raise _RejectError("replay", f"{sender} seq {cue.seq}")
+        return cue
+
+    def receive(self, timeout: float | None = None, max_datagrams: int = 1024) -> list[Cue]:
+        """Wait up to ``timeout`` seconds, check everything queued, return the accepted cues.
+
+        Raises:
+            LinkError: the receiver has no transport.
+        """
+        if self.transport is None:
+            raise LinkError("this cue receiver has no transport")
+        out: list[Cue] = []
+        datagram = self.transport.recv(timeout)
+        n = 0
+        while datagram is not None and n < max_datagrams:
+            cue = self.feed(datagram)
+            if cue is not None:
+                out.append(cue)
+            n += 1
+            datagram = self.transport.recv(0)
+        return out
+
+    def close(self) -> None:
+        """Close the transport, if any; idempotent."""
+        if self.transport is not None:
+            self.transport.close()

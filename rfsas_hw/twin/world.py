@@ -1,0 +1,397 @@
+"""The digital twin: every frame an emitter sends while a sensor listens on its channel.
+
+:class:`World` ties a scenario together: tracks for the movers, transmission
+times for the emitters, the scan plan of each sensor, and the link physics of
+:mod:`rfsas_hw.twin.rfworld`. :meth:`World.receptions` gives, per sensor, the
+frames it hears with what each receive chain reports, plus the ground truth
+of every frame (true bearing, distance, SNR, blockage).
+
+Levels of detail (method.md §10):
+
+- ``low``: states assigned parametrically; RSSI is the noise-free link budget
+  through the beam pattern (no blockage, fading, noise or driver quirks).
+- ``medium``: kinematic motion with assigned measurement properties: each
+  chain gets Gaussian noise whose size makes the monopulse bearing error
+  equal the SNR formula ``σ = β/(k_m·√SNR)``; no blockage, fading or quirks.
+- ``high``: the physical model: path loss, blockage, beam gains, optional
+  fading, thermal plus measurement-floor noise, quantisation, missing chains
+  and the driver's combined signal.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from rfsas_hw.angles import math_rad_to_compass, wrap_deg_180
+from rfsas_hw.records import ObservationBatch, ObsFlag, mac_to_int
+from rfsas_hw.rf.antenna import GaussianBeamPair
+from rfsas_hw.rf.aoa import sigma_monopulse_deg
+from rfsas_hw.rf.channels import channel_to_freq_mhz
+from rfsas_hw.rf.noise import quantise_db, rssi_sigma_db
+from rfsas_hw.twin.motion import Track, static_track
+from rfsas_hw.twin.rfworld import (
+    blockage_db,
+    building_array,
+    combine_chains,
+    fading_db,
+    link_path_loss_db,
+)
+from rfsas_hw.twin.rng import stream
+from rfsas_hw.twin.scan import ScanPlan
+from rfsas_hw.twin.scenario import Detail, Scenario, SensorSpec
+from rfsas_hw.twin.traffic import Transmissions, emitter_transmissions
+
+Array = npt.NDArray[np.float64]
+
+CHAIN_PRESENT = 0
+"""``Receptions.chain_state``: the chain reported a value."""
+CHAIN_SENTINEL = 1
+"""The chain reported the driver's sentinel (e.g. -128 dBm)."""
+CHAIN_OMITTED = 2
+"""The driver left the chain out of the frame."""
+CHAIN_NOT_HEARD = 3
+"""The card of this chain did not capture the frame (two single-chain cards)."""
+
+Listening = Callable[[Array, npt.NDArray[np.int16]], npt.NDArray[np.bool_]]
+"""``(t_s, channel) → mask``: whether a receiver was on each frame's channel at its time."""
+
+TECH_CODES = {"wifi": 0, "ble": 1}
+"""``Receptions.tech`` values."""
+
+
+@dataclass
+class Receptions:
+    """The frames one sensor hears, with its readings and the truth, one row per frame.
+
+    Rows are sorted by time on air. For ``radiotap-2-chain`` and
+    ``serial-board`` receivers there is one card; for
+    ``two-single-chain-cards`` card ``c`` carries chain ``c``.
+    """
+
+    sensor_id: str
+    """The sensor."""
+    n_cards: int
+    """Capture cards of the receiver (1 or 2)."""
+    t_s: Array
+    """Time the frame started on air, scenario seconds."""
+    t_ns: npt.NDArray[np.int64]
+    """Same, UTC nanoseconds."""
+    emitter: npt.NDArray[np.intp]
+    """Index of the emitter in the scenario."""
+    mac: npt.NDArray[np.uint64]
+    """Transmitter MAC (raw; simulator-internal and capture files only)."""
+    channel: npt.NDArray[np.int16]
+    """Channel of the frame."""
+    freq_mhz: npt.NDArray[np.int32]
+    """Centre frequency, MHz."""
+    kind: npt.NDArray[np.uint8]
+    """:class:`FrameKind`."""
+    seq: npt.NDArray[np.int32]
+    """Sequence number or -1."""
+    tech: npt.NDArray[np.uint8]
+    """:data:`TECH_CODES` value."""
+    chain_dbm: Array
+    """Reading per chain, dBm, shape (n, 2); NaN unless ``chain_state`` is present."""
+    chain_state: npt.NDArray[np.uint8]
+    """``CHAIN_*`` per chain, shape (n, 2)."""
+    combined_dbm: Array
+    """Driver's combined signal of a 2-chain card, dBm (NaN if no chain)."""
+    heard: npt.NDArray[np.bool_]
+    """Whether each card captured the frame, shape (n, n_cards)."""
+    capture_ns: npt.NDArray[np.int64]
+    """Capture timestamp on each card, UTC ns, shape (n, n_cards)."""
+    tsft_us: npt.NDArray[np.uint64]
+    """Each card's TSF timer when the frame arrived, microseconds, shape (n, n_cards)."""
+    true_relative_deg: Array
+    """True angle of the emitter from boresight, degrees clockwise."""
+    true_azimuth_deg: Array
+    """True compass azimuth from the sensor to the emitter, degrees."""
+    distance_m: Array
+    """True distance, metres."""
+    snr_db: Array
+    """True per-chain power above the sensitivity threshold, dB, shape (n, 2)."""
+    blocked: npt.NDArray[np.bool_]
+    """The straight path crosses a building."""
+    sensor_xy: Array
+    """Sensor position at the frame, metres, shape (n, 2)."""
+    sensor_heading_deg: Array
+    """Sensor boresight at the frame, compass degrees."""
+    emitter_xy: Array
+    """Emitter position at the frame, metres, shape (n, 2)."""
+
+    def __len__(self) -> int:
+        return int(self.t_s.shape[0])
+
+    def select(self, index: npt.NDArray[Any] | slice) -> Receptions:
+        """Rows picked by a mask, an index array or a slice."""
+        kw = {
+            name: getattr(self, name)[index]
+            for name in self.__dataclass_fields__
+            if name not in ("sensor_id", "n_cards")
+        }
+        return Receptions(sensor_id=self.sensor_id, n_cards=self.n_cards, **kw)
+
+    def observations(self, card: int | None = None) -> ObservationBatch:
+        """What the sensor's driver would hand to the pipeline, as an observation batch.
+
+        With ``card=None`` both chains side by side (frames paired perfectly
+        for two single-chain cards), otherwise the frames of one card with
+        that card's chain only. Sentinel chains become NaN with
+        ``SENTINEL_CHAIN``; omitted or unheard ones NaN with ``MISSING_CHAIN``.
+        """
+        if card is None:
+            rows = self.heard.any(axis=1)
+            rssi = self.chain_dbm[rows]
+            state = self.chain_state[rows]
+            t_ns = self.capture_ns[rows].min(axis=1)
+        else:
+            rows = self.heard[:, card]
+            rssi = self.chain_dbm[rows][:, [card]]
+            state = self.chain_state[rows][:, [card]]
+            t_ns = self.capture_ns[rows, card]
+        flags = np.zeros(len(rssi), np.uint16)
+        flags |= np.where((state == CHAIN_SENTINEL).any(axis=1), ObsFlag.SENTINEL_CHAIN, 0).astype(
+            np.uint16
+        )
+        flags |= np.where(
+            ((state == CHAIN_OMITTED) | (state == CHAIN_NOT_HEARD)).any(axis=1),
+            ObsFlag.MISSING_CHAIN,
+            0,
+        ).astype(np.uint16)
+        if card is None and self.n_cards > 1:
+            flags |= np.uint16(ObsFlag.PAIRED)
+        return ObservationBatch(
+            t_ns=t_ns,
+            mac=self.mac[rows],
+            freq_mhz=self.freq_mhz[rows],
+            channel=self.channel[rows],
+            rssi_dbm=rssi.astype(np.float32),
+            seq=self.seq[rows],
+            kind=self.kind[rows],
+            flags=flags,
+        )
+
+
+class World:
+    """A scenario brought to life: tracks, traffic, scan plans and link physics.
+
+    Args:
+        scenario: the loaded scenario.
+        detail: override the scenario's level of detail.
+        listening: per sensor id, which channel the receiver is on, replacing its
+            scan plan (a cue-driven schedule): ``listening[id](t_s, channel)`` is
+            True where the receiver was on ``channel`` at scenario time ``t_s``.
+    """
+
+    def __init__(
+        self,
+        scenario: Scenario,
+        detail: Detail | None = None,
+        listening: Mapping[str, Listening] | None = None,
+    ) -> None:
+        self.scenario = scenario
+        self.listening: dict[str, Listening] = dict(listening or {})
+        spec = scenario.spec
+        self.detail: Detail = detail or spec.detail
+        self.duration_s = spec.duration_s
+        self.t0_ns = scenario.t0_ns
+        self.tracks: dict[str, Track] = {m.id: Track.from_spec(m) for m in spec.movers}
+        self.rects = building_array(spec.intersection.buildings)
+        self.emitter_macs = np.array([mac_to_int(e.mac) for e in spec.emitters], np.uint64)
+        self.tx: list[Transmissions] = [
+            emitter_transmissions(e.traffic, spec.duration_s, stream(spec.seed, "traffic", e.id))
+            for e in spec.emitters
+        ]
+        self.antennas: dict[str, GaussianBeamPair] = {
+            s.id: GaussianBeamPair(
+                squint_deg=s.antenna.squint_deg,
+                beamwidth_deg=s.antenna.beamwidth_deg,
+                peak_gain_dbi=s.antenna.gain_dbi,
+                front_to_back_db=s.antenna.front_to_back_db,
+            )
+            for s in spec.sensors
+        }
+        self._cache: dict[str, Receptions] = {}
+
+    # -- geometry -----------------------------------------------------------------
+
+    def emitter_track(self, index: int) -> Track:
+        """Track of emitter ``index`` (its carrier's, or a standing one)."""
+        e = self.scenario.spec.emitters[index]
+        if e.carried_by is not None:
+            return self.tracks[e.carried_by]
+        assert e.position is not None
+        return static_track(*e.position)
+
+    def emitter_position(self, index: int, t_s: npt.ArrayLike) -> Array:
+        """Position of emitter ``index`` at times ``t_s``, shape (n, 2), metres."""
+        return self.emitter_track(index).position(t_s)
+
+    def sensor_pose(self, sensor: SensorSpec | str, t_s: npt.ArrayLike) -> tuple[Array, Array]:
+        """Position (n, 2) in metres and boresight compass heading (n,) of a sensor at ``t_s``."""
+        s = self.scenario.sensor(sensor) if isinstance(sensor, str) else sensor
+        t = np.atleast_1d(np.asarray(t_s, dtype=np.float64))
+        if s.pose is not None:
+            xy = np.tile([s.pose.x_m, s.pose.y_m], (len(t), 1)).astype(np.float64)
+            return xy, np.full(len(t), s.pose.heading_deg % 360.0)
+        assert s.mounted_on is not None
+        track = self.tracks[s.mounted_on]
+        heading = np.mod(track.heading_deg(t) + s.heading_offset_deg, 360.0)
+        return track.position(t), heading
+
+    # -- frames -------------------------------------------------------------------
+
+    def _candidates(self, s: SensorSpec) -> dict[str, Any]:
+        """Every transmitted frame the sensor could hear by tech and channel."""
+        plan = ScanPlan.from_spec(s.scan)
+        listens = self.listening.get(s.id)
+        parts: dict[str, list[Any]] = {k: [] for k in ("t", "emitter", "channel", "kind", "seq")}
+        for i, (e, tx) in enumerate(zip(self.scenario.spec.emitters, self.tx, strict=True)):
+            if not s.hears(e.tech) or len(tx) == 0:
+                continue
+            if listens is not None:
+                listening = np.asarray(listens(tx.t_s, tx.channel), bool)
+            else:
+                listening = plan.channel_at(tx.t_s) == tx.channel
+            parts["t"].append(tx.t_s[listening])
+            parts["emitter"].append(np.full(int(listening.sum()), i, np.intp))
+            parts["channel"].append(tx.channel[listening])
+            parts["kind"].append(tx.kind[listening])
+            parts["seq"].append(tx.seq[listening])
+        if not parts["t"]:
+            return {
+                "t": np.empty(0),
+                "emitter": np.empty(0, np.intp),
+                "channel": np.empty(0, np.int16),
+                "kind": np.empty(0, np.uint8),
+                "seq": np.empty(0, np.int32),
+            }
+        out = {k: np.concatenate(v) for k, v in parts.items()}
+        order = np.lexsort((out["emitter"], out["t"]))
+        return {k: v[order] for k, v in out.items()}
+
+    def receptions(self, sensor_id: str) -> Receptions:
+        """Every frame sensor ``sensor_id`` hears during the scenario (computed once, cached).
+
+        Raises:
+            ConfigError: no such sensor.
+        """
+        if sensor_id not in self._cache:
+            self._cache[sensor_id] = self._compute(self.scenario.sensor(sensor_id))
+        return self._cache[sensor_id]
+
+    def _compute(self, s: SensorSpec) -> Receptions:
+        spec = self.scenario.spec
+        rf = spec.rf
+        rng = stream(spec.seed, "rf", s.id, self.detail)
+        c = self._candidates(s)
+        t = c["t"]
+        n = len(t)
+        emitters = spec.emitters
+        e_idx = c["emitter"]
+        tech_names = np.array([e.tech for e in emitters] or ["wifi"])
+        tech = np.array([TECH_CODES[str(x)] for x in tech_names[e_idx]], np.uint8)
+        freq = np.zeros(n, np.int32)
+        for code, name in enumerate(TECH_CODES):
+            for ch in np.unique(c["channel"][tech == code]):
+                freq[(tech == code) & (c["channel"] == ch)] = channel_to_freq_mhz(int(ch), name)
+        exy = np.empty((n, 2))
+        for i in np.unique(e_idx):
+            sel = e_idx == i
+            exy[sel] = self.emitter_position(int(i), t[sel])
+        sxy, heading = self.sensor_pose(s, t)
+        delta = exy - sxy
+        dist = np.hypot(delta[:, 0], delta[:, 1])
+        azimuth = math_rad_to_compass(np.arctan2(delta[:, 1], delta[:, 0]))
+        relative = wrap_deg_180(azimuth - heading)
+        antenna = self.antennas[s.id]
+        gains = antenna.gains_db(relative)
+        pt = np.array([e.power_dbm() + e.antenna_gain_dbi for e in emitters] or [0.0])[e_idx]
+        threshold = np.array([s.threshold_for(str(x)) for x in tech_names] or [0.0])[e_idx]
+        pl = link_path_loss_db(dist, freq, rf)
+        physical = self.detail == "high"
+        if physical:
+            block, blocked = blockage_db(sxy, exy, self.rects)
+            fade = fading_db(n, rf.fading, rf.rician_k_db, rf.fading_correlation, rng)
+        else:
+            block, blocked = np.zeros(n), np.zeros(n, dtype=bool)
+            fade = np.zeros((n, 2))
+        power = (pt - pl - rf.margin_db - block)[:, None] + gains + fade
+        if physical:
+            power = power + np.asarray(s.antenna.chain_offsets_db)
+        snr = power - threshold[:, None]
+        if self.detail == "high":
+            sigma = rssi_sigma_db(snr, s.driver.measurement_floor_db)
+        elif self.detail == "medium":
+            # noise that makes the monopulse bearing error equal σ_amp(SNR)
+            best = snr.max(axis=1) if n else np.empty(0)
+            sig_deg = sigma_monopulse_deg(best, beamwidth_deg=s.antenna.beamwidth_deg)
+            sig_db = np.asarray(sig_deg) * antenna.difference_slope_db_per_deg() / math.sqrt(2)
+            sigma = np.repeat(np.atleast_1d(sig_db)[:, None], 2, axis=1)
+        else:
+            sigma = np.zeros((n, 2))
+        reading = power + sigma * rng.standard_normal((n, 2))
+        if physical:
+            reading = quantise_db(reading, s.driver.step_db)
+        reading = np.clip(reading, -127.0, 127.0)
+        state = np.zeros((n, 2), np.uint8)
+        if physical and s.driver.chain_drop_prob > 0 and s.receiver != "two-single-chain-cards":
+            drop = rng.random(n) < s.driver.chain_drop_prob
+            which = rng.integers(0, 2, n)
+            lost = CHAIN_SENTINEL if s.driver.missing_chain == "sentinel" else CHAIN_OMITTED
+            state[drop, which[drop]] = lost
+        n_cards = s.n_cards
+        if n_cards == 2:
+            heard = power >= threshold[:, None]
+            state[~heard] = CHAIN_NOT_HEARD
+        else:
+            heard = (power.max(axis=1) >= threshold)[:, None] if n else np.zeros((0, 1), bool)
+        chain = np.where(state == CHAIN_PRESENT, reading, np.nan)
+        combined = combine_chains(chain, s.driver.combined)
+        if physical:
+            combined = quantise_db(combined, s.driver.step_db)
+        keep = heard.any(axis=1)
+        t_ns = self.t0_ns + np.round(t * 1e9).astype(np.int64)
+        jitter_us = s.driver.delivery_jitter_us if physical else 0.0
+        capture = t_ns[:, None] + np.round(rng.uniform(0.0, jitter_us, (n, n_cards)) * 1e3).astype(
+            np.int64
+        )
+        clock_rng = stream(spec.seed, "tsft", s.id)
+        tsft0 = clock_rng.integers(10**6, 10**10, n_cards)
+        # every card's crystal is off by its own amount, up to ±tsft_drift_ppm
+        drift = 1.0 + s.driver.tsft_drift_ppm * 1e-6 * clock_rng.uniform(-1.0, 1.0, n_cards)
+        tsft = (tsft0[None, :] + np.floor(t[:, None] * 1e6 * drift[None, :])).astype(np.uint64)
+        rec = Receptions(
+            sensor_id=s.id,
+            n_cards=n_cards,
+            t_s=t,
+            t_ns=t_ns,
+            emitter=e_idx,
+            mac=self.emitter_macs[e_idx] if n else np.empty(0, np.uint64),
+            channel=c["channel"],
+            freq_mhz=freq,
+            kind=c["kind"],
+            seq=c["seq"],
+            tech=tech,
+            chain_dbm=chain,
+            chain_state=state,
+            combined_dbm=combined,
+            heard=heard,
+            capture_ns=capture,
+            tsft_us=tsft,
+            true_relative_deg=relative,
+            true_azimuth_deg=azimuth,
+            distance_m=dist,
+            snr_db=snr,
+            blocked=blocked,
+            sensor_xy=sxy,
+            sensor_heading_deg=heading,
+            emitter_xy=exy,
+        )
+        return rec.select(keep)

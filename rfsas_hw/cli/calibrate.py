@@ -11,7 +11,12 @@ from rich.table import Table
 
 from rfsas_hw.df import MODES, fit_calibration, load_calibration, read_samples_csv, save_calibration
 from rfsas_hw.df.calibration import Calibration
-from rfsas_hw.df.check import CONSISTENT_RATIO, CheckReport, check_calibration
+from rfsas_hw.df.check import (
+    CONSISTENT_RATIO,
+    CheckReport,
+    check_calibration,
+    with_environment_floor,
+)
 from rfsas_hw.df.plot import plot_calibration
 
 
@@ -50,7 +55,26 @@ def _check_table(report: CheckReport, cal_path: Path, samples_path: Path) -> Tab
     table.add_row("max |error|", _fmt(report.max_abs_error_deg, "°"))
     verdict = "consistent" if report.consistent else "NOT consistent"
     table.add_row("σ honest within 1.2×", f"{verdict} (limit {CONSISTENT_RATIO}×)")
+    _sigma_rows(table, report)
     return table
+
+
+def _sigma_rows(table: Table, report: CheckReport) -> None:
+    """The σ model's terms, the dominant one, and the environment floor the check measured."""
+    terms = report.terms
+    table.add_row("σ term: reading noise (RMS)", _fmt(terms.noise_deg, "°"))
+    table.add_row("σ term: calibration model error", _fmt(terms.model_deg, "°"))
+    table.add_row("σ term: stored environment floor", _fmt(terms.environment_deg, "°"))
+    if report.valid:
+        table.add_row("dominant σ term", terms.dominant)
+    if report.band_ratios:
+        bands = " ".join(_fmt(r, "", 2) for r in report.band_ratios)
+        table.add_row("error / σ by σ band (small σ first)", bands)
+    for channel, floor in sorted(report.measured_floor_deg.items(), key=lambda kv: kv[0] or 0):
+        name = "all channels" if channel is None else f"channel {channel}"
+        table.add_row(f"measured environment floor, {name}", _fmt(floor, "°"))
+    if report.measured_floor_deg:
+        table.add_row("error / σ with measured floor", _fmt(report.ratio_with_floor, "", 3))
 
 
 @click.command()
@@ -59,7 +83,7 @@ def _check_table(report: CheckReport, cal_path: Path, samples_path: Path) -> Tab
     "-o",
     "--output",
     type=click.Path(dir_okay=False, path_type=Path),
-    help="Calibration YAML to write.",
+    help="Calibration YAML to write (with --check: CAL.yaml with the measured environment floor).",
 )
 @click.option(
     "--plot",
@@ -134,7 +158,7 @@ def calibrate(
 
     \b
     rfsas calibrate samples.csv -o cal.yaml --plot cal.png
-    rfsas calibrate --check cal.yaml heldback.csv
+    rfsas calibrate --check cal.yaml heldback.csv [-o cal-with-floor.yaml]
     """
     console = Console()
     if check:
@@ -144,6 +168,9 @@ def calibrate(
         samples = read_samples_csv(inputs[1])
         report = check_calibration(cal, samples)
         console.print(_check_table(report, inputs[0], inputs[1]))
+        if output is not None:
+            save_calibration(with_environment_floor(cal, report), output)
+            console.print(f"calibration with the measured environment floor written to {output}")
         if plot_path is not None:
             plot_calibration(cal, samples, plot_path)
             console.print(f"plot written to {plot_path}")

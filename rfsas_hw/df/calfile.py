@@ -1,5 +1,9 @@
 """Calibration files: YAML with a format name and version, validated on load.
 
+Version 1 files may carry two optional per-table keys of the σ model,
+``model_sigma_deg`` (the fit's model error) and ``env_floor_deg`` (the
+environment floor a check measured), both degrees, both 0 when absent.
+
 Every problem names the file and the key, e.g.
 ``cal.yaml: tables[0].psi: 40 values for a grid of 41``.
 """
@@ -43,6 +47,8 @@ class _TableDoc:
     channel: int | None = None
     samples: int = 0
     residual_rms_deg: float | None = None
+    model_sigma_deg: float = 0.0
+    env_floor_deg: float = 0.0
 
 
 @dataclass
@@ -81,10 +87,23 @@ def _check_table(doc: _TableDoc, where: str) -> CalibrationTable:
         raise CalibrationError(f"{where}.psi: not strictly monotonic inside fov_deg")
     if not (math.isfinite(doc.noise_db) and doc.noise_db >= 0):
         raise CalibrationError(f"{where}.noise_db: must be ≥ 0, got {doc.noise_db}")
+    for key in ("model_sigma_deg", "env_floor_deg"):
+        value = getattr(doc, key)
+        if not (math.isfinite(value) and value >= 0):
+            raise CalibrationError(f"{where}.{key}: must be a number ≥ 0 degrees, got {value}")
     rms = float("nan") if doc.residual_rms_deg is None else doc.residual_rms_deg
     try:
         return CalibrationTable(
-            doc.channel, doc.k_d, grid, psi, (lo, hi), doc.noise_db, doc.samples, rms
+            doc.channel,
+            doc.k_d,
+            grid,
+            psi,
+            (lo, hi),
+            doc.noise_db,
+            doc.samples,
+            rms,
+            doc.model_sigma_deg,
+            doc.env_floor_deg,
         )
     except CalibrationError as err:
         raise CalibrationError(f"{where}: {err}") from err
@@ -159,6 +178,16 @@ def calibration_to_mapping(cal: Calibration) -> dict[str, Any]:
     """The YAML document of ``cal`` (plain types only)."""
     tables = []
     for t in cal.tables:
+        # the σ-model terms are optional keys, written only when set, so files
+        # without them stay byte-identical and readable by older builds
+        sigma_terms = {
+            key: round(float(value), 4)
+            for key, value in (
+                ("model_sigma_deg", t.model_sigma_deg),
+                ("env_floor_deg", t.env_floor_deg),
+            )
+            if value > 0
+        }
         tables.append(
             {
                 "channel": t.channel,
@@ -169,6 +198,7 @@ def calibration_to_mapping(cal: Calibration) -> dict[str, Any]:
                 "residual_rms_deg": None
                 if math.isnan(t.residual_rms_deg)
                 else round(float(t.residual_rms_deg), 4),
+                **sigma_terms,
                 "grid_deg": _FlowList([round(float(v), 6) for v in t.grid_deg]),
                 "psi": _FlowList([float(f"{v:.9g}") for v in t.psi]),
             }

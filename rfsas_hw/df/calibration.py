@@ -3,13 +3,16 @@
 A :class:`Calibration` holds one :class:`CalibrationTable` per channel (or a
 single table for every channel, ``channel: None``). Each table stores K_D,
 the curve ψ_D on a regular angle grid, the unambiguous field of view (the
-interval around boresight where ψ_D is strictly monotonic) and the RSSI
-spread seen on the turntable.
+interval around boresight where ψ_D is strictly monotonic), the RSSI
+spread seen on the turntable and the two angle terms of the σ model that
+reading noise does not explain: the fit's own model error and an
+environment floor measured by a check (:mod:`rfsas_hw.df.check`).
 """
 
 from __future__ import annotations
 
 import datetime as dt
+import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
@@ -18,7 +21,7 @@ import numpy as np
 import numpy.typing as npt
 from scipy.interpolate import make_smoothing_spline
 
-from rfsas_hw.df.monopulse import Mode, balance_k_d, ratio
+from rfsas_hw.df.monopulse import Mode, balance_k_d, ratio, ratio_gradient
 from rfsas_hw.errors import CalibrationError
 from rfsas_hw.rf.noise import THERMAL_K_DB, quantisation_variance_db2
 from rfsas_hw.rf.synth import TurntableSamples
@@ -48,6 +51,12 @@ class CalibrationTable:
     """Turntable samples the table was fitted from."""
     residual_rms_deg: float = float("nan")
     """RMS bearing error on the fitting samples inside the FoV, degrees."""
+    model_sigma_deg: float = 0.0
+    """The fit's model error: RMS bearing error of the per-angle means beyond
+    what their reading noise explains, degrees (0 for files that predate it)."""
+    env_floor_deg: float = 0.0
+    """Environment floor (multipath, unmodelled scatter) measured by
+    ``calibrate --check`` on held-back data, degrees (0 until measured)."""
     _inv_psi: Array = field(init=False, repr=False, compare=False)
     _inv_deg: Array = field(init=False, repr=False, compare=False)
     _slope: Array = field(init=False, repr=False, compare=False)
@@ -68,6 +77,15 @@ class CalibrationTable:
         object.__setattr__(self, "_inv_psi", np.ascontiguousarray(p[order]))
         object.__setattr__(self, "_inv_deg", np.ascontiguousarray(g[order]))
         object.__setattr__(self, "_slope", np.gradient(psi, grid))
+        for name in ("model_sigma_deg", "env_floor_deg"):
+            value = float(getattr(self, name))
+            if not (math.isfinite(value) and value >= 0.0):
+                raise CalibrationError(f"{name} must be a finite number ≥ 0, got {value}")
+
+    @property
+    def extra_var_deg2(self) -> float:
+        """Variance the σ model adds to every bearing of this table, deg²."""
+        return self.model_sigma_deg**2 + self.env_floor_deg**2
 
     def angle_of(self, psi: Array) -> tuple[Array, npt.NDArray[np.bool_]]:
         """Inverse interpolation ψ → θ inside the FoV; second value marks ψ outside the curve."""
@@ -178,6 +196,40 @@ def _monotonic_fov(grid: Array, psi: Array) -> tuple[int, int]:
     return lo, hi
 
 
+def _model_sigma_deg(
+    table: CalibrationTable,
+    mode: Mode,
+    angles: Array,
+    means: Array,
+    counts: Array,
+    step_db: float,
+    noise_floor_dbm: float,
+) -> float:
+    """The fit's model error, degrees: how far the per-angle means miss the curve.
+
+    Each angle's mean readings give a bearing; its error against the true
+    angle holds the model error (the curve is smoother than the antenna, or
+    the bench had multipath) plus the noise of a mean of ``count`` readings.
+    The noise part, predicted by the same propagation the estimator uses, is
+    subtracted in quadrature, angle by angle, and the rest averaged over the
+    angles inside the FoV. 0 when noise explains everything.
+    """
+    est, outside = table.angle_of(ratio(means[:, 0], means[:, 1], table.k_d, mode))
+    lo, hi = table.fov_deg
+    inside = ~outside & (angles >= lo) & (angles <= hi)
+    if not inside.any():
+        return 0.0
+    r1, r2, n = means[inside, 0], means[inside, 1], counts[inside]
+    base = max(table.noise_db**2, quantisation_variance_db2(step_db))
+    var1 = base + THERMAL_K_DB**2 * np.power(10.0, -(r1 - noise_floor_dbm) / 10.0)
+    var2 = base + THERMAL_K_DB**2 * np.power(10.0, -(r2 - noise_floor_dbm) / 10.0)
+    g1, g2 = ratio_gradient(r1, r2, table.k_d, mode)
+    slope = np.abs(table.slope_at(est[inside]))
+    noise_var = (g1 * g1 * var1 + g2 * g2 * var2) / np.maximum(slope, 1e-12) ** 2 / n
+    excess = float(np.mean((est[inside] - angles[inside]) ** 2 - noise_var))
+    return math.sqrt(excess) if excess > 0 else 0.0
+
+
 def fit_table(
     angle_deg: Array,
     rssi1_dbm: Array,
@@ -197,6 +249,8 @@ def fit_table(
     is chosen by generalised cross-validation (weights: samples per angle), so
     the noise of the means does not break the monotonicity of ψ_D; ψ_D is
     evaluated on a regular grid; K_D balances the smoothed curves at 0°.
+    The table's ``model_sigma_deg`` is the fit's model error (see
+    :func:`_model_sigma_deg`); its ``env_floor_deg`` starts at 0.
 
     Raises:
         CalibrationError: fewer than 3 distinct angles, boresight not covered,
@@ -250,7 +304,10 @@ def fit_table(
         if inside.any()
         else float("nan")
     )
-    return CalibrationTable(channel, k_d, grid, psi, fov, noise_db, len(angle), rms)
+    model = _model_sigma_deg(
+        table, mode, uniq, means, counts.astype(np.float64), step_db, noise_floor_dbm
+    )
+    return CalibrationTable(channel, k_d, grid, psi, fov, noise_db, len(angle), rms, model)
 
 
 def fit_calibration(

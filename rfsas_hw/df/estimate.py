@@ -9,7 +9,16 @@ inverse interpolation, and
 where ``noise_db`` is the spread measured on the turntable (which already
 holds the 1 dB quantisation of the card; the ``step²/12`` floor covers a
 table fitted from smoothed or unquantised data) and the last term grows the
-spread at low SNR (:mod:`rfsas_hw.rf.noise`).
+spread at low SNR (:mod:`rfsas_hw.rf.noise`). Two terms that reading
+noise does not cover are added in quadrature, per table:
+
+    σ² = σ_θ² + σ_model² + σ_env²
+
+``σ_model`` is the calibration fit's own model error (how far its per-angle
+means miss the fitted curve beyond their noise) and ``σ_env`` the
+environment floor (multipath, scatter) that ``calibrate --check`` measures
+on held-back data and stores with the table. Both are 0 in files that
+predate them, which keeps their σ unchanged.
 """
 
 from __future__ import annotations
@@ -86,11 +95,17 @@ def _estimate_table(
         var1 += var2
         sigma = np.sqrt(var1)
         sigma *= factor
-        return angle, sigma, outside
-    psi = ratio(r1, r2, table.k_d, cal.mode)
-    angle, inv_slope, outside = lut(psi)
-    g1, g2 = ratio_gradient(r1, r2, table.k_d, cal.mode)
-    return angle, np.sqrt(g1 * g1 * var1 + g2 * g2 * var2) * inv_slope, outside
+    else:
+        psi = ratio(r1, r2, table.k_d, cal.mode)
+        angle, inv_slope, outside = lut(psi)
+        g1, g2 = ratio_gradient(r1, r2, table.k_d, cal.mode)
+        sigma = np.sqrt(g1 * g1 * var1 + g2 * g2 * var2) * inv_slope
+    extra = table.extra_var_deg2
+    if extra > 0.0:
+        sigma *= sigma
+        sigma += np.float32(extra)
+        np.sqrt(sigma, out=sigma)
+    return angle, sigma, outside
 
 
 def estimate(

@@ -57,6 +57,10 @@ class ObsFlag(enum.IntFlag):
     """Fewer antennas than the batch's width were reported."""
     PAIRED = 0x20
     """RSSI values come from two receivers paired frame by frame."""
+    PHASE_AMBIGUOUS = 0x40
+    """Per-chain CSI phase may be off by a multiple of π/2 (Intel 5300 at 2.4 GHz)."""
+    PHASE_JUMP = 0x80
+    """The inter-chain CSI phase jumped against the previous frame of the same transmitter."""
 
 
 def mac_to_int(text: str) -> int:
@@ -117,6 +121,36 @@ class Observation:
     """Quality flags."""
 
 
+@dataclass(slots=True)
+class CsiBlock:
+    """Channel state information beside an :class:`ObservationBatch` (one row per frame).
+
+    The complex channel of every receive antenna, transmit stream and
+    subcarrier, antenna order as wired (a receiver's chain permutation already
+    undone). NaN marks an antenna or stream the frame did not carry.
+    """
+
+    h: npt.NDArray[np.complex64]
+    """Channel, shape (n, n_antennas, n_streams, n_subcarriers), linear amplitude (tool units)."""
+    subcarrier: npt.NDArray[np.int16]
+    """Subcarrier index of each column (spacing 312.5 kHz, 0 = centre), shape (n_subcarriers,)."""
+
+    def __post_init__(self) -> None:
+        self.h = np.asarray(self.h, dtype=np.complex64)
+        self.subcarrier = np.asarray(self.subcarrier, dtype=np.int16)
+        if self.h.ndim != 4 or self.h.shape[3] != self.subcarrier.shape[0]:
+            raise ValueError(
+                f"CSI of shape {self.h.shape} does not fit {self.subcarrier.shape[0]} subcarriers"
+            )
+
+    def __len__(self) -> int:
+        return int(self.h.shape[0])
+
+    def select(self, index: npt.NDArray[Any] | slice) -> CsiBlock:
+        """Rows picked by a boolean mask, an index array or a slice."""
+        return CsiBlock(self.h[index], self.subcarrier)
+
+
 def _as(arr: Any, dtype: npt.DTypeLike, name: str, n: int | None) -> npt.NDArray[Any]:
     out = np.ascontiguousarray(arr, dtype=dtype)
     if n is not None and out.shape[0] != n:
@@ -147,6 +181,8 @@ class ObservationBatch:
     """:class:`FrameKind` values."""
     flags: npt.NDArray[np.uint16] = field(default_factory=lambda: np.empty(0, np.uint16))
     """:class:`ObsFlag` values."""
+    csi: CsiBlock | None = None
+    """Per-antenna complex channel of each row (CSI sources only), else None."""
 
     def __post_init__(self) -> None:
         n = len(self.t_ns)
@@ -173,6 +209,8 @@ class ObservationBatch:
             if len(self.flags) == 0 and n
             else _as(self.flags, np.uint16, "flags", n)
         )
+        if self.csi is not None and len(self.csi) != n:
+            raise ValueError(f"column 'csi' has {len(self.csi)} rows, expected {n}")
 
     @classmethod
     def empty(cls, n_antennas: int = 2) -> ObservationBatch:
@@ -208,9 +246,23 @@ class ObservationBatch:
 
     @staticmethod
     def concat(batches: Sequence[ObservationBatch]) -> ObservationBatch:
-        """Concatenate batches with the same antenna count, in order."""
+        """Concatenate batches with the same antenna count, in order.
+
+        CSI is kept when every batch carries it with the same shape and subcarriers.
+        """
         if not batches:
             return ObservationBatch.empty()
+        csi = None
+        first = batches[0].csi
+        if first is not None and all(
+            b.csi is not None
+            and b.csi.h.shape[1:] == first.h.shape[1:]
+            and np.array_equal(b.csi.subcarrier, first.subcarrier)
+            for b in batches
+        ):
+            csi = CsiBlock(
+                np.concatenate([b.csi.h for b in batches if b.csi is not None]), first.subcarrier
+            )
         return ObservationBatch(
             t_ns=np.concatenate([b.t_ns for b in batches]),
             mac=np.concatenate([b.mac for b in batches]),
@@ -220,6 +272,7 @@ class ObservationBatch:
             seq=np.concatenate([b.seq for b in batches]),
             kind=np.concatenate([b.kind for b in batches]),
             flags=np.concatenate([b.flags for b in batches]),
+            csi=csi,
         )
 
     @property
@@ -241,6 +294,7 @@ class ObservationBatch:
             seq=self.seq[index],
             kind=self.kind[index],
             flags=self.flags[index],
+            csi=None if self.csi is None else self.csi.select(index),
         )
 
     def row(self, i: int) -> Observation:

@@ -1,0 +1,108 @@
+"""FeitCSI (Intel AX200/AX210) ``.csi`` files, read here (no dependency).
+
+Each frame is a 272-byte little-endian header followed by its CSI::
+
+    0   u32 csi_length     bytes of CSI after the header
+    8   u32 ftm_clock      card clock (320 MHz ticks, wraps every 13.4 s)
+    46  u8  n_rx, 47 u8 n_tx
+    52  u32 n_subcarriers
+    60  u32 rssi_1, 64 u32 rssi_2   energy, dBm = −value (0 = no reading)
+    68  6 bytes source MAC
+    272 CSI: n_rx × n_tx × n_subcarriers of (i16 I, i16 Q)
+
+The file does not record the channel frequency: pass it as ``freq_mhz``.
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+from pathlib import Path
+
+import numpy as np
+
+from rfsas_hw.errors import CaptureFormatError
+from rfsas_hw.records import ObsFlag
+from rfsas_hw.sources.csi_frames import CsiCapture, CsiFrames, new_frames, ofdm_subcarriers
+
+HEADER_BYTES = 272
+FTM_CLOCK_NS = 3.125
+"""Tick of the AX200's FTM clock (320 MHz), ns."""
+
+
+def read_feitcsi(path: str | Path, freq_mhz: int = 0) -> CsiCapture:
+    """Every frame of a FeitCSI capture, in runs of one layout.
+
+    Raises:
+        CaptureFormatError: the first header is implausible (not a FeitCSI file);
+            a later broken frame ends the read and is reported as a problem.
+    """
+    name = str(path)
+    raw = Path(path).read_bytes()
+    total = len(raw)
+    pos = 0
+    heads: list[tuple[int, int, int, int, int, int, int, int, int]] = []
+    problems: list[tuple[str, CaptureFormatError]] = []
+    while pos < total:
+        if pos + HEADER_BYTES > total:
+            problems.append(
+                (
+                    "truncated frame",
+                    CaptureFormatError(
+                        f"{name}: frame {len(heads)} at byte {pos}: {total - pos} bytes left, "
+                        f"a header needs {HEADER_BYTES}"
+                    ),
+                )
+            )
+            break
+        length = int.from_bytes(raw[pos : pos + 4], "little")
+        clock = int.from_bytes(raw[pos + 8 : pos + 12], "little")
+        nrx, ntx = raw[pos + 46], raw[pos + 47]
+        nsc = int.from_bytes(raw[pos + 52 : pos + 56], "little")
+        r1 = int.from_bytes(raw[pos + 60 : pos + 64], "little")
+        r2 = int.from_bytes(raw[pos + 64 : pos + 68], "little")
+        mac = int.from_bytes(raw[pos + 68 : pos + 74], "big")
+        sane = 1 <= nrx <= 4 and 1 <= ntx <= 4 and 1 <= nsc <= 4096
+        if not sane or length != 4 * nrx * ntx * nsc or pos + HEADER_BYTES + length > total:
+            err = CaptureFormatError(
+                f"{name}: frame {len(heads)} at byte {pos}: header says {nrx} RX × {ntx} TX × "
+                f"{nsc} subcarriers in {length} bytes ({total - pos - HEADER_BYTES} left): "
+                "not a FeitCSI frame"
+            )
+            if not heads:
+                raise err
+            problems.append(("bad frame", err))
+            break
+        heads.append((pos, length, clock, nrx, ntx, nsc, r1, r2, mac))
+        pos += HEADER_BYTES + length
+    notes: Counter[str] = Counter()
+    blocks: list[CsiFrames] = []
+    i = 0
+    while i < len(heads):
+        layout = heads[i][3:6]
+        j = i
+        while j < len(heads) and heads[j][3:6] == layout:
+            j += 1
+        nrx, ntx, nsc = layout
+        frames = new_frames("feitcsi", j - i, nrx, ntx, ofdm_subcarriers(nsc))
+        for row, (start, length, clock, _, _, _, r1, r2, mac) in enumerate(heads[i:j]):
+            body = np.frombuffer(raw, "<i2", length // 2, start + HEADER_BYTES).astype(np.float32)
+            iq = body[0::2] + 1j * body[1::2]
+            frames.h[row] = iq.reshape(nrx, ntx, nsc)
+            frames.t_ns[row] = clock
+            frames.mac[row] = mac
+            for k, energy in enumerate((r1, r2)[:nrx]):
+                if energy:
+                    frames.rssi_dbm[row, k] = -float(energy)
+                else:
+                    frames.flags[row] |= np.uint16(ObsFlag.SENTINEL_CHAIN)
+        frames.freq_mhz[:] = freq_mhz
+        blocks.append(frames)
+        i = j
+    ticks = np.concatenate([b.t_ns for b in blocks]) if blocks else np.zeros(0, np.int64)
+    wraps = np.concatenate([[0], np.cumsum(np.diff(ticks) < -(1 << 31))]).astype(np.int64)
+    ticks = ((ticks + (wraps << 32)) * FTM_CLOCK_NS).astype(np.int64)
+    start = 0
+    for b in blocks:
+        b.t_ns = ticks[start : start + len(b)]
+        start += len(b)
+    return CsiCapture(name, "feitcsi", blocks, "dBm", problems, notes)

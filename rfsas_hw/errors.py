@@ -63,5 +63,9 @@ class SimulationError(RfsasError):
     """A scenario or simulation run is invalid."""
 
 
+class ExportError(RfsasError):
+    """A run cannot be exported (unreadable log, no site origin, unwritable output)."""
+
+
 class MissingDependencyError(RfsasError):
     """An optional dependency is not installed; the message names the install command."""

@@ -35,6 +35,7 @@ import numpy as np
 from rfsas_hw.backend.association import AssociationConfig, Associator
 from rfsas_hw.backend.encounter import EncounterConfig, assess_encounter
 from rfsas_hw.backend.risk import Advisory
+from rfsas_hw.backend.site import SiteConfig, site_from_mapping
 from rfsas_hw.backend.tracking import Tracker, TrackerConfig
 from rfsas_hw.backend.triangulation import (
     FixStatus,
@@ -45,6 +46,7 @@ from rfsas_hw.backend.triangulation import (
 from rfsas_hw.backend.vehicle import VehicleFeed, VehicleState
 from rfsas_hw.config import from_mapping, read_yaml
 from rfsas_hw.errors import BackendError, ConfigError
+from rfsas_hw.geo import SiteOrigin
 from rfsas_hw.records import Assessment, BearingBatch, Fix, Pose, emitter_hex
 
 log = logging.getLogger(__name__)
@@ -57,6 +59,7 @@ __all__ = [
     "BackendConfig",
     "BackendService",
     "BackendStats",
+    "BearingSink",
     "JsonlSink",
     "MessageSource",
     "ResultSink",
@@ -74,6 +77,8 @@ class BackendConfig:
         tracker: motion model and track management.
         encounter: threat kind, horizon, reaction delay, advisory thresholds.
         step_s: period of triangulation and assessment in :meth:`BackendService.run`, s.
+        site: the site's origin on WGS-84, declared sensors, map and tile URL
+            (:mod:`rfsas_hw.backend.site`).
 
     Raises:
         BackendError: a non-positive step.
@@ -84,6 +89,7 @@ class BackendConfig:
     tracker: TrackerConfig = field(default_factory=TrackerConfig)
     encounter: EncounterConfig = field(default_factory=EncounterConfig)
     step_s: float = 0.1
+    site: SiteConfig = field(default_factory=SiteConfig)
 
     def __post_init__(self) -> None:
         if not self.step_s > 0:
@@ -101,6 +107,7 @@ def load_backend_config(path: str | Path) -> BackendConfig:
         encounter: {threat_kind: cyclist, reaction_s: 0.3,
                     thresholds: {brake_risk: 0.005}}
         step_s: 0.1
+        site: {origin: {lat_deg: 52.2053, lon_deg: 0.1218}}
 
     Raises:
         ConfigError: unreadable file, invalid YAML, an unknown key or a bad value
@@ -113,8 +120,11 @@ def load_backend_config(path: str | Path) -> BackendConfig:
         data = {}
     if not isinstance(data, dict):
         raise ConfigError(f"{path}: expected a mapping of backend settings")
+    site_data = data.get("site")
+    data = {k: v for k, v in data.items() if k != "site"}
+    site = site_from_mapping(site_data, f"{path}: site", Path(path).parent)
     try:
-        return from_mapping(BackendConfig, data, str(path))
+        return replace(from_mapping(BackendConfig, data, str(path)), site=site)
     except (BackendError, ConfigError) as err:
         # range checks of the settings do not know the file they came from
         if str(err).startswith(str(path)):
@@ -151,6 +161,14 @@ class ResultSink(Protocol):
 
     def close(self) -> None:
         """Flush and release resources."""
+        ...
+
+
+class BearingSink(Protocol):
+    """A sink that also wants every sensor's bearings as they arrive (a map, a log)."""
+
+    def on_bearings(self, bearings: BearingBatch, pose: Pose) -> None:
+        """Take the bearings sensor ``bearings.sensor_id`` measured from ``pose``."""
         ...
 
 
@@ -191,19 +209,50 @@ class JsonlSink:
 
     Each line has ``"record": "fix"`` or ``"assessment"`` followed by the
     record's fields (non-finite numbers as null); :meth:`write_stats` adds a
-    ``"record": "stats"`` line.
+    ``"record": "stats"`` line. With an ``origin`` the first line is
+    ``{"record": "site", "origin": {"lat_deg", "lon_deg", "height_m"}}``; with
+    ``bearings`` every bearing is a ``"record": "bearing"`` line with the
+    sensor's pose (``x_m``, ``y_m``, ``heading_deg``) — what the exports
+    (:mod:`rfsas_hw.exports`) draw bearing lines from.
 
     Raises:
         BackendError: the file cannot be opened.
     """
 
-    def __init__(self, path: str | Path) -> None:
+    def __init__(
+        self, path: str | Path, *, origin: SiteOrigin | None = None, bearings: bool = False
+    ) -> None:
         self.path = Path(path)
         try:
             self._file: IO[str] | None = self.path.open("w", encoding="utf-8")
         except OSError as err:
             raise BackendError(f"{self.path}: cannot write: {err.strerror or err}") from err
         self.lines = 0
+        self.bearings = bearings
+        if origin is not None:
+            o = {"lat_deg": origin.lat_deg, "lon_deg": origin.lon_deg, "height_m": origin.height_m}
+            self._write("site", {"origin": o})
+
+    def on_bearings(self, bearings: BearingBatch, pose: Pose) -> None:
+        """Append one line per bearing (only with ``bearings=True``)."""
+        if not self.bearings:
+            return
+        for i in range(len(bearings)):
+            self._write(
+                "bearing",
+                {
+                    "t_ns": int(bearings.t_ns[i]),
+                    "sensor_id": bearings.sensor_id,
+                    "emitter": emitter_hex(int(bearings.emitter[i])),
+                    "azimuth_deg": _finite(bearings.azimuth_deg[i]),
+                    "sigma_deg": _finite(bearings.sigma_deg[i]),
+                    "snr_db": _finite(bearings.snr_db[i]),
+                    "channel": int(bearings.channel[i]),
+                    "x_m": _finite(pose.x_m),
+                    "y_m": _finite(pose.y_m),
+                    "heading_deg": _finite(pose.heading_deg),
+                },
+            )
 
     def _write(self, kind: str, data: dict[str, Any]) -> None:
         if self._file is None:
@@ -229,6 +278,12 @@ class JsonlSink:
         if self._file is not None:
             self._file.close()
             self._file = None
+
+
+def _finite(value: Any) -> float | None:
+    """A float for JSON: None where it is not finite."""
+    v = float(value)
+    return v if math.isfinite(v) else None
 
 
 def _fix_record(
@@ -305,6 +360,14 @@ class BackendService:
         self.stations[bearings.sensor_id] = pose
         self.stats.bearings += len(bearings)
         self.associator.add(bearings, pose)
+        for sink in self.sinks:
+            take = getattr(sink, "on_bearings", None)
+            if take is None:
+                continue
+            try:
+                take(bearings, pose)
+            except Exception:
+                log.exception("result sink %s failed on bearings", type(sink).__name__)
 
     def on_verified(self, message: VerifiedLike) -> None:
         """Take a verified safety message (``rfsas_hw.link.VerifiedMessage``)."""

@@ -1,0 +1,172 @@
+"""KML 2.2 of a run: for Google Earth and the GIS tools that read KML.
+
+One ``Document`` with four ``Folder`` elements, each ``Placemark`` carrying a
+``TimeStamp`` (or a ``gx:Track``'s ``when`` list) so the time slider plays the
+run back:
+
+- ``Sensors``: a ``Point`` per sensor;
+- ``Fixes``: a ``MultiGeometry`` of the fix's ``Point`` and its error-ellipse
+  ``Polygon``; ``ExtendedData`` holds the emitter id, status, covariance and
+  ellipse axes;
+- ``Bearings``: a ``LineString`` from the sensor along the azimuth;
+- ``Tracks``: a ``gx:Track`` per emitter (``when`` + ``gx:coord`` pairs).
+
+Coordinates are ``lon,lat,0`` in WGS-84 degrees with 8 decimals, clamped to
+the ground.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+from xml.etree import ElementTree as ET
+
+from rfsas_hw.errors import ExportError
+from rfsas_hw.exports.scene import Scene
+from rfsas_hw.exports.shapes import iso_utc
+
+KML_NS = "http://www.opengis.net/kml/2.2"
+GX_NS = "http://www.google.com/kml/ext/2.2"
+DECIMALS = 8
+
+__all__ = ["GX_NS", "KML_NS", "scene_to_kml", "write_kml"]
+
+STYLES = {
+    "sensor": ("ff000000", "ff000000"),
+    "fix": ("ff0000dd", "400000dd"),
+    "bearing": ("a0ff7700", "00000000"),
+    "track": ("ffdd00aa", "00000000"),
+}
+"""Line and fill colours per style, KML ``aabbggrr``."""
+
+
+def _k(tag: str) -> str:
+    return f"{{{KML_NS}}}{tag}"
+
+
+def _sub(parent: ET.Element, tag: str, text: str | None = None, **attrib: str) -> ET.Element:
+    el = ET.SubElement(parent, tag if tag.startswith("{") else _k(tag), attrib)
+    if text is not None:
+        el.text = text
+    return el
+
+
+def _coord(lat: float, lon: float) -> str:
+    return f"{lon:.{DECIMALS}f},{lat:.{DECIMALS}f},0"
+
+
+def _extended(parent: ET.Element, data: dict[str, Any]) -> None:
+    ext = _sub(parent, "ExtendedData")
+    for key, value in data.items():
+        d = _sub(ext, "Data", name=key)
+        _sub(d, "value", str(value))
+
+
+def _placemark(folder: ET.Element, name: str, style: str, t_ns: int | None) -> ET.Element:
+    pm = _sub(folder, "Placemark")
+    _sub(pm, "name", name)
+    _sub(pm, "styleUrl", f"#{style}")
+    if t_ns is not None:
+        ts = _sub(pm, "TimeStamp")
+        _sub(ts, "when", iso_utc(t_ns))
+    return pm
+
+
+def scene_to_kml(scene: Scene, name: str = "rfsas run") -> ET.ElementTree[ET.Element | None]:
+    """The scene as a KML document tree."""
+    ET.register_namespace("", KML_NS)
+    ET.register_namespace("gx", GX_NS)
+    root = ET.Element(_k("kml"))
+    doc = _sub(root, "Document")
+    _sub(doc, "name", name)
+    for style, (line, fill) in STYLES.items():
+        st = _sub(doc, "Style", id=style)
+        ls = _sub(st, "LineStyle")
+        _sub(ls, "color", line)
+        _sub(ls, "width", "2")
+        ps = _sub(st, "PolyStyle")
+        _sub(ps, "color", fill)
+
+    folder = _sub(doc, "Folder")
+    _sub(folder, "name", "Sensors")
+    for s in scene.sensors:
+        pm = _placemark(folder, s.sensor_id, "sensor", s.t_ns)
+        _sub(_sub(pm, "Point"), "coordinates", _coord(s.lat_deg, s.lon_deg))
+
+    folder = _sub(doc, "Folder")
+    _sub(folder, "name", "Fixes")
+    for m in scene.fixes:
+        f = m.fix
+        pm = _placemark(folder, f.emitter, "fix", f.t_ns)
+        data: dict[str, Any] = {
+            "kind": "fix",
+            "emitter": f.emitter,
+            "status": f.status,
+            "sensors": ",".join(f.sensors),
+            "cov_xx_m2": f"{f.cov_xx_m2:.6g}",
+            "cov_xy_m2": f"{f.cov_xy_m2:.6g}",
+            "cov_yy_m2": f"{f.cov_yy_m2:.6g}",
+        }
+        if m.ellipse is not None:
+            data.update(
+                n_sigma=f"{m.ellipse.n_sigma:g}",
+                semi_major_m=f"{m.ellipse.semi_major_m:.3f}",
+                semi_minor_m=f"{m.ellipse.semi_minor_m:.3f}",
+                orientation_deg=f"{m.ellipse.orientation_deg:.2f}",
+            )
+        _extended(pm, data)
+        geoms = _sub(pm, "MultiGeometry")
+        _sub(_sub(geoms, "Point"), "coordinates", _coord(m.lat_deg, m.lon_deg))
+        if m.ring_deg is not None:
+            poly = _sub(geoms, "Polygon")
+            _sub(poly, "tessellate", "1")
+            ring = _sub(_sub(poly, "outerBoundaryIs"), "LinearRing")
+            _sub(ring, "coordinates", " ".join(_coord(lat, lon) for lat, lon in m.ring_deg))
+
+    folder = _sub(doc, "Folder")
+    _sub(folder, "name", "Bearings")
+    for b in scene.bearings:
+        pm = _placemark(folder, f"{b.bearing.sensor_id} → {b.bearing.emitter}", "bearing", None)
+        ts = _sub(pm, "TimeStamp")
+        _sub(ts, "when", iso_utc(b.bearing.t_ns))
+        _extended(
+            pm,
+            {
+                "kind": "bearing",
+                "sensor_id": b.bearing.sensor_id,
+                "emitter": b.bearing.emitter,
+                "azimuth_deg": f"{b.bearing.azimuth_deg:.3f}",
+                "sigma_deg": f"{b.bearing.sigma_deg:.3f}",
+            },
+        )
+        ray = _sub(pm, "LineString")
+        _sub(ray, "tessellate", "1")
+        _sub(ray, "coordinates", f"{_coord(*b.start_deg)} {_coord(*b.end_deg)}")
+
+    folder = _sub(doc, "Folder")
+    _sub(folder, "name", "Tracks")
+    for t in scene.tracks:
+        pm = _placemark(folder, f"track {t.emitter}", "track", None)
+        _extended(pm, {"kind": "track", "emitter": t.emitter})
+        track = _sub(pm, f"{{{GX_NS}}}Track")
+        for v in t.t_ns:
+            _sub(track, "when", iso_utc(int(v)))
+        for lat, lon in zip(t.lat_deg, t.lon_deg, strict=True):
+            _sub(track, f"{{{GX_NS}}}coord", f"{lon:.{DECIMALS}f} {lat:.{DECIMALS}f} 0")
+    tree = ET.ElementTree(root)
+    ET.indent(tree, space=" ")
+    return tree
+
+
+def write_kml(scene: Scene, path: str | Path, name: str = "rfsas run") -> Path:
+    """Write the scene as KML to ``path``.
+
+    Raises:
+        ExportError: the file cannot be written.
+    """
+    p = Path(path)
+    try:
+        scene_to_kml(scene, name).write(p, encoding="utf-8", xml_declaration=True)
+    except OSError as err:
+        raise ExportError(f"{p}: cannot write: {err.strerror or err}") from err
+    return p

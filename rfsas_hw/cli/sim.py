@@ -197,3 +197,7 @@ from rfsas_hw.cli.simrl import train as _train  # noqa: E402
 
 for _command in (_train, _evaluate, _render):
     sim.add_command(_command)
+
+from rfsas_hw.cli.simcue import cueing as _cueing  # noqa: E402
+
+sim.add_command(_cueing)

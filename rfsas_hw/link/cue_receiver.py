@@ -32,6 +32,7 @@ from rfsas_hw.link.replay import ReplayGuard
 from rfsas_hw.link.signing import SenderKeys, verify
 from rfsas_hw.link.transport import Transport
 from rfsas_hw.privacy.epochs import DEFAULT_EPOCH_S, DEFAULT_GRACE_S, EpochSchedule
+from rfsas_hw.sources.schedule import ChannelCue
 
 log = logging.getLogger(__name__)
 
@@ -207,3 +208,9 @@ class CueReceiver:
         """Close the transport, if any; idempotent."""
         if self.transport is not None:
             self.transport.close()
+
+
+def to_channel_cue(cue: Cue, now_utc_ns: int, now_s: float) -> ChannelCue:
+    """A verified cue on a scheduler's clock: ``now_s`` there is ``now_utc_ns`` in UTC."""
+    left_s = (cue.valid_until_us * 1000 - now_utc_ns) / 1e9
+    return ChannelCue(cue.emitter, cue.channel, cue.risk, now_s + left_s)

@@ -31,6 +31,7 @@ COMMANDS: list[str] = [
     "rfsas_hw.cli.nonces:nonces",
     "rfsas_hw.cli.link:link",
     "rfsas_hw.cli.backend:backend",
+    "rfsas_hw.cli.export:export",
     "rfsas_hw.cli.board:board",
 ]
 

@@ -19,6 +19,7 @@ _LAZY: dict[str, str] = {
     "serial": "rfsas_hw.sources.serial_board:SerialSource",
     "virtual": "rfsas_hw.sources.virtual:VirtualSource",
     "agrelo": "rfsas_hw.sources.agrelo:AgreloSource",
+    "ublox": "rfsas_hw.sources.ublox:UbloxSource",
     "csi": "rfsas_hw.sources.csi:CsiSource",
 }
 _LOADED: dict[str, type[Source[Any]]] = {}

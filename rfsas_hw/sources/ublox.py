@@ -49,7 +49,7 @@ import serial
 
 from rfsas_hw.angles import wrap_deg_180, wrap_deg_360
 from rfsas_hw.errors import ConfigError, DataFormatError, SourceError
-from rfsas_hw.privacy.hashing import FixedNonce, MacHasher
+from rfsas_hw.privacy.hashing import FixedNonce, MacHasher, NonceUnavailableError
 from rfsas_hw.records import BearingBatch
 from rfsas_hw.sources.base import BatchFilter, ErrorPolicy, Source
 
@@ -280,7 +280,12 @@ class UbloxSource(Source[BearingBatch]):
         extra["events"] += len(macs)
         n = len(macs)
         t_ns = np.full(n, now, np.int64)
-        emitter = self.hasher.hash_batch(np.asarray(macs, np.uint64), t_ns)
+        try:
+            emitter = self.hasher.hash_batch(np.asarray(macs, np.uint64), t_ns)
+        except NonceUnavailableError:
+            # a bearing is only useful now: without this epoch's nonce it is dropped
+            self.stats.skip("no_nonce", count=n)
+            return None
         relative = np.asarray(wrap_deg_180(self.sign * np.asarray(az)))
         sigma = [
             sigma_from_rssi(

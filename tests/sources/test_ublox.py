@@ -242,3 +242,19 @@ def test_no_raw_mac_in_the_bearings_written(unit: tuple[int, str], fmt: str) -> 
     writer.close()
     blob = (buf.getvalue() + stats).encode()
     assert not any(_leaks(blob, mac) for mac in TAGS)
+
+
+class _NoNonce:
+    def nonce_for(self, epoch: int) -> bytes:
+        from rfsas_hw.privacy.hashing import NonceUnavailableError
+
+        raise NonceUnavailableError(f"no nonce for epoch {epoch}")
+
+
+def test_events_without_a_nonce_are_dropped_not_sent_raw(unit: tuple[int, str]) -> None:
+    master, path = unit
+    with UbloxSource(path, hasher=MacHasher(_NoNonce())) as src:
+        os.write(master, LINE_10 + b"\r\n")
+        batch = _read_all(src, seconds=0.3)
+        assert len(batch) == 0
+        assert src.stats.skipped["no_nonce"] == 1

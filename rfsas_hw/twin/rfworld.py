@@ -83,29 +83,37 @@ def link_path_loss_db(distance_m: Array, freq_mhz: npt.ArrayLike, rf: RfSpec) ->
     return out
 
 
+def _cn(rng: np.random.Generator, shape: tuple[int, ...]) -> npt.NDArray[np.complex128]:
+    """Circular complex Gaussian samples of unit mean power."""
+    z = rng.standard_normal((*shape, 2))
+    return np.asarray((z[..., 0] + 1j * z[..., 1]) / math.sqrt(2.0))
+
+
 def fading_db(
     n: int,
     model: Literal["none", "rayleigh", "rician"],
     k_db: float,
     correlation: float,
     rng: np.random.Generator,
+    rng_own: np.random.Generator | None = None,
 ) -> Array:
     """Power gain of small-scale fading on two chains, dB, shape ``(n, 2)``, mean power 1.
 
     The complex gain of each chain is a common part plus an independent part,
     ``h_i = √ρ·c + √(1−ρ)·u_i``, so ``ρ`` is the correlation between chains.
     Rician adds a fixed direct component with power ratio ``K`` to the
-    scattered part.
+    scattered part. With ``rng_own`` the independent parts come from that
+    stream (each stream then advances by a fixed amount per frame, so frames
+    can be drawn in pieces).
     """
     if model == "none" or n == 0:
         return np.zeros((n, 2))
 
     def cn(shape: tuple[int, ...]) -> npt.NDArray[np.complex128]:
-        z = rng.standard_normal((*shape, 2))
-        return np.asarray((z[..., 0] + 1j * z[..., 1]) / math.sqrt(2.0))
+        return _cn(rng, shape)
 
     common = cn((n, 1))
-    own = cn((n, 2))
+    own = cn((n, 2)) if rng_own is None else _cn(rng_own, (n, 2))
     scatter = math.sqrt(correlation) * common + math.sqrt(1.0 - correlation) * own
     if model == "rician":
         k = 10.0 ** (k_db / 10.0)

@@ -45,7 +45,7 @@ from rfsas_hw.twin.rfworld import (
 from rfsas_hw.twin.rng import stream
 from rfsas_hw.twin.scan import ScanPlan
 from rfsas_hw.twin.scenario import Detail, Scenario, SensorSpec
-from rfsas_hw.twin.traffic import Transmissions, emitter_transmissions
+from rfsas_hw.twin.traffic import EmitterTraffic, Transmissions, traffic_streams
 
 Array = npt.NDArray[np.float64]
 
@@ -178,6 +178,37 @@ class Receptions:
         )
 
 
+class ReceiverStreams:
+    """A sensor's random streams, one per purpose, and its cards' clocks.
+
+    Each purpose (fading, noise, chain drops, capture delay) draws from its
+    own stream in frame order, so the frames of a scenario can be computed in
+    one piece or window by window with the same result.
+
+    Args:
+        seed: the scenario seed.
+        sensor: the sensor.
+        detail: the level of detail (part of the stream names).
+    """
+
+    def __init__(self, seed: int, sensor: SensorSpec, detail: Detail) -> None:
+        names = ("rf", sensor.id, detail)
+        self.fade_common = stream(seed, *names, "fade-common")
+        self.fade_own = stream(seed, *names, "fade-own")
+        self.noise = stream(seed, *names, "noise")
+        self.drop = stream(seed, *names, "drop")
+        self.drop_chain = stream(seed, *names, "drop-chain")
+        self.jitter = stream(seed, *names, "capture-delay")
+        clock_rng = stream(seed, "tsft", sensor.id)
+        self.tsft0_us = clock_rng.integers(10**6, 10**10, sensor.n_cards)
+        """Each card's TSF timer at scenario time 0, microseconds."""
+        # every card's crystal is off by its own amount, up to ±tsft_drift_ppm
+        self.drift = 1.0 + sensor.driver.tsft_drift_ppm * 1e-6 * clock_rng.uniform(
+            -1.0, 1.0, sensor.n_cards
+        )
+        """Rate of each card's TSF clock against true time."""
+
+
 class World:
     """A scenario brought to life: tracks, traffic, scan plans and link physics.
 
@@ -205,7 +236,9 @@ class World:
         self.rects = building_array(spec.intersection.buildings)
         self.emitter_macs = np.array([mac_to_int(e.mac) for e in spec.emitters], np.uint64)
         self.tx: list[Transmissions] = [
-            emitter_transmissions(e.traffic, spec.duration_s, stream(spec.seed, "traffic", e.id))
+            EmitterTraffic(e.traffic, traffic_streams(spec.seed, e.id, len(e.traffic))).advance(
+                spec.duration_s
+            )
             for e in spec.emitters
         ]
         self.antennas: dict[str, GaussianBeamPair] = {
@@ -287,10 +320,17 @@ class World:
         return self._cache[sensor_id]
 
     def _compute(self, s: SensorSpec) -> Receptions:
+        rx = ReceiverStreams(self.scenario.seed, s, self.detail)
+        return self._receive(s, self._candidates(s), rx)
+
+    def _receive(self, s: SensorSpec, c: dict[str, Any], rx: ReceiverStreams) -> Receptions:
+        """What sensor ``s`` makes of the candidate frames ``c`` (time-sorted).
+
+        Every random draw comes from ``rx``'s per-purpose streams in frame
+        order, so consecutive windows give exactly what one long window gives.
+        """
         spec = self.scenario.spec
         rf = spec.rf
-        rng = stream(spec.seed, "rf", s.id, self.detail)
-        c = self._candidates(s)
         t = c["t"]
         n = len(t)
         emitters = spec.emitters
@@ -318,7 +358,9 @@ class World:
         physical = self.detail == "high"
         if physical:
             block, blocked = blockage_db(sxy, exy, self.rects)
-            fade = fading_db(n, rf.fading, rf.rician_k_db, rf.fading_correlation, rng)
+            fade = fading_db(
+                n, rf.fading, rf.rician_k_db, rf.fading_correlation, rx.fade_common, rx.fade_own
+            )
         else:
             block, blocked = np.zeros(n), np.zeros(n, dtype=bool)
             fade = np.zeros((n, 2))
@@ -336,14 +378,14 @@ class World:
             sigma = np.repeat(np.atleast_1d(sig_db)[:, None], 2, axis=1)
         else:
             sigma = np.zeros((n, 2))
-        reading = power + sigma * rng.standard_normal((n, 2))
+        reading = power + sigma * rx.noise.standard_normal((n, 2))
         if physical:
             reading = quantise_db(reading, s.driver.step_db)
         reading = np.clip(reading, -127.0, 127.0)
         state = np.zeros((n, 2), np.uint8)
         if physical and s.driver.chain_drop_prob > 0 and s.receiver != "two-single-chain-cards":
-            drop = rng.random(n) < s.driver.chain_drop_prob
-            which = rng.integers(0, 2, n)
+            drop = rx.drop.random(n) < s.driver.chain_drop_prob
+            which = (rx.drop_chain.random(n) < 0.5).astype(np.intp)
             lost = CHAIN_SENTINEL if s.driver.missing_chain == "sentinel" else CHAIN_OMITTED
             state[drop, which[drop]] = lost
         n_cards = s.n_cards
@@ -359,14 +401,11 @@ class World:
         keep = heard.any(axis=1)
         t_ns = self.t0_ns + np.round(t * 1e9).astype(np.int64)
         jitter_us = s.driver.delivery_jitter_us if physical else 0.0
-        capture = t_ns[:, None] + np.round(rng.uniform(0.0, jitter_us, (n, n_cards)) * 1e3).astype(
-            np.int64
+        delay_us = rx.jitter.uniform(0.0, jitter_us, (n, n_cards))
+        capture = t_ns[:, None] + np.round(delay_us * 1e3).astype(np.int64)
+        tsft = (rx.tsft0_us[None, :] + np.floor(t[:, None] * 1e6 * rx.drift[None, :])).astype(
+            np.uint64
         )
-        clock_rng = stream(spec.seed, "tsft", s.id)
-        tsft0 = clock_rng.integers(10**6, 10**10, n_cards)
-        # every card's crystal is off by its own amount, up to ±tsft_drift_ppm
-        drift = 1.0 + s.driver.tsft_drift_ppm * 1e-6 * clock_rng.uniform(-1.0, 1.0, n_cards)
-        tsft = (tsft0[None, :] + np.floor(t[:, None] * 1e6 * drift[None, :])).astype(np.uint64)
         rec = Receptions(
             sensor_id=s.id,
             n_cards=n_cards,

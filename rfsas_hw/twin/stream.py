@@ -1,0 +1,385 @@
+"""The streaming twin: the same world as :class:`~rfsas_hw.twin.world.World`, one window at a time.
+
+A simulator that runs closed loop cannot hand the twin a whole scenario in
+advance: it knows where everything is only up to the current step. The
+streaming twin therefore keeps
+
+- :class:`LiveTrack` objects that grow a knot per simulator step (position,
+  and the heading when the simulator reports one);
+- one traffic generator per emitter (:class:`~rfsas_hw.twin.traffic.EmitterTraffic`)
+  that keeps its random stream between windows;
+- per-sensor random streams (:class:`~rfsas_hw.twin.world.ReceiverStreams`)
+  and a cursor, so :meth:`StreamTwin.receptions_between` computes the frames a
+  sensor hears in ``[t0, t1)`` with exactly the physics of the offline world
+  (scan plan, traffic models, path loss, blockage, beams, fading, noise,
+  quantisation, driver quirks).
+
+Consecutive windows give the same frames, readings and timestamps as one
+offline run of the same scenario with the same seed, as long as the tracks
+carry the same knots.
+
+Emitters and movers can come and go while the twin runs
+(:meth:`StreamTwin.add_mover`, :meth:`StreamTwin.add_emitter`,
+:meth:`StreamTwin.retire_emitter`), which is what a simulator's entities do.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Mapping
+
+import numpy as np
+import numpy.typing as npt
+
+from rfsas_hw.angles import wrap_deg_180
+from rfsas_hw.errors import SimulationError
+from rfsas_hw.records import mac_to_int
+from rfsas_hw.twin.motion import Track
+from rfsas_hw.twin.scenario import Detail, EmitterSpec, Scenario, SensorSpec
+from rfsas_hw.twin.traffic import EmitterTraffic, Transmissions, traffic_streams
+from rfsas_hw.twin.world import Listening, ReceiverStreams, Receptions, World
+
+Array = npt.NDArray[np.float64]
+
+__all__ = ["LiveTrack", "StreamTwin"]
+
+
+def _empty_tx() -> Transmissions:
+    return Transmissions(
+        np.empty(0), np.empty(0, np.int16), np.empty(0, np.uint8), np.empty(0, np.int32)
+    )
+
+
+class LiveTrack:
+    """A piecewise-linear track that grows a knot at a time.
+
+    Between knots the mover moves in a straight line at constant speed; after
+    the last knot it stands where that knot put it (as an offline
+    :class:`~rfsas_hw.twin.motion.Track` does after its last waypoint). When
+    every knot in use carries a heading, headings are interpolated between
+    knots (the short way round); otherwise the heading follows the direction
+    of motion, as offline.
+    """
+
+    def __init__(self) -> None:
+        self._t = np.empty(16)
+        self._x = np.empty(16)
+        self._y = np.empty(16)
+        self._h = np.empty(16)
+        """Unwrapped heading at each knot, degrees (NaN: not reported)."""
+        self._n = 0
+        self._cache: Track | None = None
+
+    def __len__(self) -> int:
+        return self._n
+
+    @property
+    def first_s(self) -> float:
+        """Time of the oldest knot kept, seconds (inf without knots)."""
+        return float(self._t[0]) if self._n else math.inf
+
+    @property
+    def last_s(self) -> float:
+        """Time of the newest knot, seconds (-inf without knots)."""
+        return float(self._t[self._n - 1]) if self._n else -math.inf
+
+    def extend(self, t_s: float, x_m: float, y_m: float, heading_deg: float | None = None) -> None:
+        """Add the knot ``(t_s, x_m, y_m)`` (and the heading, compass degrees, if known).
+
+        Raises:
+            SimulationError: ``t_s`` is before the newest knot, or a value is not finite.
+        """
+        if not (math.isfinite(t_s) and math.isfinite(x_m) and math.isfinite(y_m)):
+            raise SimulationError(f"track knot at t={t_s}: position ({x_m}, {y_m}) not finite")
+        if self._n and t_s < self._t[self._n - 1]:
+            raise SimulationError(
+                f"track knot at t={t_s:.6f} s is before the newest one "
+                f"({self._t[self._n - 1]:.6f} s); knots must come in time order"
+            )
+        if self._n == len(self._t):
+            for name in ("_t", "_x", "_y", "_h"):
+                old = getattr(self, name)
+                grown = np.empty(2 * len(old))
+                grown[: len(old)] = old
+                setattr(self, name, grown)
+        h = math.nan
+        if heading_deg is not None:
+            if not math.isfinite(heading_deg):
+                raise SimulationError(f"track knot at t={t_s}: heading {heading_deg} not finite")
+            prev = self._h[self._n - 1] if self._n else math.nan
+            h = (
+                heading_deg % 360.0
+                if math.isnan(prev)
+                else prev + float(wrap_deg_180(heading_deg - prev))
+            )
+        i = self._n
+        self._t[i], self._x[i], self._y[i], self._h[i] = t_s, x_m, y_m, h
+        self._n += 1
+        self._cache = None
+
+    def forget_before(self, t_s: float) -> None:
+        """Drop knots no longer needed for times at or after ``t_s`` (keeps one before it)."""
+        if self._n < 2:
+            return
+        keep_from = int(np.searchsorted(self._t[: self._n], t_s, side="right")) - 1
+        if keep_from <= 0:
+            return
+        m = self._n - keep_from
+        for name in ("_t", "_x", "_y", "_h"):
+            arr = getattr(self, name)
+            arr[:m] = arr[keep_from : self._n]
+        self._n = m
+        self._cache = None
+
+    def track(self) -> Track:
+        """The knots so far as an offline :class:`Track`.
+
+        Raises:
+            SimulationError: no knot yet.
+        """
+        if self._n == 0:
+            raise SimulationError("a live track has no knot yet")
+        if self._cache is None:
+            n = self._n
+            self._cache = Track(self._t[:n].copy(), self._x[:n].copy(), self._y[:n].copy())
+        return self._cache
+
+    def position(self, t_s: npt.ArrayLike) -> Array:
+        """Positions at times ``t_s``, shape ``(n, 2)`` (east, north), metres."""
+        return self.track().position(t_s)
+
+    def velocity(self, t_s: npt.ArrayLike) -> Array:
+        """Velocities at times ``t_s``, shape ``(n, 2)``, m/s."""
+        return self.track().velocity(t_s)
+
+    def speed_mps(self, t_s: npt.ArrayLike) -> Array:
+        """Speeds at times ``t_s``, m/s."""
+        return self.track().speed_mps(t_s)
+
+    def heading_deg(self, t_s: npt.ArrayLike) -> Array:
+        """Compass headings at times ``t_s``, degrees."""
+        n = self._n
+        h = self._h[:n]
+        if n and not np.isnan(h).any():
+            t = np.atleast_1d(np.asarray(t_s, dtype=np.float64))
+            return np.asarray(np.mod(np.interp(t, self._t[:n], h), 360.0), np.float64)
+        return self.track().heading_deg(t_s)
+
+
+class StreamTwin(World):
+    """The digital twin driven window by window (see the module docstring).
+
+    Args:
+        scenario: sensors, buildings, RF settings, seed and start time; its
+            movers start with empty live tracks and its emitters transmit from
+            time 0. Its ``duration_s`` plays no part.
+        detail: override the scenario's level of detail.
+        listening: per sensor, a channel schedule replacing its scan plan
+            (as for :class:`World`).
+        start_s: scenario time the first window starts at, seconds.
+    """
+
+    def __init__(
+        self,
+        scenario: Scenario,
+        detail: Detail | None = None,
+        listening: Mapping[str, Listening] | None = None,
+        *,
+        start_s: float = 0.0,
+    ) -> None:
+        short = dataclasses.replace(scenario.spec, duration_s=1e-9)
+        super().__init__(
+            Scenario(spec=short, source=scenario.source, base_dir=scenario.base_dir),
+            detail,
+            listening,
+        )
+        self.emitters: list[EmitterSpec] = list(scenario.spec.emitters)
+        """The transmitters so far; ``Receptions.emitter`` indexes this list."""
+        self.live: dict[str, LiveTrack] = {m.id: LiveTrack() for m in scenario.spec.movers}
+        """Track of every mover, by id."""
+        seed = scenario.seed
+        self._traffic: list[EmitterTraffic | None] = [
+            EmitterTraffic(e.traffic, traffic_streams(seed, e.id, len(e.traffic)), start_s)
+            for e in scenario.spec.emitters
+        ]
+        self._buffer: list[Transmissions] = [_empty_tx() for _ in scenario.spec.emitters]
+        self._rx = {s.id: ReceiverStreams(seed, s, self.detail) for s in scenario.spec.sensors}
+        self.cursor_s: dict[str, float] = {s.id: float(start_s) for s in scenario.spec.sensors}
+        """End of the last window computed for each sensor, seconds."""
+        self.generated_s = float(start_s)
+        """Frames before this time have been generated for every live emitter, seconds."""
+
+    # -- entities -------------------------------------------------------------------
+
+    def add_mover(self, mover_id: str) -> LiveTrack:
+        """A new, empty live track for ``mover_id``.
+
+        Raises:
+            SimulationError: the id is taken.
+        """
+        if mover_id in self.live:
+            raise SimulationError(f"mover {mover_id!r} already exists")
+        self.live[mover_id] = track = LiveTrack()
+        return track
+
+    def add_emitter(self, emitter: EmitterSpec, start_s: float | None = None) -> int:
+        """Start an emitter at ``start_s`` (default: the generated time); its index.
+
+        Its traffic draws from streams named by its id under the scenario seed.
+
+        Raises:
+            SimulationError: duplicate id or MAC, or an unknown carrier.
+        """
+        if any(e.id == emitter.id for e in self.emitters):
+            raise SimulationError(f"emitter {emitter.id!r} already exists")
+        mac = mac_to_int(emitter.mac)
+        if np.any(self.emitter_macs == np.uint64(mac)):
+            raise SimulationError(f"emitter {emitter.id!r}: its MAC is already in use")
+        if emitter.carried_by is not None and emitter.carried_by not in self.live:
+            raise SimulationError(f"emitter {emitter.id!r}: no mover {emitter.carried_by!r}")
+        start = self.generated_s if start_s is None else float(start_s)
+        if start < self.generated_s:
+            raise SimulationError(
+                f"emitter {emitter.id!r} cannot start at {start:.3f} s: frames up to "
+                f"{self.generated_s:.3f} s were already generated"
+            )
+        self.emitters.append(emitter)
+        self._set_emitters()
+        self.emitter_macs = np.append(self.emitter_macs, np.uint64(mac))
+        streams = traffic_streams(self.scenario.seed, emitter.id, len(emitter.traffic))
+        self._traffic.append(EmitterTraffic(emitter.traffic, streams, start))
+        self._buffer.append(_empty_tx())
+        return len(self.emitters) - 1
+
+    def retire_emitter(self, index: int, t_s: float) -> None:
+        """Emitter ``index`` sends nothing from ``t_s`` on (it left the simulation)."""
+        self._traffic[index] = None
+        tx = self._buffer[index]
+        keep = tx.t_s < t_s
+        self._buffer[index] = Transmissions(
+            tx.t_s[keep], tx.channel[keep], tx.kind[keep], tx.seq[keep]
+        )
+
+    def _set_emitters(self) -> None:
+        """Keep the scenario's emitter list (read by the offline code) in step."""
+        spec = dataclasses.replace(self.scenario.spec, emitters=tuple(self.emitters))
+        self.scenario = Scenario(
+            spec=spec, source=self.scenario.source, base_dir=self.scenario.base_dir
+        )
+
+    # -- geometry -------------------------------------------------------------------
+
+    def _carrier(self, index: int) -> LiveTrack | None:
+        e = self.emitters[index]
+        return self.live[e.carried_by] if e.carried_by is not None else None
+
+    def emitter_position(self, index: int, t_s: npt.ArrayLike) -> Array:
+        """Position of emitter ``index`` at times ``t_s``, shape (n, 2), metres.
+
+        Raises:
+            SimulationError: its carrier has no knot yet.
+        """
+        track = self._carrier(index)
+        if track is None:
+            return super().emitter_position(index, t_s)
+        return track.position(t_s)
+
+    def sensor_pose(self, sensor: SensorSpec | str, t_s: npt.ArrayLike) -> tuple[Array, Array]:
+        """Position (n, 2) in metres and boresight compass heading (n,) of a sensor at ``t_s``.
+
+        Raises:
+            SimulationError: the sensor's vehicle has no knot yet.
+        """
+        s = self.scenario.sensor(sensor) if isinstance(sensor, str) else sensor
+        if s.mounted_on is None:
+            return super().sensor_pose(s, t_s)
+        track = self.live[s.mounted_on]
+        t = np.atleast_1d(np.asarray(t_s, dtype=np.float64))
+        heading = np.mod(track.heading_deg(t) + s.heading_offset_deg, 360.0)
+        return track.position(t), heading
+
+    # -- frames ---------------------------------------------------------------------
+
+    def _generate(self, t_end_s: float) -> None:
+        """Generate every live emitter's frames up to ``t_end_s``; drop what all sensors used."""
+        if t_end_s > self.generated_s:
+            for i, traffic in enumerate(self._traffic):
+                if traffic is None:
+                    continue
+                new = traffic.advance(t_end_s)
+                if len(new):
+                    old = self._buffer[i]
+                    self._buffer[i] = Transmissions(
+                        np.concatenate([old.t_s, new.t_s]),
+                        np.concatenate([old.channel, new.channel]),
+                        np.concatenate([old.kind, new.kind]),
+                        np.concatenate([old.seq, new.seq]),
+                    )
+            self.generated_s = t_end_s
+        done = min(self.cursor_s.values(), default=t_end_s)
+        for i, tx in enumerate(self._buffer):
+            if len(tx) and tx.t_s[0] < done:
+                cut = int(np.searchsorted(tx.t_s, done, side="left"))
+                self._buffer[i] = Transmissions(
+                    tx.t_s[cut:], tx.channel[cut:], tx.kind[cut:], tx.seq[cut:]
+                )
+        for track in self.live.values():
+            track.forget_before(done)
+
+    def receptions_between(self, sensor_id: str, t0_s: float, t1_s: float) -> Receptions:
+        """The frames sensor ``sensor_id`` hears that start in ``[t0_s, t1_s)``.
+
+        Windows of one sensor must follow each other without gap or overlap
+        (``t0_s`` is where the previous window ended), because the sensor's
+        random streams advance frame by frame. Every live carrier must have a
+        knot at or after ``t1_s`` (or have stopped: after its newest knot a
+        mover stands still).
+
+        Raises:
+            ConfigError: no such sensor.
+            SimulationError: a window that does not start at the sensor's
+                cursor or does not move forward.
+        """
+        s = self.scenario.sensor(sensor_id)
+        cursor = self.cursor_s[s.id]
+        if t0_s != cursor:
+            raise SimulationError(
+                f"sensor {s.id!r}: window starts at {t0_s:.6f} s, but the previous one "
+                f"ended at {cursor:.6f} s; windows must follow each other"
+            )
+        if not t1_s > t0_s:
+            raise SimulationError(f"sensor {s.id!r}: window [{t0_s}, {t1_s}) is empty")
+        self._generate(t1_s)
+        window: list[Transmissions] = []
+        for tx in self._buffer:
+            lo = int(np.searchsorted(tx.t_s, t0_s, side="left"))
+            hi = int(np.searchsorted(tx.t_s, t1_s, side="left"))
+            window.append(
+                Transmissions(tx.t_s[lo:hi], tx.channel[lo:hi], tx.kind[lo:hi], tx.seq[lo:hi])
+            )
+        self.tx = window
+        rec = self._receive(s, self._candidates(s), self._rx[s.id])
+        self.cursor_s[s.id] = t1_s
+        return rec
+
+    def step(self, t1_s: float) -> dict[str, Receptions]:
+        """Every sensor's frames from its cursor to ``t1_s``, by sensor id.
+
+        Raises:
+            SimulationError: ``t1_s`` is not after some sensor's cursor.
+        """
+        return {
+            sid: self.receptions_between(sid, cursor, t1_s)
+            for sid, cursor in list(self.cursor_s.items())
+        }
+
+    def receptions(self, sensor_id: str) -> Receptions:
+        """Not available on a streaming twin: use :meth:`receptions_between`.
+
+        Raises:
+            SimulationError: always.
+        """
+        raise SimulationError(
+            "a streaming twin computes frames window by window: use receptions_between()"
+        )

@@ -3,11 +3,20 @@
 This is the one place where an observation (with its raw MAC) becomes
 something that may leave the sensor: a :class:`~rfsas_hw.records.BearingBatch`
 whose emitter column holds keyed hashes only.
+
+A frame whose epoch nonce has not arrived yet (the authority is late or
+unreachable) is not lost and does not stop the sensor: it waits, with its
+bearing already computed, in a bounded hold queue, and is hashed and released
+as soon as the nonce arrives. Frames whose epoch is over (the nonce can no
+longer come) are dropped and counted; so are the oldest held frames when the
+queue is full. While frames wait or are dropped, the pipeline's nonce alarm
+is raised; it clears when frames flow again.
 """
 
 from __future__ import annotations
 
-from collections import Counter
+import logging
+from collections import Counter, deque
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -15,8 +24,13 @@ import numpy as np
 from rfsas_hw.angles import relative_to_compass
 from rfsas_hw.df.calibration import Calibration
 from rfsas_hw.df.estimate import DfFlag, estimate
-from rfsas_hw.privacy.hashing import MacHasher
+from rfsas_hw.privacy.hashing import MacHasher, NonceExpiredError, NonceUnavailableError
 from rfsas_hw.records import BearingBatch, ObservationBatch, Pose
+
+log = logging.getLogger(__name__)
+
+DEFAULT_HOLD_MAX = 200_000
+"""Frames a pipeline holds at most while it waits for a nonce (about 10 MB)."""
 
 
 @dataclass
@@ -31,6 +45,14 @@ class PipelineStats:
     """Observations without a bearing, by reason (a frame may count under several)."""
     emitters: set[int] = field(default_factory=set)
     """Distinct emitter ids seen (hashed)."""
+    held: int = 0
+    """Frames waiting for their epoch's nonce now."""
+    held_max: int = 0
+    """Most frames that waited at once."""
+    released: int = 0
+    """Frames that waited for a nonce and were then hashed and sent on."""
+    nonce_alarms: int = 0
+    """Times the nonce alarm was raised (frames had to wait or were dropped)."""
 
     def as_dict(self) -> dict[str, object]:
         """A JSON-friendly copy."""
@@ -39,7 +61,22 @@ class PipelineStats:
             "bearings": self.bearings,
             "rejected": dict(self.rejected),
             "emitters": len(self.emitters),
+            "held": self.held,
+            "held_max": self.held_max,
+            "released": self.released,
+            "nonce_alarms": self.nonce_alarms,
         }
+
+
+@dataclass(slots=True)
+class _Waiting:
+    """Frames of one epoch with their bearings computed, waiting for the nonce."""
+
+    epoch: int
+    frames: ObservationBatch
+    relative_deg: np.ndarray
+    sigma_deg: np.ndarray
+    snr_db: np.ndarray
 
 
 class SensorPipeline:
@@ -51,6 +88,8 @@ class SensorPipeline:
         sensor_id: id written into every bearing.
         pose: where the sensor is and which way its boresight points (compass).
         min_snr_db: frames whose stronger antenna is below this are rejected (None: keep all).
+        hold_max: most frames held while their epoch's nonce is missing; beyond it
+            the oldest are dropped (counted as ``hold_overflow``).
     """
 
     def __init__(
@@ -61,27 +100,33 @@ class SensorPipeline:
         pose: Pose,
         *,
         min_snr_db: float | None = None,
+        hold_max: int = DEFAULT_HOLD_MAX,
     ) -> None:
         self.calibration = calibration
         self.hasher = hasher
         self.sensor_id = sensor_id
         self.pose = pose
         self.min_snr_db = min_snr_db
+        self.hold_max = max(0, int(hold_max))
         self.stats = PipelineStats()
+        self._waiting: deque[_Waiting] = deque()
+        self.alarm = False
+        """True while frames wait for, or were lost for want of, a nonce."""
+        self.alarm_reason = ""
 
     def process(self, batch: ObservationBatch) -> BearingBatch:
-        """Valid bearings of ``batch``, in order; invalid frames are counted by reason.
-
-        Raises:
-            NonceUnavailableError: the hasher has no nonce for a frame's epoch.
+        """Valid bearings of ``batch``, in order, after any held frames whose nonce has
+        arrived; invalid frames are counted by reason. Never raises for a missing
+        nonce: those frames are held (or dropped and counted, see the class).
         """
         n = len(batch)
         self.stats.observations += n
+        released = self.release()
         if n == 0:
-            return BearingBatch.empty(self.sensor_id)
+            return released
         if batch.n_antennas < 2:
             self.stats.rejected["missing_chain"] += n
-            return BearingBatch.empty(self.sensor_id)
+            return released
         rssi = batch.rssi_dbm
         result = estimate(
             self.calibration, rssi[:, 0], rssi[:, 1], batch.channel, min_snr_db=self.min_snr_db
@@ -95,20 +140,133 @@ class SensorPipeline:
                 if count:
                     self.stats.rejected[flag.name.lower()] += count
         if not valid.any():
-            return BearingBatch.empty(self.sensor_id)
+            return released
         good = batch.select(valid)
-        emitters = self.hasher.hash_batch(good.mac, good.t_ns)
+        epochs = good.t_ns // self.hasher.epoch_ns
+        parts = [released] if len(released) else []
+        distinct = np.unique(epochs).tolist()
+        for epoch in distinct:
+            sel = slice(None) if len(distinct) == 1 else epochs == epoch
+            waiting = _Waiting(
+                int(epoch),
+                good.select(sel),
+                result.angle_deg[valid][sel].astype(np.float64),
+                result.sigma_deg[valid][sel],
+                result.snr_db[valid][sel],
+            )
+            if any(w.epoch == waiting.epoch for w in self._waiting):
+                self._hold(waiting)  # behind the frames of its epoch already waiting
+                continue
+            out = self._hash(waiting)
+            if out is not None and len(out):
+                parts.append(out)
+        return _concat(self.sensor_id, parts)
+
+    def release(self) -> BearingBatch:
+        """Bearings of held frames whose nonce has now arrived (empty if none); drops
+        and counts held frames whose epoch is over. Call it now and then when no
+        frames come, so held frames do not wait for the next one."""
+        parts: list[BearingBatch] = []
+        while self._waiting:
+            head = self._waiting[0]
+            out = self._hash(head, holding=True)
+            if out is None:
+                break  # still missing: later epochs wait behind it, in order
+            self._waiting.popleft()
+            self.stats.held -= len(head.frames)
+            self.stats.released += len(out)
+            if len(out):
+                parts.append(out)
+        return _concat(self.sensor_id, parts)
+
+    def finish(self) -> BearingBatch:
+        """At the end of a run: what can still be released; the rest is dropped and
+        counted as ``nonce_unavailable``."""
+        out = self.release()
+        for waiting in self._waiting:
+            self.stats.rejected["nonce_unavailable"] += len(waiting.frames)
+        self._waiting.clear()
+        self.stats.held = 0
+        return out
+
+    def _hash(self, waiting: _Waiting, *, holding: bool = False) -> BearingBatch | None:
+        """Bearings of ``waiting`` (empty if its epoch is over), or None when it has to
+        (keep) wait(ing)."""
+        frames = waiting.frames
+        try:
+            emitters = self.hasher.hash_batch(frames.mac, frames.t_ns)
+        except NonceExpiredError as err:
+            self.stats.rejected["nonce_expired"] += len(frames)
+            self._raise_alarm(f"{len(frames)} frames dropped: {err}")
+            return BearingBatch.empty(self.sensor_id)
+        except NonceUnavailableError as err:
+            if not holding:
+                self._hold(waiting)
+                self._raise_alarm(f"holding frames: {err}")
+            return None
         self.stats.emitters.update(np.unique(emitters).tolist())
-        relative = result.angle_deg[valid].astype(np.float64)
+        if self.alarm and ((holding and len(self._waiting) == 1) or not self._waiting):
+            self.alarm = False
+            log.warning(
+                "nonce alarm cleared: bearings flow again (%d held frames released so far)",
+                self.stats.released + (len(frames) if holding else 0),
+            )
         out = BearingBatch(
             sensor_id=self.sensor_id,
-            t_ns=good.t_ns,
-            azimuth_deg=relative_to_compass(relative, self.pose.heading_deg),
-            sigma_deg=result.sigma_deg[valid],
-            snr_db=result.snr_db[valid],
-            channel=good.channel,
+            t_ns=frames.t_ns,
+            azimuth_deg=relative_to_compass(waiting.relative_deg, self.pose.heading_deg),
+            sigma_deg=waiting.sigma_deg,
+            snr_db=waiting.snr_db,
+            channel=frames.channel,
             emitter=emitters,
-            relative_deg=relative,
+            relative_deg=waiting.relative_deg,
         )
         self.stats.bearings += len(out)
         return out
+
+    def _hold(self, waiting: _Waiting) -> None:
+        self._waiting.append(waiting)
+        self.stats.held += len(waiting.frames)
+        while self.stats.held > self.hold_max and self._waiting:
+            oldest = self._waiting[0]
+            excess = self.stats.held - self.hold_max
+            if excess >= len(oldest.frames):
+                self._waiting.popleft()
+                dropped = len(oldest.frames)
+            else:
+                keep = slice(excess, None)
+                self._waiting[0] = _Waiting(
+                    oldest.epoch,
+                    oldest.frames.select(keep),
+                    oldest.relative_deg[keep],
+                    oldest.sigma_deg[keep],
+                    oldest.snr_db[keep],
+                )
+                dropped = excess
+            self.stats.held -= dropped
+            self.stats.rejected["hold_overflow"] += dropped
+        self.stats.held_max = max(self.stats.held_max, self.stats.held)
+
+    def _raise_alarm(self, reason: str) -> None:
+        self.alarm_reason = reason
+        if not self.alarm:
+            self.alarm = True
+            self.stats.nonce_alarms += 1
+            log.warning("nonce alarm: %s", reason)
+
+
+def _concat(sensor_id: str, parts: list[BearingBatch]) -> BearingBatch:
+    if not parts:
+        return BearingBatch.empty(sensor_id)
+    if len(parts) == 1:
+        return parts[0]
+    return BearingBatch(
+        sensor_id=sensor_id,
+        t_ns=np.concatenate([p.t_ns for p in parts]),
+        azimuth_deg=np.concatenate([p.azimuth_deg for p in parts]),
+        sigma_deg=np.concatenate([p.sigma_deg for p in parts]),
+        snr_db=np.concatenate([p.snr_db for p in parts]),
+        channel=np.concatenate([p.channel for p in parts]),
+        emitter=np.concatenate([p.emitter for p in parts]),
+        relative_deg=np.concatenate([p.relative_deg for p in parts]),
+    )

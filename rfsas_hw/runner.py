@@ -5,8 +5,10 @@
 fast as the source delivers or at the pace the frames were recorded
 (``realtime``, ``speed``). The clock is injectable, so a test replays a
 minute of capture in milliseconds. It stops at the end of the input, after
-``duration_s``, on :meth:`Runner.stop`, or on Ctrl-C, and always returns a
-:class:`RunSummary`.
+``duration_s``, on :meth:`Runner.stop`, on Ctrl-C or SIGTERM (delivered as
+:class:`Terminated` by the CLI), and always returns a :class:`RunSummary`:
+frames held for a missing nonce are released or counted, and every
+listener is closed, so the outputs and the summary are complete.
 """
 
 from __future__ import annotations
@@ -27,6 +29,10 @@ from rfsas_hw.sources.base import Source
 from rfsas_hw.stream import BearingListener
 
 NS_PER_S = 1_000_000_000
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, raised in the main thread so that it ends a run as Ctrl-C does."""
 
 
 class Clock(Protocol):
@@ -107,6 +113,34 @@ class RunSummary:
     """Run time on the runner's clock, seconds."""
     capture_span_s: float = 0.0
     """Time between the first and last observation, seconds."""
+    outputs: dict[str, dict[str, int]] = field(default_factory=dict)
+    """Per output (file, link): ``written``/``sent``/``lost``/``dropped.*`` counters."""
+    problems: list[str] = field(default_factory=list)
+    """Outputs whose work failed (write error, nothing sent), one line each."""
+    nonces: dict[str, int] = field(default_factory=dict)
+    """Frames that waited for a nonce: ``held_max``, ``released``, ``alarms``."""
+
+    def as_dict(self) -> dict[str, Any]:
+        """A JSON-friendly copy (the ``--json`` summary)."""
+        return {
+            "frames": self.frames,
+            "observations": self.observations,
+            "per_antenna": list(self.per_antenna),
+            "all_antennas": self.all_antennas,
+            "skipped": dict(self.skipped),
+            "flagged": dict(self.flagged),
+            "rejected": dict(self.rejected),
+            "emitters": self.emitters,
+            "bearings": self.bearings,
+            "outputs": {k: dict(v) for k, v in self.outputs.items()},
+            "problems": list(self.problems),
+            "nonces": dict(self.nonces),
+            "errors": list(self.errors),
+            "extra": {k: v for k, v in self.extra.items() if isinstance(v, int | float | str)},
+            "stopped": self.stopped,
+            "elapsed_s": round(self.elapsed_s, 3),
+            "capture_span_s": round(self.capture_span_s, 3),
+        }
 
 
 class Runner:
@@ -210,18 +244,32 @@ class Runner:
                 if self.source.exhausted:
                     break
                 batch = self.source.read(timeout=self._timeout())
-                if batch is not None and len(batch) and not self._deliver(batch):
-                    break
+                if batch is not None and len(batch):
+                    if not self._deliver(batch):
+                        break
+                elif self.pipeline is not None:
+                    self._emit(self.pipeline.release())
                 self._report_progress()
+        except Terminated:
+            self.summary.stopped = "terminated"
         except KeyboardInterrupt:
             self.summary.stopped = "interrupted"
         finally:
             try:
                 self.source.close()
             finally:
-                self.listener.close()
-                self._finish()
+                try:
+                    if self.pipeline is not None:
+                        self._emit(self.pipeline.finish())
+                finally:
+                    self.listener.close()
+                    self._finish()
         return self.summary
+
+    def _emit(self, bearings: BearingBatch) -> None:
+        if len(bearings):
+            self.summary.bearings += len(bearings)
+            self.listener.on_bearings(bearings)
 
     def _deliver(self, batch: ObservationBatch) -> bool:
         """Process ``batch`` (paced in realtime mode); False when the run must end."""
@@ -280,9 +328,7 @@ class Runner:
         first, last = int(batch.t_ns.min()), int(batch.t_ns.max())
         self._first_t = first if self._first_t is None else min(self._first_t, first)
         self._last_t = last if self._last_t is None else max(self._last_t, last)
-        bearings = self.pipeline.process(batch)
-        s.bearings += len(bearings)
-        self.listener.on_bearings(bearings)
+        self._emit(self.pipeline.process(batch))
 
     def _report_progress(self) -> None:
         if self.progress is None:
@@ -307,10 +353,23 @@ class Runner:
             if k not in ("flagged", "bytes_read", "bytes_total")
         }
         if self.pipeline is not None:
-            s.rejected = Counter(self.pipeline.stats.rejected)
-            s.emitters = len(self.pipeline.stats.emitters)
+            ps = self.pipeline.stats
+            s.rejected = Counter(ps.rejected)
+            s.emitters = len(ps.emitters)
+            if ps.nonce_alarms:
+                s.nonces = {
+                    "held_max": ps.held_max,
+                    "released": ps.released,
+                    "alarms": ps.nonce_alarms,
+                }
         else:
             s.emitters = len(self._source_emitters)
+        counters = getattr(self.listener, "counters", None)
+        if callable(counters):
+            s.outputs = dict(counters())
+        problems = getattr(self.listener, "problems", None)
+        if callable(problems):
+            s.problems = list(problems())
         s.elapsed_s = (self.clock.monotonic_ns() - self._start_ns) / NS_PER_S
         if self._first_t is not None and self._last_t is not None:
             s.capture_span_s = (self._last_t - self._first_t) / NS_PER_S

@@ -13,10 +13,10 @@ from rfsas_hw.cli.linkopts import NONCES_HELP, nonce_inbox
 from rfsas_hw.cli.sensoropts import (
     build_listeners,
     build_pipeline,
+    epoch_schedule,
+    finish_run,
     parse_pose,
-    print_errors,
     sensor_options,
-    summary_table,
 )
 from rfsas_hw.errors import ConfigError
 from rfsas_hw.runner import Runner
@@ -60,6 +60,9 @@ def live(
     spec: str,
     calibration_path: Path | None,
     out: Path | None,
+    force: bool,
+    json_summary: bool,
+    epoch_s: float,
     fmt: str | None,
     sensor_id: str,
     pose: str,
@@ -85,10 +88,23 @@ def live(
     where = parse_pose(pose)
     scheme, _ = parse_spec(spec)
     pipeline = None
+    schedule = epoch_schedule(epoch_s)
     if not source_class(scheme).yields_bearings:
-        inbox = nonce_inbox(nonces, keys_dir) if nonces is not None else None
+        # no waiting inside the hasher: frames without a nonce yet wait in the
+        # pipeline's hold queue, and the sensor keeps reading
+        inbox = (
+            nonce_inbox(nonces, keys_dir, schedule.epoch_s, schedule.grace_s, wait_s=0.0)
+            if nonces is not None
+            else None
+        )
         pipeline = build_pipeline(
-            calibration_path, sensor_id, where, min_snr_db, inbox, nonce_secret=nonce_secret
+            calibration_path,
+            sensor_id,
+            where,
+            min_snr_db,
+            inbox,
+            nonce_secret=nonce_secret,
+            epoch_s=epoch_s,
         )
     options: dict[str, Any] = {"errors": errors}
     if channels is not None:
@@ -101,12 +117,21 @@ def live(
             raise ConfigError("--any-link-type applies to wifi: sources only")
         options["any_link_type"] = True
     source = rfsas_hw.sources.open(spec, **options)
+    _, _, target = spec.partition(":")
+    inputs = [target if scheme == "pcap" else "", calibration_path or "", nonce_secret or ""]
     try:
-        listeners = build_listeners(out, fmt, send, keys_dir, where)
+        listeners = build_listeners(
+            out, fmt, send, keys_dir, where, inputs=inputs, force=force, epoch_s=epoch_s
+        )
     except BaseException:
         source.close()
         raise
     console.print(f"reading {spec}; Ctrl-C ends the run", highlight=False)
     summary = Runner(source, pipeline, listeners, duration_s=duration).run()
-    Console().print(summary_table(summary, f"live on {spec}"))
-    print_errors(console, summary)
+    finish_run(
+        summary,
+        f"live on {spec}",
+        out=out,
+        json_summary=json_summary,
+        interrupt_is_failure=False,
+    )

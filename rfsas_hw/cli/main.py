@@ -2,22 +2,27 @@
 
 Subcommands live in their own modules and are added to :data:`COMMANDS`.
 Any :class:`~rfsas_hw.errors.RfsasError` becomes one line on stderr and exit
-code 2; a traceback means a bug.
+code 2; a traceback means a bug. Exit codes: :mod:`rfsas_hw.cli.exitcodes`.
+SIGTERM ends a command the way Ctrl-C does (outputs and summary written).
 """
 
 from __future__ import annotations
 
 import importlib
 import logging
+import signal
 import sys
 from collections.abc import Sequence
+from types import FrameType
 
 import click
 
 from rfsas_hw import __version__
+from rfsas_hw.cli.exitcodes import BAD_INPUT, EPILOG, INTERRUPTED
 from rfsas_hw.errors import RfsasError
+from rfsas_hw.runner import Terminated
 
-EXIT_BAD_INPUT = 2
+EXIT_BAD_INPUT = BAD_INPUT
 
 # "module:attribute" of every subcommand, imported when the CLI starts.
 COMMANDS: list[str] = [
@@ -36,7 +41,7 @@ COMMANDS: list[str] = [
 ]
 
 
-@click.group(context_settings={"help_option_names": ["-h", "--help"]})
+@click.group(context_settings={"help_option_names": ["-h", "--help"]}, epilog=EPILOG)
 @click.version_option(__version__, prog_name="rfsas")
 @click.option("-v", "--verbose", count=True, help="More log output (repeat for debug).")
 def cli(verbose: int) -> None:
@@ -49,20 +54,42 @@ def _load_commands() -> None:
     for path in COMMANDS:
         module_name, _, attr = path.partition(":")
         command = getattr(importlib.import_module(module_name), attr)
+        _add_epilog(command)
         cli.add_command(command)
+
+
+def _add_epilog(command: click.Command) -> None:
+    """Every command's ``--help`` ends with the exit codes."""
+    if not command.epilog:
+        command.epilog = EPILOG
+    if isinstance(command, click.Group):
+        for sub in command.commands.values():
+            _add_epilog(sub)
+
+
+def _terminate(signum: int, frame: FrameType | None) -> None:
+    raise Terminated
+
+
+def sigterm_as_interrupt() -> None:
+    """From now on SIGTERM raises :class:`~rfsas_hw.runner.Terminated` (a
+    KeyboardInterrupt) in the main thread: a service manager's stop ends a run
+    as Ctrl-C does, with outputs flushed and the summary written."""
+    signal.signal(signal.SIGTERM, _terminate)
 
 
 def main(argv: Sequence[str] | None = None) -> None:
     """Run the CLI; turn library errors into one clear line and exit code 2."""
     _load_commands()
+    sigterm_as_interrupt()
     try:
         cli.main(args=list(argv) if argv is not None else None, standalone_mode=False)
     except RfsasError as err:
         click.echo(f"error: {err}", err=True)
         sys.exit(EXIT_BAD_INPUT)
-    except click.exceptions.Abort:
+    except (click.exceptions.Abort, KeyboardInterrupt):
         click.echo("aborted", err=True)
-        sys.exit(130)
+        sys.exit(INTERRUPTED)
     except click.ClickException as err:
         err.show()
         sys.exit(EXIT_BAD_INPUT if isinstance(err, click.UsageError) else err.exit_code)

@@ -13,11 +13,11 @@ from rfsas_hw.cli.sensoropts import (
     PROGRESS_MIN_BYTES,
     build_listeners,
     build_pipeline,
+    epoch_schedule,
+    finish_run,
     parse_pose,
-    print_errors,
     progress_bar,
     sensor_options,
-    summary_table,
 )
 from rfsas_hw.errors import ConfigError
 from rfsas_hw.runner import Runner
@@ -30,6 +30,14 @@ def capture_spec(capture: str) -> str:
     if sep and scheme in schemes() and not Path(capture).exists():
         return capture
     return f"pcap:{capture}"
+
+
+def capture_paths(capture: str) -> list[str]:
+    """The files CAPTURE reads (``A.pcap+B.pcap`` is two), for the never-overwrite check."""
+    spec = capture_spec(capture)
+    if not spec.startswith("pcap:"):
+        return []
+    return [part for part in spec[len("pcap:") :].split("+") if part]
 
 
 @click.command()
@@ -60,6 +68,9 @@ def replay(
     capture: str,
     calibration_path: Path | None,
     out: Path | None,
+    force: bool,
+    json_summary: bool,
+    epoch_s: float,
     fmt: str | None,
     sensor_id: str,
     pose: str,
@@ -79,11 +90,13 @@ def replay(
     rfsas replay capture.pcapng --calibration cal.yaml --out bearings.jsonl
     rfsas replay a.pcap+b.pcap --calibration cal.yaml --out bearings.csv --realtime --speed 4
     rfsas replay old.pcap --calibration cal.yaml --keys keys/rsu-1 --send udp://HOST:47000 --retime
+    rfsas replay capture.pcap --calibration cal.yaml --out - --json | jq .
     """
     console = Console(stderr=True)
     where = parse_pose(pose)
+    epoch_schedule(epoch_s)
     pipeline = build_pipeline(
-        calibration_path, sensor_id, where, min_snr_db, nonce_secret=nonce_secret
+        calibration_path, sensor_id, where, min_snr_db, nonce_secret=nonce_secret, epoch_s=epoch_s
     )
     if speed is not None and speed <= 0:
         raise ConfigError(f"--speed must be positive, got {speed}")
@@ -92,8 +105,11 @@ def replay(
     if spec.startswith("pcap:"):
         options["n_antennas"] = n_antennas
     source = rfsas_hw.sources.open(spec, **options)
+    inputs = [*capture_paths(capture), calibration_path or "", nonce_secret or ""]
     try:
-        listeners = build_listeners(out, fmt, send, keys_dir, where)
+        listeners = build_listeners(
+            out, fmt, send, keys_dir, where, inputs=inputs, force=force, epoch_s=epoch_s
+        )
     except BaseException:
         source.close()
         raise
@@ -113,5 +129,10 @@ def replay(
             summary = runner.run()
     else:
         summary = runner.run()
-    Console().print(summary_table(summary, f"replay of {capture}"))
-    print_errors(console, summary)
+    finish_run(
+        summary,
+        f"replay of {capture}",
+        out=out,
+        json_summary=json_summary,
+        interrupt_is_failure=True,
+    )

@@ -7,8 +7,9 @@ and one line in :func:`build_listeners`, and every sensor command gets it.
 
 from __future__ import annotations
 
+import json
 import os
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import Any, TypeVar
 
@@ -17,11 +18,14 @@ from rich.console import Console
 from rich.progress import BarColumn, DownloadColumn, Progress, TimeRemainingColumn
 from rich.table import Table
 
+from rfsas_hw.cli.exitcodes import Interrupted, WorkFailed
 from rfsas_hw.cli.linkopts import make_publisher, send_options
 from rfsas_hw.df import load_calibration
 from rfsas_hw.errors import ConfigError
+from rfsas_hw.outpaths import STDIO, check_output
 from rfsas_hw.output import BearingWriter
 from rfsas_hw.pipeline import SensorPipeline
+from rfsas_hw.privacy.epochs import DEFAULT_EPOCH_S, EpochSchedule
 from rfsas_hw.privacy.hashing import DerivedNonces, FixedNonce, MacHasher, NonceProvider
 from rfsas_hw.records import Pose
 from rfsas_hw.runner import RunSummary
@@ -62,9 +66,34 @@ def sensor_options(func: F) -> F:
             "--out",
             "out",
             type=click.Path(dir_okay=False, path_type=Path),
-            help="Write bearings here: .jsonl or .csv (or set --format).",
+            help="Write bearings here: .jsonl or .csv (or set --format); - for standard "
+            "output (the summary then goes to stderr). An existing file needs --force.",
         ),
-        click.option("--format", "fmt", type=click.Choice(["jsonl", "csv"]), help="Output format."),
+        click.option(
+            "--force", is_flag=True, help="Replace an existing --out file (never an input)."
+        ),
+        click.option(
+            "--json",
+            "json_summary",
+            is_flag=True,
+            help="Print the end-of-run summary as one JSON object instead of a table.",
+        ),
+        click.option(
+            "--epoch",
+            "epoch_s",
+            type=click.FloatRange(min=1.0),
+            default=DEFAULT_EPOCH_S,
+            show_default=True,
+            help="Nonce epoch length of the deployment, seconds (as the authority and "
+            "backend use).",
+        ),
+        click.option(
+            "--format",
+            "fmt",
+            type=click.Choice(["jsonl", "csv", "mcap", "rosbag2"]),
+            help="Output format (mcap: also from a .mcap name; rosbag2: --out names a new "
+            "directory).",
+        ),
         click.option("--sensor-id", default="sensor-1", show_default=True, help="Id in bearings."),
         click.option(
             "--pose",
@@ -107,6 +136,7 @@ def build_pipeline(
     min_snr_db: float | None,
     nonces: NonceProvider | None = None,
     nonce_secret: Path | None = None,
+    epoch_s: float = DEFAULT_EPOCH_S,
 ) -> SensorPipeline:
     """The pipeline hashing with ``nonces`` (the deployment's epoch nonces), with
     nonces derived from the secret in ``nonce_secret``, or by default with a
@@ -123,7 +153,7 @@ def build_pipeline(
     calibration = load_calibration(calibration_path)
     if nonce_secret is not None:
         nonces = DerivedNonces.from_file(nonce_secret)
-    hasher = MacHasher(nonces if nonces is not None else FixedNonce(os.urandom(32)))
+    hasher = MacHasher(nonces if nonces is not None else FixedNonce(os.urandom(32)), epoch_s)
     return SensorPipeline(calibration, hasher, sensor_id, pose, min_snr_db=min_snr_db)
 
 
@@ -133,19 +163,29 @@ def build_listeners(
     send: str | None,
     keys_dir: Path | None,
     pose: Pose,
+    *,
+    inputs: Iterable[str | Path] = (),
+    force: bool = False,
+    epoch_s: float = DEFAULT_EPOCH_S,
 ) -> Fanout:
     """Every listener the options ask for.
 
     Raises:
-        ConfigError: no output at all, or a bad output name.
+        ConfigError: no output at all, a bad output name, an output that is one of
+            ``inputs``, or an existing output without ``force``.
         KeyStoreError / LinkError: ``--send`` cannot be set up.
     """
     fanout = Fanout()
     if out is None and send is None:
         raise ConfigError("nothing to do: give --out FILE and/or --send URL")
-    publisher = make_publisher(send, keys_dir, pose)
     if out is not None:
-        fanout.add(BearingWriter(out, fmt))
+        check_output(out, inputs, force=force, what="--out")
+    publisher = make_publisher(send, keys_dir, pose, epoch_s)
+    if out is not None:
+        from rfsas_hw.ros2.outputs import sensor_recording
+
+        recording = sensor_recording(out, fmt, lambda _sensor_id: pose)
+        fanout.add(recording if recording is not None else BearingWriter(out, fmt))
     if publisher is not None:
         fanout.add(publisher)
     return fanout
@@ -171,8 +211,13 @@ def summary_table(summary: RunSummary, title: str) -> Table:
         if isinstance(value, int | float | str):
             shown = f"{value:.3f}" if isinstance(value, float) else str(value)
             table.add_row(key.replace("_", " "), shown)
+    for key, value in sorted(summary.nonces.items()):
+        table.add_row(f"nonce wait: {key.replace('_', ' ')}", f"{value:,}")
     table.add_row("emitters", f"{summary.emitters:,}")
     table.add_row("bearings", f"{summary.bearings:,}")
+    for name, counters in summary.outputs.items():
+        for key, value in counters.items():
+            table.add_row(f"{name}: {key}", f"{value:,}")
     table.add_row("capture span", f"{summary.capture_span_s:.1f} s")
     table.add_row("run time", f"{summary.elapsed_s:.2f} s")
     table.add_row("ended by", summary.stopped)
@@ -198,3 +243,84 @@ def progress_bar(console: Console) -> Progress:
         console=console,
         transient=True,
     )
+
+
+def epoch_schedule(epoch_s: float) -> EpochSchedule:
+    """The deployment's epochs for ``--epoch`` (default grace period, capped below half
+    an epoch for short test epochs).
+
+    Raises:
+        ConfigError: the epoch length is not usable.
+    """
+    try:
+        return EpochSchedule(epoch_s, min(5.0, epoch_s / 4))
+    except ValueError as err:
+        raise ConfigError(f"--epoch: {err}") from err
+
+
+_HINTS = {
+    "no_table": "the calibration has no table for the channels heard: fit one per channel "
+    "heard, or one for all with rfsas calibrate --single-table",
+    "outside_fov": "every ratio fell outside the calibration's field of view",
+    "missing_chain": "frames carry no per-antenna RSSI (capture both chains; docs/sources)",
+    "low_snr": "every frame was below --min-snr",
+    "saturated": "every frame was at the calibration's saturation level",
+    "nonce_expired": "no nonce arrived from the authority in time (check --nonces, --keys, "
+    "--epoch and that the authority runs)",
+    "nonce_unavailable": "no nonce arrived from the authority (check --nonces, --keys, "
+    "--epoch and that the authority runs)",
+    "hold_overflow": "frames waited for a nonce until the hold queue overflowed",
+}
+
+
+def failure(summary: RunSummary) -> str | None:
+    """Why the run's declared work failed, or None: an output failed (write error,
+    nothing sent), or it produced no bearings at all (with a hint from the reasons)."""
+    if summary.problems:
+        return "; ".join(summary.problems)
+    if summary.bearings:
+        return None
+    if not summary.observations:
+        if summary.frames:
+            reasons = ", ".join(f"{k} {v:,}" for k, v in summary.skipped.most_common(3))
+            return f"0 bearings: none of {summary.frames:,} frames was usable ({reasons})"
+        return "0 bearings: the input held no frames"
+    if not summary.rejected:
+        return f"0 bearings from {summary.observations:,} observations"
+    reason, count = summary.rejected.most_common(1)[0]
+    hint = _HINTS.get(reason, reason)
+    return f"0 bearings from {summary.observations:,} observations ({reason} {count:,}): {hint}"
+
+
+def finish_run(
+    summary: RunSummary,
+    title: str,
+    *,
+    out: Path | None,
+    json_summary: bool,
+    interrupt_is_failure: bool,
+) -> None:
+    """Print the summary (a table, or JSON with ``--json``) and the first frame errors,
+    then end with the run's exit code.
+
+    The summary goes to stdout, or to stderr when the bearings go to stdout (``--out -``).
+
+    Raises:
+        WorkFailed: the declared work failed (exit 1), see :func:`failure`.
+        Interrupted: Ctrl-C/SIGTERM ended a run that was meant to finish (exit 130).
+    """
+    err_console = Console(stderr=True)
+    to_stderr = out is not None and str(out) == STDIO
+    problem = failure(summary)
+    if json_summary:
+        record = summary.as_dict()
+        record["ok"] = problem is None
+        record["failure"] = problem
+        click.echo(json.dumps(record), err=to_stderr)
+    else:
+        (err_console if to_stderr else Console()).print(summary_table(summary, title))
+    print_errors(err_console, summary)
+    if interrupt_is_failure and summary.stopped in ("interrupted", "terminated"):
+        raise Interrupted(f"{summary.stopped} after {summary.bearings:,} bearings")
+    if problem is not None:
+        raise WorkFailed(problem)

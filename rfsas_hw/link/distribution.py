@@ -18,7 +18,7 @@ from collections.abc import Callable, Mapping
 from rfsas_hw.errors import LinkError
 from rfsas_hw.link.transport import Transport
 from rfsas_hw.privacy.epochs import NS_PER_S
-from rfsas_hw.privacy.hashing import NonceUnavailableError
+from rfsas_hw.privacy.hashing import NonceExpiredError, NonceUnavailableError
 from rfsas_hw.privacy.nonces import NonceAuthority, NonceEnvelopeError, NonceStore
 
 log = logging.getLogger(__name__)
@@ -158,6 +158,8 @@ class NonceInbox:
         while True:
             try:
                 return self.store.nonce_for(epoch)
+            except NonceExpiredError:
+                raise  # waiting cannot bring it back
             except NonceUnavailableError:
                 left = deadline - time.monotonic()
                 if left <= 0:

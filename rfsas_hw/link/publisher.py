@@ -16,7 +16,7 @@ import math
 import secrets
 import time
 from collections import Counter
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -25,21 +25,36 @@ import numpy as np
 from rfsas_hw.angles import wrap_deg_360
 from rfsas_hw.errors import LinkError
 from rfsas_hw.link.keys import KeyStore
-from rfsas_hw.link.message import DEFAULT_DATAGRAM, MAX_DATAGRAM, SafetyMessage, max_bearings
+from rfsas_hw.link.message import (
+    DEFAULT_DATAGRAM,
+    MAX_DATAGRAM,
+    VERSION,
+    VERSION_PREAUTH,
+    SafetyMessage,
+    max_bearings,
+)
+from rfsas_hw.link.preauth import NonceSource, PreauthKeys, seal
 from rfsas_hw.link.signing import Signer
-from rfsas_hw.link.transport import Transport, open_transport
+from rfsas_hw.link.transport import Transport, open_transports
 from rfsas_hw.privacy.epochs import DEFAULT_EPOCH_S, NS_PER_S
 from rfsas_hw.records import BearingBatch, Pose
 
 log = logging.getLogger(__name__)
+
+SNR_UNKNOWN_DB = -999.0
+"""SNR sent for a bearing whose unit does not measure one (Doppler, agrelo): the wire
+format needs a finite number, and no real SNR is this low."""
 
 
 @dataclass(slots=True)
 class PublisherStats:
     """What a publisher sent and dropped."""
 
+    offered: int = 0
+    """Bearings handed to the publisher."""
     messages: int = 0
     bearings: int = 0
+    """Bearings sent."""
     bytes: int = 0
     dropped: Counter[str] = field(default_factory=Counter)
     """Bearings not sent, by reason (``invalid`` values, ``send_error``)."""
@@ -63,6 +78,9 @@ class Publisher:
         clock: UTC time in ns, for generation times.
         first_seq: first sequence number (default: random).
         own_transport: close the transport when the publisher closes.
+        preauth: the deployment's epoch nonces; with them, messages are sent as
+            version 2, tagged with the sensor's pre-authentication key
+            (:mod:`rfsas_hw.link.preauth`); without, as version 1.
 
     Raises:
         LinkError: ``max_datagram`` is outside what the protocol allows.
@@ -79,6 +97,7 @@ class Publisher:
         clock: Callable[[], int] = time.time_ns,
         first_seq: int | None = None,
         own_transport: bool = True,
+        preauth: NonceSource | None = None,
     ) -> None:
         if not 0 < max_datagram <= MAX_DATAGRAM:
             raise LinkError(f"max datagram {max_datagram} bytes outside 1-{MAX_DATAGRAM}")
@@ -86,47 +105,56 @@ class Publisher:
         self.transport = transport
         self._pose = pose
         self.epoch_ns = int(epoch_s * NS_PER_S)
-        self.chunk = max_bearings(signer.sender_id, max_datagram)
+        self.preauth = None if preauth is None else PreauthKeys(preauth, keep=16)
+        version = VERSION if preauth is None else VERSION_PREAUTH
+        self.chunk = max_bearings(signer.sender_id, max_datagram, version)
         self.clock = clock
         self.seq = secrets.randbelow(1 << 32) if first_seq is None else first_seq % (1 << 32)
         self.own_transport = own_transport
         self.stats = PublisherStats()
+        self.last_error = ""
+        """The last send error, for the summary."""
         self._closed = False
 
     @classmethod
     def to_url(
         cls,
-        url: str,
+        url: str | Sequence[str],
         signer: Signer,
         pose: Pose | Callable[[], Pose],
         *,
         epoch_s: float = DEFAULT_EPOCH_S,
         max_datagram: int = DEFAULT_DATAGRAM,
         clock: Callable[[], int] = time.time_ns,
+        preauth: NonceSource | None = None,
     ) -> Publisher:
-        """A publisher sending to ``url`` (e.g. ``udp://127.0.0.1:47000``); it owns the socket.
+        """A publisher sending to ``url`` (e.g. ``udp://127.0.0.1:47000``, ``mqtts://…``;
+        several URLs: to each of them); it owns the sockets.
 
         Raises:
-            LinkError: bad URL, datagram size or socket failure.
+            LinkError: bad URL, datagram size, socket or broker failure.
         """
+        urls = [url] if isinstance(url, str) else list(url)
         return cls(
             signer,
-            open_transport(url, "send"),
+            open_transports(urls, "send"),
             pose,
             epoch_s=epoch_s,
             max_datagram=max_datagram,
             clock=clock,
+            preauth=preauth,
         )
 
     @classmethod
     def from_keys(
         cls,
-        url: str,
+        url: str | Sequence[str],
         keys_dir: str | Path,
         pose: Pose | Callable[[], Pose],
         *,
         epoch_s: float = DEFAULT_EPOCH_S,
         max_datagram: int = DEFAULT_DATAGRAM,
+        preauth: NonceSource | None = None,
     ) -> Publisher:
         """A publisher signing as the sensor identity in ``keys_dir`` and sending to ``url``.
 
@@ -135,7 +163,9 @@ class Publisher:
             LinkError: bad URL or socket failure.
         """
         signer = KeyStore.open(keys_dir).signer()
-        return cls.to_url(url, signer, pose, epoch_s=epoch_s, max_datagram=max_datagram)
+        return cls.to_url(
+            url, signer, pose, epoch_s=epoch_s, max_datagram=max_datagram, preauth=preauth
+        )
 
     @property
     def pose(self) -> Pose:
@@ -146,6 +176,10 @@ class Publisher:
         """Send ``batch`` as one or more signed messages; bad rows are dropped and counted."""
         if len(batch) == 0:
             return
+        if np.isnan(batch.snr_db).any():
+            # an unmeasured SNR does not make the bearing less valid
+            batch = batch.select(slice(None))
+            batch.snr_db = np.where(np.isnan(batch.snr_db), SNR_UNKNOWN_DB, batch.snr_db)
         ok = (
             np.isfinite(batch.azimuth_deg)
             & np.isfinite(batch.sigma_deg)
@@ -154,6 +188,7 @@ class Publisher:
             & (batch.channel >= 0)
             & (batch.t_ns >= 0)
         )
+        self.stats.offered += len(batch)
         if not ok.all():
             self.stats.dropped["invalid"] += int(np.count_nonzero(~ok))
             batch = batch.select(ok)
@@ -181,11 +216,19 @@ class Publisher:
             epoch=epoch,
             bearings=rows,
         )
-        datagram = self.signer.encode(msg)
+        if self.preauth is None:
+            datagram = self.signer.encode(msg)
+        else:
+            key = self.preauth.key_for(msg.sender_id, epoch)
+            if key is None:
+                self.stats.dropped["no_nonce"] += len(rows)
+                return
+            datagram = seal(self.signer, msg, key)
         self.seq = (self.seq + 1) % (1 << 32)
         try:
             self.transport.send(datagram)
         except LinkError as err:
+            self.last_error = str(err)
             self.stats.dropped["send_error"] += len(rows)
             if self.stats.dropped["send_error"] == len(rows):
                 log.warning("%s; later send errors are only counted", err)
@@ -201,6 +244,30 @@ class Publisher:
                 epoch,
                 len(datagram),
             )
+
+    @property
+    def name(self) -> str:
+        """``send URL`` (or the transport's class), for run summaries."""
+        endpoint = getattr(self.transport, "endpoint", None)
+        url = getattr(endpoint, "url", None)
+        return f"send {url()}" if callable(url) else f"send {type(self.transport).__name__}"
+
+    def counters(self) -> dict[str, int]:
+        """``sent`` bearings, ``messages``, and ``dropped.REASON`` counts."""
+        out = {"sent": self.stats.bearings, "messages": self.stats.messages}
+        out.update({f"dropped.{k}": v for k, v in sorted(self.stats.dropped.items())})
+        return out
+
+    def problem(self) -> str | None:
+        """Why the publishing failed, or None: bearings were offered and none were sent,
+        or some could not be sent (a send error is never silent)."""
+        st = self.stats
+        if st.dropped.get("send_error"):
+            return f"{st.dropped['send_error']:,} bearings not sent ({self.last_error})"
+        if st.offered and not st.bearings:
+            reasons = ", ".join(f"{k} {v:,}" for k, v in sorted(st.dropped.items()))
+            return f"none of {st.offered:,} bearings sent ({reasons or 'no reason recorded'})"
+        return None
 
     def close(self) -> None:
         """Close the transport if the publisher owns it; idempotent."""

@@ -37,6 +37,7 @@ __all__ = [
     "NS_PER_S",
     "FixedNonce",
     "MacHasher",
+    "NonceExpiredError",
     "NonceProvider",
     "NonceUnavailableError",
     "epoch_of",
@@ -48,7 +49,11 @@ ID_BYTES = 8
 
 
 class NonceUnavailableError(RfsasError):
-    """No nonce is known for the epoch a frame falls in."""
+    """No nonce is known for the epoch a frame falls in (it may still arrive)."""
+
+
+class NonceExpiredError(NonceUnavailableError):
+    """The epoch's nonce is gone for good: the epoch and its grace period are over."""
 
 
 class NonceProvider(Protocol):
@@ -114,6 +119,11 @@ class MacHasher:
         self._cache: OrderedDict[int, dict[int, int]] = OrderedDict()
         self._cache_epochs = cache_epochs
         self._cache_size = cache_size
+
+    @property
+    def epoch_ns(self) -> int:
+        """Epoch length, nanoseconds."""
+        return self._epoch_ns
 
     def _table(self, epoch: int) -> dict[int, int]:
         table = self._cache.get(epoch)

@@ -53,7 +53,7 @@ from cryptography.hazmat.primitives.kdf.hkdf import HKDF
 
 from rfsas_hw.errors import LinkSecurityError
 from rfsas_hw.privacy.epochs import EpochSchedule
-from rfsas_hw.privacy.hashing import NonceUnavailableError
+from rfsas_hw.privacy.hashing import NonceExpiredError, NonceUnavailableError
 
 MAGIC = b"RF"
 VERSION = 1
@@ -340,13 +340,14 @@ class NonceStore:
         """The nonce of ``epoch``.
 
         Raises:
-            NonceUnavailableError: never received, or past its grace period.
+            NonceUnavailableError: never received (yet).
+            NonceExpiredError: past its grace period (it will never be given out again).
         """
         if self.clock is not None:
             now = self.clock()
             if self.schedule.expired(epoch, now):
                 self._nonces.pop(epoch, None)
-                raise NonceUnavailableError(f"the nonce of epoch {epoch} has expired")
+                raise NonceExpiredError(f"the nonce of epoch {epoch} has expired")
         nonce = self._nonces.get(epoch)
         if nonce is None:
             raise NonceUnavailableError(

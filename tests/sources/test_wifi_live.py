@@ -331,7 +331,9 @@ def test_live_cli_hops_channels_with_iw(
          "--calibration", str(cal), "--out", str(tmp_path / "b.jsonl")],
         capture_output=True, text=True, timeout=60, check=False, env=env,
     )  # fmt: skip
-    assert proc.returncode == 0, proc.stderr
+    # nothing is sent on the veth: the run hops but has no bearings, which is a failure (1)
+    assert proc.returncode == 1, proc.stderr
+    assert "0 bearings" in proc.stderr
     lines = calls.read_text().splitlines()
     assert lines[:2] == [f"dev {veth[0]} set channel 1", f"dev {veth[0]} set channel 6"]
     assert 2 <= len(lines) <= 8  # about one hop per 0.2 s for 1 s (fewer on a loaded machine)

@@ -1,0 +1,195 @@
+"""Where a command may write: never over an input, never outside its output, never
+over an existing file unless asked to, never with a name an id chose.
+
+Every command that writes a file asks :func:`check_output` first, with the
+paths it reads from; ids that become parts of file names (sensor ids, scenario
+names) go through :func:`safe_name`, and a file placed in an output directory
+through :func:`inside`. :class:`AtomicFile` writes beside the target and
+renames over it only when everything was written, so a failed or interrupted
+run never leaves a half-written file where a good one was.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import re
+import stat
+import tempfile
+from collections.abc import Iterable
+from pathlib import Path
+from types import TracebackType
+from typing import IO, Self
+
+from rfsas_hw.errors import ConfigError
+
+STDIO = "-"
+"""The name that means standard output (or input)."""
+
+_NAME_RE = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]{0,63}")
+
+
+def safe_name(ident: str, what: str = "id") -> str:
+    """``ident`` when it is safe as one file-name component, else an error.
+
+    Safe: 1-64 of ``A-Z a-z 0-9 . _ -``, starting with a letter or digit (so
+    no ``..``, no hidden files, no separators, no option-like names).
+
+    Raises:
+        ConfigError: naming ``what`` and the offending id.
+    """
+    if not isinstance(ident, str) or not _NAME_RE.fullmatch(ident):
+        raise ConfigError(
+            f"{what} {ident!r} cannot be used in a file name: use 1-64 of A-Z a-z 0-9 . _ - "
+            "starting with a letter or digit"
+        )
+    return ident
+
+
+def inside(directory: str | Path, name: str) -> Path:
+    """``directory / name``, checked to stay inside ``directory`` once resolved.
+
+    Raises:
+        ConfigError: the joined path escapes ``directory`` (``..``, absolute
+            parts, a symlink pointing elsewhere).
+    """
+    base = Path(directory).resolve()
+    target = (base / name).resolve()
+    if target != base and base not in target.parents:
+        raise ConfigError(f"{name!r} would be written outside {directory}")
+    return base / name
+
+
+def _same_file(a: Path, b: Path) -> bool:
+    try:
+        return a.resolve() == b.resolve() or os.path.samefile(a, b)
+    except OSError:
+        return False
+
+
+def check_output(
+    path: str | Path,
+    inputs: Iterable[str | Path] = (),
+    *,
+    force: bool = False,
+    what: str = "output",
+) -> Path:
+    """Check that ``path`` may be written and return it.
+
+    Refuses to write over any of ``inputs`` (same resolved path or the same
+    inode, so a hard link or a symlink is caught too), and over an existing
+    regular file unless ``force``. Devices and pipes (``/dev/null``, a FIFO)
+    are fine: writing to them destroys nothing. ``-`` (standard output) is
+    always fine.
+
+    Raises:
+        ConfigError: ``path`` is an input, is a directory, or exists without ``force``.
+    """
+    p = Path(path)
+    if str(path) == STDIO:
+        return p
+    for source in inputs:
+        if str(source) == STDIO:
+            continue
+        if _same_file(p, Path(source)):
+            raise ConfigError(f"{what} {p} is also an input ({source}); refusing to write over it")
+    try:
+        mode = p.stat().st_mode
+    except FileNotFoundError:
+        return p
+    except OSError as err:
+        raise ConfigError(f"{what} {p}: {err.strerror or err}") from err
+    if stat.S_ISDIR(mode):
+        raise ConfigError(f"{what} {p} is a directory")
+    if stat.S_ISREG(mode) and not force:
+        raise ConfigError(f"{what} {p} exists; use --force to replace it")
+    return p
+
+
+class AtomicFile:
+    """A text file written beside its target and renamed over it on a clean close.
+
+    For a device or pipe target (``/dev/null``, a FIFO) the target is opened
+    directly: there is nothing to protect and renaming over a device is wrong.
+    On an error inside the ``with`` block, or :meth:`discard`, the partial
+    file is removed and the target is left as it was.
+
+    Raises:
+        OSError: the temporary file cannot be created or the rename fails.
+    """
+
+    def __init__(self, path: str | Path, *, newline: str | None = "") -> None:
+        self.path = Path(path)
+        self._tmp: Path | None = None
+        direct = self.path.exists() and not self.path.is_file()
+        if direct:
+            self.stream: IO[str] = self.path.open("w", encoding="utf-8", newline=newline)
+        else:
+            fd, tmp = tempfile.mkstemp(
+                prefix=f".{self.path.name}.", suffix=".part", dir=self.path.parent or "."
+            )
+            self._tmp = Path(tmp)
+            self.stream = os.fdopen(fd, "w", encoding="utf-8", newline=newline)
+
+    def commit(self) -> None:
+        """Flush, sync and rename over the target.
+
+        Raises:
+            OSError: writing, syncing or renaming failed (the target is unchanged).
+        """
+        try:
+            self.stream.flush()
+            if self._tmp is not None:
+                os.fsync(self.stream.fileno())
+        finally:
+            self.stream.close()
+        if self._tmp is not None:
+            os.chmod(self._tmp, 0o666 & ~_UMASK)
+            os.replace(self._tmp, self.path)
+            self._tmp = None
+
+    def discard(self) -> None:
+        """Close and remove the partial file; the target is unchanged."""
+        with contextlib.suppress(OSError):
+            self.stream.close()
+        if self._tmp is not None:
+            with contextlib.suppress(OSError):
+                self._tmp.unlink()
+            self._tmp = None
+
+    def __enter__(self) -> Self:
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        if exc_type is None:
+            self.commit()
+        else:
+            self.discard()
+
+
+def _read_umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
+# read once, at import: os.umask is process-wide and racy to query later from threads
+_UMASK = _read_umask()
+
+
+def write_text_atomic(path: str | Path, text: str) -> None:
+    """Write ``text`` to ``path`` through :class:`AtomicFile`.
+
+    Raises:
+        ConfigError: the file cannot be written (the message names it).
+    """
+    try:
+        with AtomicFile(path, newline=None) as out:
+            out.stream.write(text)
+    except OSError as err:
+        raise ConfigError(f"{path}: cannot write: {err.strerror or err}") from err

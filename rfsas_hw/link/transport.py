@@ -25,7 +25,7 @@ import socket
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
 from types import TracebackType
-from typing import Literal, Self
+from typing import Any, Literal, Self
 from urllib.parse import parse_qs, urlsplit
 
 from rfsas_hw.errors import LinkError
@@ -58,10 +58,11 @@ class UdpEndpoint:
             return False
 
     def url(self) -> str:
-        """The URL form."""
+        """The URL form (an IPv6 host in brackets)."""
+        host = f"[{self.host}]" if ":" in self.host else self.host
         if self.multicast:
-            return f"udp://{self.host}:{self.port}?iface={self.iface}&ttl={self.ttl}"
-        return f"udp://{self.host}:{self.port}"
+            return f"udp://{host}:{self.port}?iface={self.iface}&ttl={self.ttl}"
+        return f"udp://{host}:{self.port}"
 
 
 def parse_url(url: str) -> UdpEndpoint:
@@ -149,7 +150,8 @@ class UdpTransport(Transport):
         self._closed = False
         self.sent = 0
         self.send_errors = 0
-        sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        family, self._address = _resolve(endpoint)
+        sock = socket.socket(family, socket.SOCK_DGRAM)
         try:
             if mode == "recv":
                 self._setup_recv(sock, endpoint.rcvbuf)
@@ -169,7 +171,7 @@ class UdpTransport(Transport):
             membership = socket.inet_aton(ep.host) + socket.inet_aton(ep.iface)
             sock.setsockopt(socket.IPPROTO_IP, socket.IP_ADD_MEMBERSHIP, membership)
         else:
-            sock.bind((ep.host, ep.port))
+            sock.bind(self._address)
         sock.setblocking(False)
 
     def _setup_send(self, sock: socket.socket) -> None:
@@ -192,7 +194,7 @@ class UdpTransport(Transport):
             LinkError: the kernel refused it (too large, no route).
         """
         try:
-            self._sock.sendto(datagram, (self.endpoint.host, self.endpoint.port))
+            self._sock.sendto(datagram, self._address)
         except OSError as err:
             self.send_errors += 1
             raise LinkError(
@@ -221,6 +223,26 @@ class UdpTransport(Transport):
         if not self._closed:
             self._closed = True
             self._sock.close()
+
+
+def _resolve(endpoint: UdpEndpoint) -> tuple[int, tuple[Any, ...]]:
+    """Address family and socket address of ``endpoint`` (IPv4 or IPv6), resolved once
+    when the transport opens, so a bad host name fails there and not, silently, on
+    every send.
+
+    Raises:
+        LinkError: the host name does not resolve.
+    """
+    if endpoint.multicast:
+        return socket.AF_INET, (endpoint.host, endpoint.port)
+    try:
+        infos = socket.getaddrinfo(endpoint.host, endpoint.port, type=socket.SOCK_DGRAM)
+    except (OSError, UnicodeError) as err:
+        raise LinkError(f"{endpoint.url()}: cannot resolve {endpoint.host!r}: {err}") from err
+    # prefer IPv4 when a name has both, as a sender and a listener on "localhost" must agree
+    infos.sort(key=lambda info: info[0] != socket.AF_INET)
+    family, _, _, _, sockaddr = infos[0]
+    return int(family), tuple(sockaddr)
 
 
 def open_transport(url: str, mode: Literal["send", "recv"]) -> UdpTransport:

@@ -22,11 +22,13 @@ from rfsas_hw.backend.service import (
     ResultSink,
     load_backend_config,
 )
+from rfsas_hw.backend.site import parse_origin
 from rfsas_hw.backend.vehicle import VehicleFeed, load_vehicle
+from rfsas_hw.cli.linkopts import join_urls, split_urls
 from rfsas_hw.errors import ConfigError
 from rfsas_hw.link import Receiver, ReceiverConfig
 from rfsas_hw.link.keys import KeyStore
-from rfsas_hw.privacy.epochs import DEFAULT_EPOCH_S
+from rfsas_hw.privacy.epochs import DEFAULT_EPOCH_S, EpochSchedule
 from rfsas_hw.records import Assessment
 
 ADVISORY_STYLE = {"brake": "bold red", "caution": "yellow", "clear": "green", "none": "dim"}
@@ -84,8 +86,11 @@ def render_table(service: BackendService, alarm: bool) -> Table:
 @click.option(
     "--listen",
     required=True,
-    metavar="udp://HOST:PORT",
-    help="Where signed safety messages arrive.",
+    multiple=True,
+    callback=join_urls,
+    metavar="URL",
+    help="Where signed safety messages arrive: udp://HOST:PORT, or a broker "
+    "(mqtts://HOST?ca=…&cert=…&key=…&tiles=…); repeat to take several at once.",
 )
 @click.option(
     "--keys",
@@ -140,6 +145,33 @@ def render_table(service: BackendService, alarm: bool) -> Table:
     type=click.FloatRange(min=0),
     help="Reaction delay before braking, seconds [default: 0].",
 )
+@click.option(
+    "--origin",
+    metavar="LAT,LON[,HEIGHT]",
+    help="Site origin on WGS-84 (overrides site.origin of --config): outputs carry "
+    "latitude/longitude.",
+)
+@click.option(
+    "--map",
+    "site_map",
+    type=click.Path(dir_okay=False, path_type=Path),
+    help="Buildings and roads for the dashboard: a scenario YAML or a GeoJSON file.",
+)
+@click.option(
+    "--web",
+    metavar="[HOST:]PORT",
+    help="Serve the live dashboard here (default host 127.0.0.1; needs the web extra).",
+)
+@click.option(
+    "--web-token",
+    envvar="RFSAS_WEB_TOKEN",
+    help="Token other hosts must give the dashboard [default: random when not on loopback].",
+)
+@click.option(
+    "--cot",
+    metavar="udp://HOST:PORT|tcp://HOST:PORT",
+    help="Send fixes and tracks as Cursor-on-Target events to a TAK server (needs an origin).",
+)
 @click.option("--no-table", is_flag=True, help="Do not draw the live table.")
 def backend(
     listen: str,
@@ -153,6 +185,11 @@ def backend(
     epoch: float | None,
     threat: str | None,
     reaction: float | None,
+    origin: str | None,
+    site_map: Path | None,
+    web: str | None,
+    web_token: str | None,
+    cot: str | None,
     no_table: bool,
 ) -> None:
     """Receive signed bearings, triangulate emitters and judge collision risk live.
@@ -176,14 +213,29 @@ def backend(
             threat_kind=enc.threat_kind if threat is None else threat,
             reaction_s=enc.reaction_s if reaction is None else reaction,
         ),
+        site=replace(
+            config.site,
+            origin=config.site.origin if origin is None else parse_origin(origin),
+            map=config.site.map if site_map is None else site_map,
+        ),
     )
+    if cot is not None and config.site.origin is None:
+        raise ConfigError("--cot needs the site origin: --origin LAT,LON or site.origin")
     epoch = config.association.epoch_s
-    trust = KeyStore.open(keys_dir).trust
+    store = KeyStore.open(keys_dir)
+    trust = store.trust
     if len(trust) == 0:
         raise ConfigError(f"{keys_dir}: no enrolled sensors in trust/ (rfsas keys enroll)")
     state = None if vehicle is None or vehicle.startswith("udp://") else load_vehicle(vehicle)
     receiver = Receiver.listen(
-        listen, trust, config=ReceiverConfig(epoch_s=epoch, grace_s=min(5.0, epoch / 4))
+        split_urls(listen),
+        trust,
+        # with an authority enrolled, envelopes arriving on the link (a broker's
+        # retained nonce topic) give the keys that pre-authenticate version-2 messages
+        store.nonce_store(EpochSchedule(epoch, min(5.0, epoch / 4)))
+        if trust.authorities()
+        else None,
+        config=ReceiverConfig(epoch_s=epoch, grace_s=min(5.0, epoch / 4)),
     )
     feed: VehicleFeed | None = None
     sinks: list[ResultSink] = []
@@ -191,13 +243,33 @@ def backend(
         if vehicle is not None and vehicle.startswith("udp://"):
             feed = VehicleFeed.listen(vehicle)
         if out is not None:
-            sinks.append(JsonlSink(out))
+            sinks.append(JsonlSink(out, origin=config.site.origin, bearings=True))
+        if cot is not None and config.site.origin is not None:
+            from rfsas_hw.exports.tak import CotSender
+
+            sinks.append(CotSender(cot, config.site.origin))
     except Exception:
+        for sink in sinks:
+            sink.close()
         receiver.close()
         if feed is not None:
             feed.close()
         raise
     service = BackendService(config, vehicle=state, sinks=sinks)
+    service.link_stats = lambda: dict(receiver.stats.as_dict())
+    dashboard = None
+    if web is not None:
+        from rfsas_hw.web import start_dashboard
+
+        try:
+            dashboard = start_dashboard(service, web, latency=receiver.latency, token=web_token)
+        except Exception:
+            receiver.close()
+            if feed is not None:
+                feed.close()
+            service.close()
+            raise
+        click.echo(f"dashboard at {dashboard.url}", err=True)
     console = Console()
     click.echo(f"listening on {listen}; {len(trust)} enrolled sender(s)", err=True)
     started = time.monotonic()
@@ -215,6 +287,8 @@ def backend(
     except KeyboardInterrupt:
         click.echo("stopped", err=True)
     finally:
+        if dashboard is not None:
+            dashboard.stop()
         receiver.close()
         if feed is not None:
             feed.close()

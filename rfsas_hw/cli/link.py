@@ -13,6 +13,7 @@ from rich.console import Console
 from rich.live import Live
 from rich.table import Table
 
+from rfsas_hw.cli.linkopts import join_urls, split_urls
 from rfsas_hw.link import Receiver, ReceiverConfig
 from rfsas_hw.link.keys import KeyStore
 from rfsas_hw.link.latency import LatencyConfig, LinkState
@@ -59,8 +60,11 @@ def link() -> None:
     "--listen",
     "url",
     required=True,
-    metavar="udp://HOST:PORT",
-    help="Where safety messages arrive (unicast or multicast).",
+    multiple=True,
+    callback=join_urls,
+    metavar="URL",
+    help="Where safety messages arrive: udp://HOST:PORT (unicast or multicast) or a "
+    "broker (mqtt://, mqtts://…); repeat to take several at once.",
 )
 @click.option(
     "--keys",
@@ -105,7 +109,7 @@ def watch(
     config = ReceiverConfig(
         check_epoch=not no_epoch_check, latency=LatencyConfig(budget_s=budget_ms / 1e3)
     )
-    rx = Receiver.listen(url, KeyStore.open(keys_dir).trust, config=config)
+    rx = Receiver.listen(split_urls(url), KeyStore.open(keys_dir).trust, config=config)
     rx.latency.expect(expect, time.time_ns())
     stop = None if duration is None else time.monotonic() + duration
 

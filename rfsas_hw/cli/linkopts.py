@@ -22,6 +22,7 @@ import click
 from rfsas_hw.errors import ConfigError
 from rfsas_hw.link.distribution import NonceInbox
 from rfsas_hw.link.keys import KeyStore
+from rfsas_hw.link.preauth import NonceSource
 from rfsas_hw.link.publisher import Publisher
 from rfsas_hw.link.transport import open_transport
 from rfsas_hw.privacy.epochs import DEFAULT_EPOCH_S, DEFAULT_GRACE_S, EpochSchedule
@@ -40,10 +41,28 @@ def send_options(func: F) -> F:
     )(func)
     func = click.option(
         "--send",
-        metavar="udp://HOST:PORT",
-        help="Publish bearings as signed safety messages (unicast or multicast UDP).",
+        metavar="URL",
+        multiple=True,
+        callback=join_urls,
+        help="Publish bearings as signed safety messages: udp://HOST:PORT (unicast or "
+        "multicast), mqtt://HOST or mqtts://HOST?ca=…&cert=…&key=… (a broker; add "
+        "origin=LAT,LON). Repeat to send on several at once.",
     )(func)
     return func
+
+
+def join_urls(ctx: click.Context, param: click.Parameter, value: tuple[str, ...]) -> str | None:
+    """Click callback of a repeatable URL option: the URLs separated by spaces, or None.
+
+    URLs hold no spaces, so commands keep one ``str | None`` value and
+    :func:`split_urls` gives the list back.
+    """
+    return " ".join(value) if value else None
+
+
+def split_urls(value: str) -> list[str]:
+    """The URLs :func:`join_urls` joined."""
+    return value.split()
 
 
 def make_publisher(
@@ -51,8 +70,11 @@ def make_publisher(
     keys_dir: Path | None,
     pose: Pose,
     epoch_s: float = DEFAULT_EPOCH_S,
+    preauth: NonceSource | None = None,
 ) -> Publisher | None:
     """The publisher ``--send``/``--keys`` ask for, or None without ``--send``.
+    ``send`` may hold several URLs (see :func:`join_urls`); with the deployment's
+    epoch nonces in ``preauth`` it sends version-2 (pre-authenticated) messages.
 
     Raises:
         ConfigError: ``--send`` without ``--keys``.
@@ -63,7 +85,7 @@ def make_publisher(
         return None
     if keys_dir is None:
         raise ConfigError("--send needs --keys DIR: messages are signed with the sensor's key")
-    return Publisher.from_keys(send, keys_dir, pose, epoch_s=epoch_s)
+    return Publisher.from_keys(split_urls(send), keys_dir, pose, epoch_s=epoch_s, preauth=preauth)
 
 
 NONCES_HELP = (

@@ -25,8 +25,17 @@ Byte layout (big-endian; documented field by field in ``docs/protocol.md``)::
                   +28 2  channel number, uint16
     end-64 64   ECDSA P-256 signature over every byte before it: r ‖ s, 32 bytes each
 
-The length of a valid message follows from L and N alone, so a receiver can
-reject a truncated, padded or oversized datagram before any cryptography.
+Version 2 is version 1 with the version byte set to 2 and an 8-byte
+pre-authentication tag after the signature: the first 8 bytes of HMAC-SHA256
+over every byte before it, keyed with the sender's per-epoch pre-authentication
+key (:mod:`rfsas_hw.link.preauth`). A receiver checks the tag before the
+signature, so a forgery costs it one HMAC instead of one ECDSA verify. The
+signature covers the version byte, so a version-2 message cannot be passed
+off as version 1 by stripping its tag.
+
+The length of a valid message follows from L, N and the version alone, so a
+receiver can reject a truncated, padded or oversized datagram before any
+cryptography.
 :func:`peek` does those cheap checks; :func:`decode` parses the rest
 (vectorised over the bearings) and checks every value.
 """
@@ -46,8 +55,16 @@ from rfsas_hw.records import BearingBatch, Pose
 
 MAGIC = b"RF"
 VERSION = 1
+"""Version 1: signed, no pre-authentication tag."""
+VERSION_PREAUTH = 2
+"""Version 2: signed, then tagged with the sender's pre-authentication key."""
+VERSIONS = (VERSION, VERSION_PREAUTH)
 TYPE_SAFETY = 1
+TYPE_ADVISORY = 4
+"""The backend's signed assessments (:mod:`rfsas_hw.fleet.advisory`)."""
 SIGNATURE_BYTES = 64
+PREAUTH_BYTES = 8
+"""Length of the truncated HMAC-SHA256 pre-authentication tag of version 2."""
 MAX_SENDER_ID = 32
 MAX_BEARINGS = 255
 MAX_DATAGRAM = 1472
@@ -57,6 +74,7 @@ DEFAULT_DATAGRAM = 1200
 
 _PREFIX = struct.Struct(">2sBBBB")
 _FIXED = struct.Struct(">qIQfffB")
+_GEN_SEQ_EPOCH = struct.Struct(">qIQ")
 BEARING_DTYPE = np.dtype(
     [
         ("t_us", ">i8"),
@@ -130,15 +148,25 @@ class Peeked:
     """Sender id (empty for a nonce envelope; that type has its own layout)."""
     n_bearings: int
     """Declared bearing count (0 for a nonce envelope)."""
+    version: int = VERSION
+    """Message format version (1, or 2 with a pre-authentication tag)."""
+
+    @property
+    def preauth(self) -> bool:
+        """True when the message carries a pre-authentication tag (version 2)."""
+        return self.version == VERSION_PREAUTH
 
 
-def max_bearings(sender_id: str, max_datagram: int = DEFAULT_DATAGRAM) -> int:
+def max_bearings(
+    sender_id: str, max_datagram: int = DEFAULT_DATAGRAM, version: int = VERSION
+) -> int:
     """How many bearings fit one message of at most ``max_datagram`` bytes.
 
     Raises:
         LinkError: not even one bearing fits.
     """
-    room = max_datagram - HEADER_BYTES - len(sender_id) - SIGNATURE_BYTES
+    tag = PREAUTH_BYTES if version == VERSION_PREAUTH else 0
+    room = max_datagram - HEADER_BYTES - len(sender_id) - SIGNATURE_BYTES - tag
     n = min(MAX_BEARINGS, room // BEARING_BYTES)
     if n < 1:
         raise LinkError(f"a datagram of {max_datagram} bytes cannot hold one bearing")
@@ -159,13 +187,16 @@ def check_sender_id(sender_id: str) -> bytes:
     return raw
 
 
-def encode_body(msg: SafetyMessage) -> bytes:
-    """Every byte of ``msg`` that the signature covers (the datagram minus the signature).
+def encode_body(msg: SafetyMessage, version: int = VERSION) -> bytes:
+    """Every byte of ``msg`` that the signature covers (the datagram minus the signature
+    and, in version 2, the tag).
 
     Raises:
         LinkError: a field is out of range (sender id, bearing count, non-finite
             or out-of-range values, sequence or epoch overflow).
     """
+    if version not in VERSIONS:
+        raise LinkError(f"message version {version} is not one of {VERSIONS}")
     sender = check_sender_id(msg.sender_id)
     b = msg.bearings
     n = len(b)
@@ -193,9 +224,48 @@ def encode_body(msg: SafetyMessage) -> bytes:
     problem = _bad_rows(rows)
     if problem is not None:
         raise LinkError(f"bad bearing: {problem}")
-    head = _PREFIX.pack(MAGIC, VERSION, TYPE_SAFETY, 0, len(sender)) + sender
+    head = pack_prefix(version, TYPE_SAFETY, sender)
     fixed = _FIXED.pack(msg.t_gen_us, msg.seq, msg.epoch, *pose, n)
     return head + fixed + rows.astype(BEARING_DTYPE).tobytes()
+
+
+def pack_prefix(version: int, kind: int, sender: bytes) -> bytes:
+    """The common 6-byte header and the sender id: magic, version, type, flags 0, L, id.
+
+    Every signed message type (safety, cue, advisory) starts with it.
+    """
+    return _PREFIX.pack(MAGIC, version, kind, 0, len(sender)) + sender
+
+
+def peek_prefix(datagram: bytes, max_datagram: int = MAX_DATAGRAM) -> tuple[int, int, str]:
+    """Cheap checks of the common header of a signed message: size, magic, version,
+    flags, sender id. Returns (version, type, sender id); the type-specific length
+    and fields are the caller's to check.
+
+    Raises:
+        MessageFormatError: with ``reason`` naming the failed check.
+    """
+    size = len(datagram)
+    if size > max_datagram:
+        raise MessageFormatError("oversized", f"{size} bytes > {max_datagram}")
+    if size < _PREFIX.size:
+        raise MessageFormatError("truncated", f"{size} bytes, header needs {_PREFIX.size}")
+    magic, version, kind, flags, sender_len = _PREFIX.unpack_from(datagram)
+    if magic != MAGIC:
+        raise MessageFormatError("bad_magic", f"starts with {bytes(datagram[:2])!r}")
+    if version not in VERSIONS:
+        raise MessageFormatError(
+            "bad_version", f"version {version}, this reader speaks {', '.join(map(str, VERSIONS))}"
+        )
+    if flags != 0:
+        raise MessageFormatError("malformed", f"reserved flags {flags:#04x} set")
+    end = _PREFIX.size + sender_len
+    if size < end:
+        raise MessageFormatError("truncated", f"{size} bytes, sender id needs {end}")
+    sender = bytes(datagram[_PREFIX.size : end])
+    if not _SENDER_RE.fullmatch(sender):
+        raise MessageFormatError("malformed", f"sender id {sender!r} is not [A-Za-z0-9._-]{{1,32}}")
+    return version, kind, sender.decode("ascii")
 
 
 def _bad_rows(rows: np.ndarray) -> str | None:
@@ -242,8 +312,12 @@ def peek(datagram: bytes, max_datagram: int = MAX_DATAGRAM) -> Peeked:
     magic, version, kind, flags, sender_len = _PREFIX.unpack_from(datagram)
     if magic != MAGIC:
         raise MessageFormatError("bad_magic", f"starts with {bytes(datagram[:2])!r}")
-    if version != VERSION:
-        raise MessageFormatError("bad_version", f"version {version}, this reader speaks {VERSION}")
+    if kind == TYPE_NONCE and version == VERSION:
+        return Peeked(TYPE_NONCE, "", 0)
+    if version not in VERSIONS:
+        raise MessageFormatError(
+            "bad_version", f"version {version}, this reader speaks {', '.join(map(str, VERSIONS))}"
+        )
     if kind == TYPE_NONCE:
         return Peeked(TYPE_NONCE, "", 0)
     if kind != TYPE_SAFETY:
@@ -260,11 +334,13 @@ def peek(datagram: bytes, max_datagram: int = MAX_DATAGRAM) -> Peeked:
     if n == 0:
         raise MessageFormatError("malformed", "no bearings")
     want = fixed_at + _FIXED.size + n * BEARING_BYTES + SIGNATURE_BYTES
+    if version == VERSION_PREAUTH:
+        want += PREAUTH_BYTES
     if size < want:
         raise MessageFormatError("truncated", f"{size} bytes, {n} bearings need {want}")
     if size > want:
         raise MessageFormatError("oversized", f"{size} bytes, {n} bearings need {want}")
-    return Peeked(TYPE_SAFETY, sender.decode("ascii"), n)
+    return Peeked(TYPE_SAFETY, sender.decode("ascii"), n, version)
 
 
 def decode(datagram: bytes, max_datagram: int = MAX_DATAGRAM) -> SafetyMessage:
@@ -319,5 +395,21 @@ def decode_peeked(datagram: bytes, head: Peeked) -> SafetyMessage:
 
 
 def signed_part(datagram: bytes) -> tuple[bytes, bytes]:
-    """Split a datagram into (signed bytes, 64-byte signature)."""
+    """Split a signed datagram into (signed bytes, 64-byte signature); a version-2
+    datagram's pre-authentication tag is left out of both."""
+    if len(datagram) > 2 and datagram[2] == VERSION_PREAUTH:
+        end = len(datagram) - PREAUTH_BYTES
+        return datagram[: end - SIGNATURE_BYTES], datagram[end - SIGNATURE_BYTES : end]
     return datagram[:-SIGNATURE_BYTES], datagram[-SIGNATURE_BYTES:]
+
+
+def preauth_part(datagram: bytes) -> tuple[bytes, bytes]:
+    """Split a version-2 datagram into (tagged bytes, 8-byte pre-authentication tag)."""
+    return datagram[:-PREAUTH_BYTES], datagram[-PREAUTH_BYTES:]
+
+
+def header_epoch(datagram: bytes, head: Peeked) -> tuple[int, int, int]:
+    """(generation time µs, sequence number, epoch) of a peeked safety message, read
+    without checking anything else: for cheap decisions before the signature."""
+    t_gen_us, seq, epoch = _GEN_SEQ_EPOCH.unpack_from(datagram, _PREFIX.size + len(head.sender_id))
+    return int(t_gen_us), int(seq), int(epoch)

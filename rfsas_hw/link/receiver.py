@@ -19,14 +19,21 @@ Checks run cheapest first and in this order; the first failure decides the
 reason a datagram is counted under:
 
 1. structure (no cryptography): ``oversized``, ``truncated``, ``bad_magic``,
-   ``bad_version``, ``bad_type``, ``malformed``; then ``unknown_sender``;
-2. signature with the sender's enrolled key: ``bad_signature``;
-3. relevance: ``stale`` (older than ``max_age_s``), ``future`` (generated more
+   ``bad_version``, ``bad_type``, ``malformed``; ``topic_mismatch`` (a broker
+   topic that names another sender than the message); then ``unknown_sender``;
+2. pre-authentication (version 2, one HMAC; :mod:`rfsas_hw.link.preauth`):
+   ``v1_refused`` (a version-1 message, untagged, at a receiver that requires
+   tags), ``wrong_epoch``, ``no_preauth_key`` (the receiver does not hold the
+   epoch's nonce), ``bad_preauth``; then ``replay`` (an exact copy of a message
+   already verified) and ``rate_limited`` (the sender's budget of signature
+   checks per second is spent);
+3. signature with the sender's enrolled key: ``bad_signature``;
+4. relevance: ``stale`` (older than ``max_age_s``), ``future`` (generated more
    than ``max_future_s`` ahead of the receiver's clock), ``too_far`` (sender
    farther than ``max_range_m`` from the receiver's position), ``wrong_epoch``
    (the nonce epoch is not one the receiver accepts now, or a bearing was
    captured outside it);
-4. replay: ``replay`` (sequence number already seen inside the window).
+5. replay: ``replay`` (sequence number already seen inside the window).
 
 :meth:`Receiver.receive` may also drop well-formed datagrams from enrolled
 senders without a signature check under overload (``overload``); see its docstring.
@@ -42,7 +49,7 @@ import logging
 import math
 import time
 from collections import Counter
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Protocol
 
@@ -52,14 +59,18 @@ from rfsas_hw.link.message import (
     MAX_DATAGRAM,
     TYPE_NONCE,
     MessageFormatError,
+    Peeked,
     SafetyMessage,
     decode_peeked,
+    header_epoch,
     peek,
     signed_part,
 )
+from rfsas_hw.link.preauth import NonceSource, PreauthKeys, RateLimiter, tag_ok
 from rfsas_hw.link.replay import ReplayGuard
 from rfsas_hw.link.signing import SenderKeys, verify
-from rfsas_hw.link.transport import Transport, open_transport
+from rfsas_hw.link.topics import topic_sender
+from rfsas_hw.link.transport import Transport, open_transports
 from rfsas_hw.privacy.epochs import DEFAULT_EPOCH_S, DEFAULT_GRACE_S, EpochSchedule
 from rfsas_hw.records import BearingBatch
 
@@ -75,7 +86,12 @@ REASONS = (
     "bad_version",
     "bad_type",
     "malformed",
+    "topic_mismatch",
     "unknown_sender",
+    "v1_refused",
+    "no_preauth_key",
+    "bad_preauth",
+    "rate_limited",
     "bad_signature",
     "stale",
     "future",
@@ -123,10 +139,19 @@ class ReceiverConfig:
     before it sheds the remaining signature checks, seconds."""
     latency: LatencyConfig = field(default_factory=LatencyConfig)
     """Latency watch thresholds."""
+    accept_v1: bool = True
+    """Accept version-1 messages (no pre-authentication tag). Turn off once every
+    sensor sends version 2: only then does a forged flood cost one HMAC per datagram."""
+    sender_rate_hz: float = 2000.0
+    """Signature checks allowed per sender per second, on average."""
+    sender_burst: float = 2000.0
+    """Signature checks a sender may use at once."""
 
     def __post_init__(self) -> None:
         if self.max_age_s <= 0 or self.max_future_s < 0 or self.max_range_m <= 0:
             raise ValueError("max_age_s and max_range_m must be positive, max_future_s >= 0")
+        if self.sender_rate_hz <= 0 or self.sender_burst < 1:
+            raise ValueError("sender_rate_hz must be positive and sender_burst at least 1")
 
     @property
     def schedule(self) -> EpochSchedule:
@@ -214,6 +239,9 @@ class Receiver:
             without it the ``too_far`` check is skipped.
         transport: where :meth:`receive` reads datagrams from.
         clock: UTC time in ns, for datagrams fed without a receive time.
+        preauth: pre-authentication keys for version-2 messages (default: derived
+            from ``nonces`` when it gives nonces, as a ``NonceStore`` does; without
+            keys, version-2 messages are counted as ``no_preauth_key``).
     """
 
     def __init__(
@@ -225,6 +253,7 @@ class Receiver:
         position: Callable[[], tuple[float, float] | None] | None = None,
         transport: Transport | None = None,
         clock: Callable[[], int] = time.time_ns,
+        preauth: PreauthKeys | None = None,
     ) -> None:
         self.trust = trust
         self.nonces = nonces
@@ -238,25 +267,41 @@ class Receiver:
         self._verify_s = 0.0
         window_us = int((self.config.max_age_s + self.config.max_future_s) * US_PER_S)
         self.replay = ReplayGuard(window_us, self.config.replay_capacity)
+        if preauth is None and isinstance(nonces, NonceSource):
+            preauth = PreauthKeys(nonces)
+        self.preauth = preauth
+        self.limiter = RateLimiter(
+            self.config.sender_rate_hz, self.config.sender_burst, time.monotonic
+        )
 
     @classmethod
     def listen(
         cls,
-        url: str,
+        url: str | Sequence[str],
         trust: SenderKeys,
         nonces: EnvelopeSink | None = None,
         config: ReceiverConfig | None = None,
         *,
         position: Callable[[], tuple[float, float] | None] | None = None,
         clock: Callable[[], int] = time.time_ns,
+        preauth: PreauthKeys | None = None,
     ) -> Receiver:
-        """A receiver reading from the transport ``url`` names (e.g. ``udp://127.0.0.1:47000``).
+        """A receiver reading from the transport(s) ``url`` names (e.g.
+        ``udp://127.0.0.1:47000``, ``mqtts://…``; several URLs: from all of them).
 
         Raises:
-            LinkError: the URL is bad or the socket cannot be bound.
+            LinkError: a URL is bad, a socket cannot be bound or a broker reached.
         """
-        transport = open_transport(url, "recv")
-        return cls(trust, nonces, config, position=position, transport=transport, clock=clock)
+        transport = open_transports([url] if isinstance(url, str) else list(url), "recv")
+        return cls(
+            trust,
+            nonces,
+            config,
+            position=position,
+            transport=transport,
+            clock=clock,
+            preauth=preauth,
+        )
 
     def feed(self, datagram: bytes, t_recv_ns: int | None = None) -> VerifiedMessage | None:
         """Check one datagram received at ``t_recv_ns`` (UTC ns; default: the clock).
@@ -266,10 +311,20 @@ class Receiver:
         """
         return self._feed(datagram, self.clock() if t_recv_ns is None else int(t_recv_ns))
 
-    def _feed(self, datagram: bytes, now_ns: int, shed: bool = False) -> VerifiedMessage | None:
+    def feed_from(
+        self, datagram: bytes, topic: str | None, t_recv_ns: int | None = None
+    ) -> VerifiedMessage | None:
+        """:meth:`feed` for a datagram that arrived on a broker ``topic``: a bearing
+        topic must name the message's sender (``topic_mismatch``). Never raises."""
+        now = self.clock() if t_recv_ns is None else int(t_recv_ns)
+        return self._feed(datagram, now, topic=topic)
+
+    def _feed(
+        self, datagram: bytes, now_ns: int, shed: bool = False, topic: str | None = None
+    ) -> VerifiedMessage | None:
         self.stats.datagrams += 1
         try:
-            verified = self._check(bytes(datagram), now_ns, shed)
+            verified = self._check(bytes(datagram), now_ns, shed, topic)
         except (_RejectError, MessageFormatError) as rej:
             self.stats.rejected[rej.reason] += 1
             if log.isEnabledFor(logging.DEBUG):
@@ -286,7 +341,9 @@ class Receiver:
             self.latency.observe(verified.sender_id, verified.age_s, now_ns, verified.message.seq)
         return verified
 
-    def _check(self, datagram: bytes, now_ns: int, shed: bool) -> VerifiedMessage | None:
+    def _check(
+        self, datagram: bytes, now_ns: int, shed: bool, topic: str | None = None
+    ) -> VerifiedMessage | None:
         cfg = self.config
         head = peek(datagram, cfg.max_datagram)  # MessageFormatError is a rejection too
         if head.kind == TYPE_NONCE:
@@ -294,9 +351,14 @@ class Receiver:
                 raise _RejectError("overload", "nonce envelope")
             self._envelope(datagram, now_ns)
             return None
+        if topic is not None:
+            named = topic_sender(topic)
+            if named is not None and named != head.sender_id:
+                raise _RejectError("topic_mismatch", f"{head.sender_id} on {topic}")
         key = self.trust.signing_key(head.sender_id)
         if key is None:
             raise _RejectError("unknown_sender", head.sender_id)
+        self._preauthenticate(datagram, head, now_ns)
         if shed:
             raise _RejectError("overload", head.sender_id)
         body, signature = signed_part(datagram)
@@ -318,6 +380,30 @@ class Receiver:
         if not self.replay.check_and_record(msg.sender_id, msg.seq, msg.t_gen_us, now_us):
             raise _RejectError("replay", f"{msg.sender_id} seq {msg.seq}")
         return VerifiedMessage(msg, now_ns, age_us / US_PER_S)
+
+    def _preauthenticate(self, datagram: bytes, head: Peeked, now_ns: int) -> None:
+        """The cheap checks before the signature: pre-authentication tag, exact
+        copies of verified messages, the sender's budget of signature checks."""
+        t_gen_us, seq, epoch = header_epoch(datagram, head)
+        if head.preauth:
+            if self.config.check_epoch and not self.schedule.accepts(epoch, now_ns):
+                raise _RejectError("wrong_epoch", f"{head.sender_id} epoch {epoch}")
+            key = None if self.preauth is None else self.preauth.key_for(head.sender_id, epoch)
+            if key is None:
+                raise _RejectError("no_preauth_key", f"{head.sender_id} epoch {epoch}")
+            if not tag_ok(key, datagram):
+                raise _RejectError("bad_preauth", head.sender_id)
+        elif not self.config.accept_v1:
+            raise _RejectError(
+                "v1_refused",
+                f"{head.sender_id}: version 1 has no pre-authentication tag; "
+                "this receiver requires version 2",
+            )
+        fresh = now_ns // NS_PER_US - t_gen_us <= self.config.max_age_s * US_PER_S
+        if fresh and self.replay.seen(head.sender_id, seq, t_gen_us):
+            raise _RejectError("replay", f"{head.sender_id} seq {seq} (copy)")
+        if not self.limiter.allow(head.sender_id):
+            raise _RejectError("rate_limited", head.sender_id)
 
     def _check_range(self, msg: SafetyMessage) -> None:
         if self.position is None:
@@ -366,23 +452,23 @@ class Receiver:
         """
         if self.transport is None:
             raise LinkError("this receiver has no transport; use Receiver.listen(url, ...)")
-        queued: list[bytes] = []
-        datagram = self.transport.recv(timeout)
-        while datagram is not None:
-            queued.append(datagram)
+        queued: list[tuple[bytes, str | None]] = []
+        got = self.transport.recv_from(timeout)
+        while got is not None:
+            queued.append(got)
             if len(queued) >= max_datagrams:
                 break
-            datagram = self.transport.recv(0)
+            got = self.transport.recv_from(0)
         out: list[VerifiedMessage] = []
         overloaded = len(queued) > self.config.backlog
         if overloaded:
             queued.reverse()
         self._verify_s = 0.0
         shed = False
-        for i, item in enumerate(queued):
+        for i, (item, topic) in enumerate(queued):
             # the newest datagram is always checked in full, so every call makes progress
             shed = shed or (overloaded and i > 0 and self._verify_s > self.config.shed_after_s)
-            verified = self._feed(item, self.clock(), shed)
+            verified = self._feed(item, self.clock(), shed, topic)
             if verified is not None:
                 out.append(verified)
         if overloaded:

@@ -64,6 +64,14 @@ class ReplayGuard:
             win.floor_us = max(win.floor_us, evicted_us)
         return True
 
+    def seen(self, sender_id: str, seq: int, t_gen_us: int) -> bool:
+        """True when a message with this sequence number and generation time was
+        accepted and is still remembered (nothing is recorded). Only verified
+        messages are recorded, so a receiver may drop such a copy before checking
+        its signature: it is either a replay or a forgery."""
+        win = self._senders.get(sender_id)
+        return win is not None and win.seen.get(seq) == t_gen_us
+
     @staticmethod
     def _prune(win: _SenderWindow) -> None:
         heap = win.heap

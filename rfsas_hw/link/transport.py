@@ -22,7 +22,9 @@ from __future__ import annotations
 import ipaddress
 import select
 import socket
+import time
 from abc import ABC, abstractmethod
+from collections.abc import Sequence
 from dataclasses import dataclass
 from types import TracebackType
 from typing import Any, Literal, Self
@@ -121,6 +123,16 @@ class Transport(ABC):
     def close(self) -> None:
         """Release the socket; idempotent."""
 
+    def recv_from(self, timeout: float | None = None) -> tuple[bytes, str | None] | None:
+        """Next datagram and where it was published (a broker topic; None when the
+        carrier has no topics), or None after ``timeout`` seconds."""
+        datagram = self.recv(timeout)
+        return None if datagram is None else (datagram, None)
+
+    def fileno(self) -> int:
+        """A descriptor that is readable while datagrams wait (for ``select``)."""
+        raise LinkError(f"{type(self).__name__} cannot be waited on with select")
+
     def __enter__(self) -> Self:
         return self
 
@@ -218,11 +230,79 @@ class UdpTransport(Transport):
         except BlockingIOError:
             return None
 
+    def fileno(self) -> int:
+        """The socket's descriptor."""
+        return self._sock.fileno()
+
     def close(self) -> None:
         """Close the socket; idempotent."""
         if not self._closed:
             self._closed = True
             self._sock.close()
+
+
+class FanoutTransport(Transport):
+    """Several transports as one: ``send`` goes out on every one, ``recv`` takes from
+    whichever has something (a sensor on a broker *and* on local UDP; the receiver's
+    replay guard drops the second copy).
+
+    ``send`` fails only when every transport failed; single failures are counted
+    in :attr:`send_errors` per URL.
+
+    Args:
+        transports: URL → open transport; the fanout owns them.
+    """
+
+    def __init__(self, transports: dict[str, Transport]) -> None:
+        if not transports:
+            raise LinkError("a fanout needs at least one transport")
+        self.transports = dict(transports)
+        self.send_errors: dict[str, int] = dict.fromkeys(self.transports, 0)
+        self._order = list(self.transports.values())
+        self._next = 0
+
+    def send(self, datagram: bytes) -> None:
+        """Send on every transport.
+
+        Raises:
+            LinkError: every transport failed (the first error is chained).
+        """
+        errors: list[LinkError] = []
+        for url, transport in self.transports.items():
+            try:
+                transport.send(datagram)
+            except LinkError as err:
+                self.send_errors[url] += 1
+                errors.append(err)
+        if len(errors) == len(self.transports):
+            raise LinkError(f"every transport failed: {errors[0]}") from errors[0]
+
+    def recv_from(self, timeout: float | None = None) -> tuple[bytes, str | None] | None:
+        """Next datagram from any transport (taken in turn), or None after ``timeout`` s."""
+        deadline = None if timeout is None else time.monotonic() + timeout
+        while True:
+            for _ in range(len(self._order)):
+                transport = self._order[self._next]
+                self._next = (self._next + 1) % len(self._order)
+                got = transport.recv_from(0)
+                if got is not None:
+                    return got
+            left = None if deadline is None else deadline - time.monotonic()
+            if left is not None and left <= 0:
+                return None
+            ready, _, _ = select.select([t.fileno() for t in self._order], [], [], left)
+            if not ready:
+                return None
+
+    def recv(self, timeout: float | None = None) -> bytes | None:
+        """Next datagram from any transport, or None after ``timeout`` seconds."""
+        got = self.recv_from(timeout)
+        return None if got is None else got[0]
+
+    def close(self) -> None:
+        """Close every transport; idempotent."""
+        for transport in self._order:
+            transport.close()
 
 
 def _resolve(endpoint: UdpEndpoint) -> tuple[int, tuple[Any, ...]]:
@@ -245,10 +325,38 @@ def _resolve(endpoint: UdpEndpoint) -> tuple[int, tuple[Any, ...]]:
     return int(family), tuple(sockaddr)
 
 
-def open_transport(url: str, mode: Literal["send", "recv"]) -> UdpTransport:
-    """Open the transport a URL names, for sending or receiving.
+def open_transport(url: str, mode: Literal["send", "recv"]) -> Transport:
+    """Open the transport a URL names, for sending or receiving: ``udp://`` here,
+    ``mqtt://`` and ``mqtts://`` in :mod:`rfsas_hw.link.mqtt` (the ``mqtt`` extra).
 
     Raises:
         LinkError: bad URL or socket failure.
+        MissingDependencyError: an MQTT URL without paho-mqtt installed.
     """
+    if url.startswith(("mqtt://", "mqtts://")):
+        from rfsas_hw.link.mqtt import open_mqtt
+
+        return open_mqtt(url, mode)
     return UdpTransport(parse_url(url), mode)
+
+
+def open_transports(urls: Sequence[str], mode: Literal["send", "recv"]) -> Transport:
+    """One transport for one URL, a :class:`FanoutTransport` over several.
+
+    Raises:
+        LinkError: no URL, a bad URL or socket failure (those already open are closed).
+        MissingDependencyError: an MQTT URL without paho-mqtt installed.
+    """
+    if not urls:
+        raise LinkError("no transport URL given")
+    if len(urls) == 1:
+        return open_transport(urls[0], mode)
+    opened: dict[str, Transport] = {}
+    try:
+        for url in dict.fromkeys(urls):
+            opened[url] = open_transport(url, mode)
+    except Exception:
+        for transport in opened.values():
+            transport.close()
+        raise
+    return FanoutTransport(opened)

@@ -177,7 +177,7 @@ def test_padding_and_oversize_are_refused() -> None:
     ("offset", "value", "reason"),
     [
         (0, 0x51, "bad_magic"),
-        (2, 2, "bad_version"),
+        (2, 3, "bad_version"),  # 1 and 2 (with a pre-authentication tag) exist
         (3, 9, "bad_type"),
         (4, 1, "malformed"),  # reserved flags
         (6, ord("!"), "malformed"),  # sender id character

@@ -154,7 +154,7 @@ def test_epoch_outside_the_grace_window_is_rejected(signer: Signer, trust: Trust
         (b"GET / HTTP/1.1\r\n\r\n", "bad_magic"),
         (bytes(1473), "oversized"),
         (b"RF\x01\x01" + bytes(2000), "oversized"),
-        (b"RF\x02\x01\x00\x05rsu-1" + bytes(100), "bad_version"),
+        (b"RF\x03\x01\x00\x05rsu-1" + bytes(100), "bad_version"),
         (b"RF\x01\x02" + bytes(80), "nonce_unexpected"),
     ],
 )

@@ -20,6 +20,7 @@ _LAZY: dict[str, str] = {
     "virtual": "rfsas_hw.sources.virtual:VirtualSource",
     "agrelo": "rfsas_hw.sources.agrelo:AgreloSource",
     "ublox": "rfsas_hw.sources.ublox:UbloxSource",
+    "kraken": "rfsas_hw.sources.kraken:KrakenSource",
     "csi": "rfsas_hw.sources.csi:CsiSource",
 }
 _LOADED: dict[str, type[Source[Any]]] = {}

@@ -27,6 +27,7 @@ from rfsas_hw.df.calibration import (
     CalibrationTable,
 )
 from rfsas_hw.df.monopulse import Mode
+from rfsas_hw.df.phasecal import phase_from_mapping, phase_to_mapping
 from rfsas_hw.errors import CalibrationError, ConfigError
 
 
@@ -60,6 +61,7 @@ class _FileDoc:
     created: str = ""
     antenna: dict[str, Any] = field(default_factory=dict)
     receiver: _ReceiverDoc = field(default_factory=_ReceiverDoc)
+    phase: Any = None
 
 
 def _check_table(doc: _TableDoc, where: str) -> CalibrationTable:
@@ -132,6 +134,7 @@ def calibration_from_mapping(data: Any, where: str = "calibration") -> Calibrati
     except ConfigError as err:
         raise CalibrationError(str(err)) from err
     tables = tuple(_check_table(t, f"{where}: tables[{i}]") for i, t in enumerate(doc.tables))
+    phase = None if doc.phase is None else phase_from_mapping(doc.phase, f"{where}: phase")
     try:
         return Calibration(
             mode=doc.mode,
@@ -141,6 +144,7 @@ def calibration_from_mapping(data: Any, where: str = "calibration") -> Calibrati
             saturation_dbm=doc.receiver.saturation_dbm,
             antenna=doc.antenna,
             created=doc.created,
+            phase=phase,
         )
     except CalibrationError as err:
         raise CalibrationError(f"{where}: tables: {err}") from err
@@ -215,6 +219,7 @@ def calibration_to_mapping(cal: Calibration) -> dict[str, Any]:
             "saturation_dbm": cal.saturation_dbm,
         },
         "tables": tables,
+        **({} if cal.phase is None else {"phase": phase_to_mapping(cal.phase)}),
     }
 
 

@@ -22,6 +22,7 @@ import numpy.typing as npt
 from scipy.interpolate import make_smoothing_spline
 
 from rfsas_hw.df.monopulse import Mode, balance_k_d, ratio, ratio_gradient
+from rfsas_hw.df.phasecal import PhaseCalibration
 from rfsas_hw.errors import CalibrationError
 from rfsas_hw.rf.noise import THERMAL_K_DB, quantisation_variance_db2
 from rfsas_hw.rf.synth import TurntableSamples
@@ -129,6 +130,8 @@ class Calibration:
     """Free description of the antenna pair and board (model, squint, beamwidth…)."""
     created: str = ""
     """When the calibration was made, ISO 8601 UTC."""
+    phase: PhaseCalibration | None = None
+    """Interferometer phase offsets of the antenna pairs (CSI receivers), or None."""
 
     def __post_init__(self) -> None:
         seen: set[int | None] = set()

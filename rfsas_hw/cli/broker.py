@@ -1,0 +1,63 @@
+"""``rfsas broker config``: certificates, mosquitto.conf and ACL from the key store."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+
+from rfsas_hw.fleet.broker import DEFAULT_PORT, write_broker_config
+
+
+@click.group()
+def broker() -> None:
+    """The MQTT broker of a city-scale deployment (see docs/fleet.md)."""
+
+
+@broker.command("config")
+@click.option(
+    "--keys",
+    "keys_dir",
+    type=click.Path(file_okay=False, path_type=Path),
+    required=True,
+    help="Key directory whose trust/ enrols everyone (usually the nonce authority's).",
+)
+@click.option(
+    "--out",
+    type=click.Path(file_okay=False, path_type=Path),
+    required=True,
+    help="Output directory (the CA and certificates already in it are kept).",
+)
+@click.option("--host", default="localhost", show_default=True, help="Broker address.")
+@click.option("--port", type=int, default=DEFAULT_PORT, show_default=True, help="TLS port.")
+@click.option(
+    "--vehicle", "vehicles", multiple=True, metavar="ID", help="Admit a vehicle (repeatable)."
+)
+@click.option(
+    "--run-as",
+    default="mosquitto",
+    show_default=True,
+    help="User mosquitto drops to when started as root (it must read the broker files).",
+)
+@click.option("--days", type=click.IntRange(1, 3650), default=365, show_default=True)
+def config(
+    keys_dir: Path,
+    out: Path,
+    host: str,
+    port: int,
+    vehicles: tuple[str, ...],
+    run_as: str,
+    days: int,
+) -> None:
+    """Write a CA, one client certificate per identity (named by its rfsas id), the
+    broker's certificate, a mosquitto.conf with mutual TLS, use_identity_as_username
+    and set_tcp_nodelay, and an ACL that lets each sensor write only its own
+    bearing topics and read only its own nonce topic."""
+    files = write_broker_config(
+        keys_dir, out, host=host, port=port, vehicles=vehicles, run_as=run_as, days=days
+    )
+    for ident in sorted(files.identities, key=lambda i: (i.role, i.id)):
+        state = "new certificate" if ident.id in files.issued else "kept"
+        click.echo(f"{ident.role:9} {ident.id:32} {state}")
+    click.echo(f"wrote {files.conf} and {files.acl}; start with: mosquitto -c {files.conf}")
+    click.echo(f"keep {files.root / 'ca' / 'ca.key'} offline: it admits new clients")

@@ -52,6 +52,7 @@ from rfsas_hw.errors import BoardProtocolError, ConfigError, SourceError
 from rfsas_hw.records import ObservationBatch
 from rfsas_hw.rf.channels import channel_to_freq_mhz
 from rfsas_hw.sources.base import BatchFilter, ErrorPolicy, Source
+from rfsas_hw.sources.schedule import CueScheduler, SchedulerConfig
 
 log = logging.getLogger(__name__)
 
@@ -111,6 +112,9 @@ class SerialSource(Source[ObservationBatch]):
         silence_s: with no byte from the board for this long, repeat the
             handshake (and reconnect if that fails), seconds.
         port_factory: opens the port (default :func:`serial.serial_for_url`).
+        cues: obey cues on the scan plan (:attr:`scheduler`): the host drives the
+            board's scan-plan command, a one-channel plan for a cue dwell, then
+            the plan again from the channel it left.
         errors: ``skip`` counts bad frames; ``raise`` raises the first one.
         filter: optional keep-mask function per batch.
 
@@ -138,6 +142,7 @@ class SerialSource(Source[ObservationBatch]):
         batch_s: float = 0.02,
         silence_s: float = 5.0,
         port_factory: PortFactory | None = None,
+        cues: SchedulerConfig | None = None,
         errors: ErrorPolicy = "skip",
         filter: BatchFilter | None = None,
     ) -> None:
@@ -161,6 +166,13 @@ class SerialSource(Source[ObservationBatch]):
         if not 0 < dwell_ms <= 0xFFFF:
             raise ConfigError(f"dwell_ms {dwell_ms} outside 1..65535")
         self.dwell_ms = dwell_ms
+        if cues is not None and not channels:
+            raise ConfigError("obeying cues needs a scan plan: give channels")
+        self.scheduler = (
+            CueScheduler(tuple(channels or ()), dwell_ms / 1e3, cues) if cues is not None else None
+        )
+        self._sched_t0 = time.monotonic()
+        self._commanded: int | None = None
         self.start_streaming = start
         self.reconnect = reconnect
         self.handshake_timeout_s = handshake_timeout_s
@@ -236,6 +248,7 @@ class SerialSource(Source[ObservationBatch]):
             self._request(Start(), Ack)
         self._next_sync = time.monotonic() + self.time_sync_s
         self._heard_at = time.monotonic()
+        self._commanded = None
         self._configured = True
         self._restarted = False
 
@@ -332,6 +345,7 @@ class SerialSource(Source[ObservationBatch]):
         try:
             while True:
                 self._pump()
+                self._follow_schedule()
                 if self._restarted:
                     self._restarted = False
                     self.stats.extra["board_restarts"] += 1
@@ -362,6 +376,32 @@ class SerialSource(Source[ObservationBatch]):
             self._lost(err)
             return self._flush()
         return self._flush()
+
+    def now_s(self) -> float:
+        """The scheduler's clock: seconds since the source was opened."""
+        return time.monotonic() - self._sched_t0
+
+    def _follow_schedule(self) -> None:
+        """Command the board when the scheduler starts or ends a cue dwell."""
+        sched = self.scheduler
+        if sched is None or self._port is None or not self._configured:
+            return
+        sched.channel_at(self.now_s())
+        cue = sched.cued
+        want = cue.channel if cue is not None else None
+        if want == self._commanded:
+            return
+        if cue is not None:
+            freqs: tuple[int, ...] = (channel_to_freq_mhz(cue.channel),)
+        else:
+            # the plan again, starting from the channel the scheduler resumes on
+            here = sched.channels.index(sched.channel_at(self.now_s()))
+            order = sched.channels[here:] + sched.channels[:here]
+            freqs = tuple(channel_to_freq_mhz(c) for c in order)
+        # not waited for: the ACK (or a NAK, counted) arrives with the next reads
+        self._write(SetScanPlan(self.dwell_ms, freqs))
+        self._commanded = want
+        self.stats.extra.update(sched.stats.as_dict())
 
     def _flush(self) -> ObservationBatch | None:
         self._publish_counters()

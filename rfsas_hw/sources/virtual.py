@@ -19,10 +19,12 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 
 from rfsas_hw.errors import ConfigError
 from rfsas_hw.records import ObservationBatch, Pose
 from rfsas_hw.sources.base import Source
+from rfsas_hw.sources.schedule import CueScheduler, SchedulerConfig
 from rfsas_hw.twin.scenario import Detail, Scenario, load_scenario
 from rfsas_hw.twin.world import World
 
@@ -39,6 +41,9 @@ class VirtualSource(Source[ObservationBatch]):
         world: an already built world of the same scenario (shares its cache).
         clock: monotonic seconds, for ``realtime`` (injectable for tests).
         sleep: how to wait, for ``realtime`` (injectable for tests).
+        cues: obey cues on the sensor's scan plan (:attr:`scheduler`, on the
+            scenario clock, :meth:`now_s`): the twin hears every channel and the
+            source keeps only frames on the channel the scheduler was on.
 
     Raises:
         ConfigError: bad scenario, unknown sensor, or no sensor named while
@@ -58,6 +63,7 @@ class VirtualSource(Source[ObservationBatch]):
         world: World | None = None,
         clock: Callable[[], float] = time.monotonic,
         sleep: Callable[[float], None] = time.sleep,
+        cues: SchedulerConfig | None = None,
         **options: Any,
     ) -> None:
         # everything that can fail runs before the base class marks the source open
@@ -73,6 +79,17 @@ class VirtualSource(Source[ObservationBatch]):
         self.sensor = sc.sensor(sensor_id)
         if batch_s <= 0:
             raise ConfigError("virtual source: batch_s must be positive")
+        self.scheduler: CueScheduler | None = None
+        if cues is not None:
+            scan = self.sensor.scan
+            self.scheduler = CueScheduler(
+                scan.channels,
+                scan.dwell_ms / 1e3,
+                cues,
+                start_s=scan.offset_ms / 1e3 - scan.dwell_ms / 1e3 * len(scan.channels),
+            )
+            # the schedule is not known ahead: compute every channel, keep what was tuned
+            world = World(sc, detail, listening={self.sensor.id: _every_channel})
         world = world if world is not None else World(sc, detail)
         super().__init__(**options)
         self.world = world
@@ -102,6 +119,10 @@ class VirtualSource(Source[ObservationBatch]):
 
     def __repr__(self) -> str:
         return f"VirtualSource({self.world.scenario.source!r}, {self.sensor.id!r})"
+
+    def now_s(self) -> float:
+        """The scheduler's clock: scenario seconds up to which batches were handed out."""
+        return (self._next_ns - self.world.t0_ns) / 1e9
 
     @property
     def scenario(self) -> Scenario:
@@ -140,4 +161,16 @@ class VirtualSource(Source[ObservationBatch]):
                 batch = ObservationBatch.concat([batch, tail])
                 self._cursor = len(self._obs)
             self._end()
+        if self.scheduler is not None:
+            until_s = (stop_ns - self.world.t0_ns) / 1e9
+            tl = self.scheduler.timeline(until_s)
+            t_s = (batch.t_ns - self.world.t0_ns) / 1e9
+            batch = batch.select(tl.channel_at(t_s) == batch.channel)
+            self.stats.extra.update(self.scheduler.stats.as_dict())
         return batch
+
+
+def _every_channel(
+    t_s: npt.NDArray[np.float64], channel: npt.NDArray[np.int16]
+) -> npt.NDArray[np.bool_]:
+    return np.ones(len(t_s), bool)

@@ -35,6 +35,7 @@ from rfsas_hw.records import ObservationBatch
 from rfsas_hw.sources.base import Source
 from rfsas_hw.sources.frames import LINKTYPE_RADIOTAP, FrameDecoder, FrameSpans, FrameTable
 from rfsas_hw.sources.pairing import PairingConfig, pair_tables
+from rfsas_hw.sources.schedule import CueScheduler, SchedulerConfig
 
 log = logging.getLogger(__name__)
 
@@ -183,13 +184,15 @@ class ScanPlan:
 
 
 class ChannelHopper:
-    """Moves an interface along a :class:`ScanPlan` with ``iw``.
+    """Moves an interface along a :class:`ScanPlan` with ``iw``, or as a cue scheduler says.
 
     Args:
         iface: interface name.
         plan: channels and dwell.
         run: runs a command (``subprocess.run`` by default; tests pass their own).
         clock: monotonic seconds.
+        scheduler: a :class:`~rfsas_hw.sources.schedule.CueScheduler` over the same
+            plan; its clock is seconds since the hopper started (:meth:`now_s`).
 
     Raises:
         SourceNotAvailableError: ``iw`` is not installed.
@@ -201,6 +204,7 @@ class ChannelHopper:
         plan: ScanPlan,
         run: Runner | None = None,
         clock: Callable[[], float] = time.monotonic,
+        scheduler: CueScheduler | None = None,
     ) -> None:
         if run is None:
             if shutil.which("iw") is None:
@@ -212,15 +216,23 @@ class ChannelHopper:
         self.plan = plan
         self.run = run
         self.clock = clock
+        self.scheduler = scheduler
         self.current: int | None = None
         self.hops = 0
         self.failures = 0
         self.last_error = ""
         self._start = clock()
 
+    def now_s(self) -> float:
+        """Seconds since the hopper started: the clock of its scheduler's cues."""
+        return self.clock() - self._start
+
     def tick(self) -> bool:
-        """Switch channel if the plan says so; True when a hop was made."""
-        want = self.plan.channel_at(self.clock() - self._start)
+        """Switch channel if the plan (or the scheduler) says so; True when a hop was made."""
+        if self.scheduler is not None:
+            want = self.scheduler.channel_at(self.now_s())
+        else:
+            want = self.plan.channel_at(self.now_s())
         if want == self.current:
             return False
         result = self.run(["iw", "dev", self.iface, "set", "channel", str(want)])
@@ -237,7 +249,9 @@ class ChannelHopper:
         return True
 
     def next_hop_in(self) -> float:
-        """Seconds until the plan moves on."""
+        """Seconds until the plan (or the scheduler) moves on."""
+        if self.scheduler is not None:
+            return min(self.scheduler.next_change_s(self.now_s()), self.plan.dwell_s)
         elapsed = self.clock() - self._start
         return self.plan.dwell_s - (elapsed % self.plan.dwell_s)
 
@@ -254,6 +268,8 @@ class WifiSource(Source[ObservationBatch]):
         pairing: options for :class:`~rfsas_hw.sources.pairing.PairingConfig` (two interfaces).
         hold_s: two interfaces: how long frames wait for their partner, seconds.
         run_command: how ``iw`` is run (tests).
+        cues: obey cues on the scan plan (:attr:`scheduler`; rules from
+            :class:`~rfsas_hw.sources.schedule.SchedulerConfig`).
         errors, filter: see :class:`~rfsas_hw.sources.base.Source`.
 
     Raises:
@@ -275,6 +291,7 @@ class WifiSource(Source[ObservationBatch]):
         pairing: dict[str, Any] | None = None,
         hold_s: float = 1.0,
         run_command: Runner | None = None,
+        cues: SchedulerConfig | None = None,
         **base: Any,
     ) -> None:
         names = [n for n in spec.split("+")]
@@ -283,7 +300,18 @@ class WifiSource(Source[ObservationBatch]):
         if channels and len(names) == 2:
             raise ConfigError("two paired interfaces must stay on one channel: drop --channels")
         plan = ScanPlan(tuple(channels), dwell_s) if channels else None
-        hopper = ChannelHopper(names[0], plan, run_command) if plan is not None else None
+        if cues is not None and plan is None:
+            raise ConfigError("obeying cues needs a scan plan: give --channels")
+        scheduler = (
+            CueScheduler(plan.channels, plan.dwell_s, cues)
+            if plan is not None and cues is not None
+            else None
+        )
+        hopper = (
+            ChannelHopper(names[0], plan, run_command, scheduler=scheduler)
+            if plan is not None
+            else None
+        )
         self.sockets: list[MonitorSocket] = []
         try:
             for name in names:
@@ -313,6 +341,15 @@ class WifiSource(Source[ObservationBatch]):
 
     def __repr__(self) -> str:
         return f"WifiSource({self.spec!r})"
+
+    @property
+    def scheduler(self) -> CueScheduler | None:
+        """The cue scheduler driving the hops (None unless built with ``cues``)."""
+        return self.hopper.scheduler if self.hopper is not None else None
+
+    def now_s(self) -> float:
+        """The scheduler's clock: seconds since hopping started."""
+        return self.hopper.now_s() if self.hopper is not None else 0.0
 
     # -- reading ---------------------------------------------------------------------
 
@@ -356,6 +393,8 @@ class WifiSource(Source[ObservationBatch]):
             self.stats.extra["hops"] = self.hopper.hops
         if self.hopper is not None and self.hopper.failures:
             self.stats.extra["hop_failures"] = self.hopper.failures
+        if self.scheduler is not None:
+            self.stats.extra.update(self.scheduler.stats.as_dict())
         ready = self._wait(timeout)
         tables: list[FrameTable | None] = [None] * len(self.sockets)
         for k in ready:

@@ -30,6 +30,11 @@ def _table(summaries: list[Summary]) -> Table:
             "", "", "cued",
             _s(s.cued_median_s), _s(s.cued_p90_s), str(s.cued_misses), f"{s.speedup:.1f}×",
         )  # fmt: skip
+    table.caption = "; ".join(
+        f"{s.channels} ch: {s.fused}/{s.trials} first vehicle bearings fused with the cue's "
+        f"bearing by keyed hash, median fix error {s.fused_median_error_m:.1f} m"
+        for s in summaries
+    )
     return table
 
 
@@ -77,6 +82,8 @@ def cueing(seeds: int, first_seed: int, plans: str, as_json: bool) -> None:
                     "misses": s.cued_misses,
                 },
                 "median_ratio": s.speedup,
+                "fused": s.fused,
+                "fused_median_error_m": s.fused_median_error_m,
             }
             for s in summaries
         ]

@@ -25,6 +25,8 @@ from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
+import numpy as np
+
 from rfsas_hw.errors import LinkError
 from rfsas_hw.link.cue import Cue, CueKind, decode_cue, peek_cue
 from rfsas_hw.link.message import SIGNATURE_BYTES, MessageFormatError
@@ -32,6 +34,7 @@ from rfsas_hw.link.replay import ReplayGuard
 from rfsas_hw.link.signing import SenderKeys, verify
 from rfsas_hw.link.transport import Transport
 from rfsas_hw.privacy.epochs import DEFAULT_EPOCH_S, DEFAULT_GRACE_S, EpochSchedule
+from rfsas_hw.records import BearingBatch, Pose
 from rfsas_hw.sources.schedule import ChannelCue
 
 log = logging.getLogger(__name__)
@@ -214,3 +217,25 @@ def to_channel_cue(cue: Cue, now_utc_ns: int, now_s: float) -> ChannelCue:
     """A verified cue on a scheduler's clock: ``now_s`` there is ``now_utc_ns`` in UTC."""
     left_s = (cue.valid_until_us * 1000 - now_utc_ns) / 1e9
     return ChannelCue(cue.emitter, cue.channel, cue.risk, now_s + left_s)
+
+
+def cue_bearing(cue: Cue) -> tuple[BearingBatch, Pose]:
+    """The cueing unit's bearing carried by a bearing cue, for the association: one row
+    under the unit's sensor id, with the keyed emitter id the vehicle's own bearing is
+    matched by, and the unit's position (the heading is not sent: 0).
+
+    Raises:
+        LinkError: a fix cue (it carries a position, not a bearing).
+    """
+    if cue.kind is not CueKind.BEARING:
+        raise LinkError(f"cue {cue.seq} from {cue.sender_id} carries a fix, not a bearing")
+    batch = BearingBatch(
+        sensor_id=cue.sender_id,
+        t_ns=np.array([cue.t_obs_us * 1000], np.int64),
+        azimuth_deg=np.array([cue.a]),
+        sigma_deg=np.array([cue.b]),
+        snr_db=np.array([np.nan]),
+        channel=np.array([cue.channel], np.int16),
+        emitter=np.array([cue.emitter], np.uint64),
+    )
+    return batch, Pose(cue.x_m, cue.y_m, 0.0)

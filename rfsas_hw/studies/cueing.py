@@ -32,13 +32,20 @@ import numpy as np
 import numpy.typing as npt
 from cryptography.hazmat.primitives.asymmetric import ec
 
+from rfsas_hw.backend.association import AssociationConfig, Associator
+from rfsas_hw.backend.triangulation import triangulate
 from rfsas_hw.df import Calibration
 from rfsas_hw.link.cue import Cue, CueKind, Phy, band_of, sign_cue
-from rfsas_hw.link.cue_receiver import CueReceiver, CueReceiverConfig, to_channel_cue
+from rfsas_hw.link.cue_receiver import (
+    CueReceiver,
+    CueReceiverConfig,
+    cue_bearing,
+    to_channel_cue,
+)
 from rfsas_hw.link.signing import Signer, TrustedKeys
 from rfsas_hw.pipeline import SensorPipeline
 from rfsas_hw.privacy.hashing import MacHasher
-from rfsas_hw.records import BearingBatch, mac_to_int
+from rfsas_hw.records import BearingBatch, Pose, mac_to_int
 from rfsas_hw.sources.schedule import CueScheduler, SchedulerConfig
 from rfsas_hw.sources.virtual import VirtualSource
 from rfsas_hw.studies.locate import default_hasher
@@ -210,6 +217,9 @@ class Trial:
     """The same with cueing, seconds (inf: a miss)."""
     cues: dict[str, float]
     """Cue receiver and scheduler counters of the cued run."""
+    fused_error_m: float = math.nan
+    """Cued run: error of the fix from the vehicle's first bearing and the roadside
+    bearing of the latest cue, associated by keyed hash, metres (NaN: no fix)."""
 
 
 def run_trial(
@@ -239,26 +249,58 @@ def run_trial(
 
     scheduler = CueScheduler(plan, config.dwell_s, config.scheduler, start_s=offset_s - period)
     rx = CueReceiver(trust, CueReceiverConfig())
+    accepted: list[tuple[int, Cue]] = []
     for cue, arrive_ns in _cues(rsu, sc, signer, config, hasher):
         now_s = (arrive_ns - t0) / NS
         got = rx.feed(cue, arrive_ns)
         if got is not None:
+            accepted.append((arrive_ns, got))
             scheduler.offer(to_channel_cue(got, arrive_ns, now_s), now_s)
     timeline = scheduler.timeline(config.duration_s)
     cued_world = World(sc, listening={CAR: timeline.listens})
-    cued = _first_after(sensor_bearings(cued_world, CAR, cals[CAR], hasher), rsu, rsu_first_ns)
+    car = sensor_bearings(cued_world, CAR, cals[CAR], hasher)
+    t_car_ns = _first_after_ns(car, rsu, rsu_first_ns)
+    cued = math.inf if t_car_ns is None else (t_car_ns - rsu_first_ns) / NS
     counters: dict[str, float] = {**scheduler.stats.as_dict()}
     counters.update({f"rx.{k}": v for k, v in rx.stats.as_dict().items()})
-    return Trial(seed, phone_channel, (rsu_first_ns - t0) / NS, uncued, cued, counters)
+    trial = Trial(seed, phone_channel, (rsu_first_ns - t0) / NS, uncued, cued, counters)
+    if t_car_ns is not None:
+        trial.fused_error_m = _fused_error(cued_world, car, accepted, t_car_ns)
+    return trial
+
+
+def _fused_error(world: World, car: BearingBatch, cues: list[tuple[int, Cue]], t_ns: int) -> float:
+    """Fix from the car's bearing at ``t_ns`` and the latest cue received by then, associated
+    by keyed hash as the backend does; its distance to the phone's true position, metres."""
+    before = [c for arrive, c in cues if arrive <= t_ns]
+    if not before:
+        return math.nan
+    cue = before[-1]
+    assoc = Associator(AssociationConfig(window_s=2.0))
+    batch, pose = cue_bearing(cue)
+    assoc.add(batch, pose)
+    row = np.flatnonzero(car.t_ns == t_ns)[:1]
+    t_s = (t_ns - world.t0_ns) / NS
+    xy, heading = world.sensor_pose(CAR, [t_s])
+    assoc.add(car.select(row), Pose(float(xy[0, 0]), float(xy[0, 1]), float(heading[0])))
+    groups = assoc.groups(t_ns)
+    if len(groups) != 1 or set(groups.sensors[0]) != {RSU, CAR}:
+        return math.nan
+    fix = triangulate(groups.stations_xy[0], groups.azimuth_deg[0], groups.sigma_deg[0])
+    truth = world.emitter_position(0, [t_s])[0]
+    return float(np.hypot(fix.position[0] - truth[0], fix.position[1] - truth[1]))
 
 
 def _first_after(car: BearingBatch, rsu: BearingBatch, rsu_first_ns: int) -> float:
     """Seconds from the RSU's first bearing to the car's first bearing of an emitter the
     RSU also has (matched by keyed hash only), at or after it; inf if none."""
+    t_ns = _first_after_ns(car, rsu, rsu_first_ns)
+    return math.inf if t_ns is None else (t_ns - rsu_first_ns) / NS
+
+
+def _first_after_ns(car: BearingBatch, rsu: BearingBatch, rsu_first_ns: int) -> int | None:
     ok = (car.t_ns >= rsu_first_ns) & np.isin(car.emitter, rsu.emitter)
-    if not ok.any():
-        return math.inf
-    return float(car.t_ns[ok].min() - rsu_first_ns) / NS
+    return int(car.t_ns[ok].min()) if ok.any() else None
 
 
 def _cues(
@@ -316,6 +358,10 @@ class Summary:
     cued_misses: int
     no_rsu_bearing: int
     """Seeds where the roadside unit never had a bearing (left out of the statistics)."""
+    fused: int = 0
+    """Cued trials whose first vehicle bearing was fused with the cue's bearing into a fix."""
+    fused_median_error_m: float = math.nan
+    """Median error of those fixes, metres."""
 
     @property
     def speedup(self) -> float:
@@ -328,6 +374,7 @@ def summarise(plan: str, n_channels: int, trials: Sequence[Trial]) -> Summary:
     valid = [t for t in trials if not math.isnan(t.rsu_first_s)]
     u = np.array([t.uncued_s for t in valid])
     c = np.array([t.cued_s for t in valid])
+    err = np.array([t.fused_error_m for t in valid])
 
     def q(x: Array, p: float) -> float:
         # no interpolation: a miss (inf) stays a miss instead of turning into NaN
@@ -344,6 +391,10 @@ def summarise(plan: str, n_channels: int, trials: Sequence[Trial]) -> Summary:
         cued_p90_s=q(c, 0.9),
         cued_misses=int(np.isinf(c).sum()),
         no_rsu_bearing=len(trials) - len(valid),
+        fused=int(np.isfinite(err).sum()),
+        fused_median_error_m=float(np.median(err[np.isfinite(err)]))
+        if np.isfinite(err).any()
+        else math.nan,
     )
 
 

@@ -19,6 +19,7 @@ from rfsas_hw.cli.sensoropts import (
     sensor_options,
 )
 from rfsas_hw.errors import ConfigError
+from rfsas_hw.privacy.hashing import DerivedNonces, MacHasher
 from rfsas_hw.runner import Runner
 from rfsas_hw.sources.registry import parse_spec, source_class
 
@@ -107,6 +108,16 @@ def live(
             epoch_s=epoch_s,
         )
     options: dict[str, Any] = {"errors": errors}
+    if pipeline is None and getattr(source_class(scheme), "hashes_ids", False):
+        # the unit names its transmitters (BLE tag addresses): the source hashes
+        # them with the deployment's epoch nonces, as the pipeline does for frames
+        if nonces is not None and nonce_secret is not None:
+            raise ConfigError("give --nonces or --nonce-secret, not both")
+        if nonces is not None:
+            inbox = nonce_inbox(nonces, keys_dir, schedule.epoch_s, schedule.grace_s, wait_s=0.0)
+            options["hasher"] = MacHasher(inbox, epoch_s)
+        elif nonce_secret is not None:
+            options["hasher"] = MacHasher(DerivedNonces.from_file(nonce_secret), epoch_s)
     if channels is not None:
         if scheme != "wifi":
             raise ConfigError("--channels needs a wifi: source (it hops the interface with iw)")

@@ -142,6 +142,8 @@ class KrakenSource(Source[BearingBatch]):
 
     scheme = "kraken"
     yields_bearings = True
+    hashes_ids = True
+    """Hashes transmitter ids itself: ``rfsas live`` hands it the deployment's hasher."""
 
     def __init__(
         self,

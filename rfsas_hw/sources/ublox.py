@@ -114,6 +114,8 @@ class UbloxSource(Source[BearingBatch]):
 
     scheme = "ublox"
     yields_bearings = True
+    hashes_ids = True
+    """Hashes transmitter ids itself: ``rfsas live`` hands it the deployment's hasher."""
 
     def __init__(
         self,

@@ -1,0 +1,166 @@
+"""``rfsas aoa``: emulate angle-of-arrival units (u-blox anchors, KrakenSDR) for tests and demos."""
+
+from __future__ import annotations
+
+import contextlib
+import shutil
+import signal
+import tempfile
+import threading
+from pathlib import Path
+
+import click
+
+from rfsas_hw.board.transport import PtyEndpoint, TcpEndpoint
+from rfsas_hw.errors import SourceError
+from rfsas_hw.sources.kraken_emulator import KrakenEmulator, KrakenServer, Vfo
+from rfsas_hw.sources.ublox_emulator import Tag, UbloxEmulator, UbloxServer
+
+DEFAULT_TAGS = ("CCF9578E0D8A,20,-55", "6C1DEBA5F60C,-35,-70")
+DEFAULT_VFOS = ("433.92,45", "446.00625,300")
+
+
+@click.group()
+def aoa() -> None:
+    """Angle-of-arrival units that report finished bearings (ublox:, kraken: sources)."""
+
+
+@aoa.group()
+def emulate() -> None:
+    """Run a software AoA unit; prints the URL a source reads it from."""
+
+
+def _stop_on_sigterm(event: threading.Event) -> None:
+    """A terminated emulator still closes its pty or port."""
+    signal.signal(signal.SIGTERM, lambda *_: event.set())
+
+
+@emulate.command("ublox")
+@click.option("--pty", "use_pty", is_flag=True, default=True, help="Serve on a pseudo-terminal.")
+@click.option("--tcp", type=int, default=None, help="Serve on this TCP port (0: any free port).")
+@click.option(
+    "--link",
+    type=click.Path(dir_okay=False, path_type=Path),
+    help="Keep a symlink to the pty here.",
+)
+@click.option(
+    "--tag",
+    "tags",
+    multiple=True,
+    help="MAC,AZIMUTH[,RSSI] of a tag in view (repeatable); azimuth −90…90.",
+)
+@click.option(
+    "--fields",
+    type=click.Choice(["9", "10", "12"]),
+    default="10",
+    show_default=True,
+    help="+UUDF field count of the emulated firmware.",
+)
+@click.option("--rate", type=float, default=10.0, show_default=True, help="Events per tag per s.")
+@click.option("--noise", type=float, default=2.0, show_default=True, help="Azimuth σ, degrees.")
+@click.option("--garbage", type=float, default=0.0, help="Probability of a damaged line.")
+@click.option("--binary", is_flag=True, help="Send binary output (a unit left in binary mode).")
+@click.option("--seed", type=int, default=0, show_default=True, help="Random seed.")
+@click.option("--duration", type=float, default=None, help="Stop after this many seconds.")
+def emulate_ublox(
+    use_pty: bool,
+    tcp: int | None,
+    link: Path | None,
+    tags: tuple[str, ...],
+    fields: str,
+    rate: float,
+    noise: float,
+    garbage: float,
+    binary: bool,
+    seed: int,
+    duration: float | None,
+) -> None:
+    """A u-blox AoA anchor printing +UUDF events.
+
+    \b
+    rfsas aoa emulate ublox --tag CCF9578E0D8A,20 --fields 12
+    rfsas live ublox:/tmp/rfsas-aoa-…/ttyUBLOX --out bearings.jsonl
+    """
+    emulator = UbloxEmulator(
+        [Tag.parse(t) for t in tags or DEFAULT_TAGS],
+        fields=int(fields),
+        noise_deg=noise,
+        garbage=garbage,
+        binary=binary,
+        seed=seed,
+    )
+    made_dir: Path | None = None
+    endpoint: PtyEndpoint | TcpEndpoint
+    if tcp is not None:
+        endpoint = TcpEndpoint(tcp)
+    else:
+        if link is None:
+            made_dir = Path(tempfile.mkdtemp(prefix="rfsas-aoa-"))
+            link = made_dir / "ttyUBLOX"
+        try:
+            endpoint = PtyEndpoint(link)
+        except OSError as err:
+            raise SourceError(f"cannot create a pty at {link}: {err}") from err
+    print(endpoint.path, flush=True)
+    click.echo(f"emulating a u-blox AoA anchor on {endpoint.path}; Ctrl-C stops", err=True)
+    server = UbloxServer(emulator, endpoint, rate_hz=rate)
+    _stop_on_sigterm(server.stop_event)
+    try:
+        server.run(duration)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        endpoint.close()
+        if made_dir is not None:
+            shutil.rmtree(made_dir, ignore_errors=True)
+    click.echo(
+        f"sent {emulator.events} events ({emulator.garbage_lines} damaged), "
+        f"{server.bytes_sent} bytes",
+        err=True,
+    )
+
+
+@emulate.command("kraken")
+@click.option("--tcp", "port", type=int, default=0, show_default=True, help="HTTP port (0: any).")
+@click.option(
+    "--vfo",
+    "vfos",
+    multiple=True,
+    help="FREQ_MHZ,BEARING[,CONFIDENCE] of a transmitter (repeatable); bearing 0…360.",
+)
+@click.option("--rate", type=float, default=5.0, show_default=True, help="Frames per second.")
+@click.option("--noise", type=float, default=2.0, show_default=True, help="Bearing σ, degrees.")
+@click.option("--torn", type=float, default=0.0, help="Probability a poll gets a torn page.")
+@click.option("--markup", is_flag=True, help="Serve an HTML page (the wrong output mode).")
+@click.option("--seed", type=int, default=0, show_default=True, help="Random seed.")
+@click.option("--duration", type=float, default=None, help="Stop after this many seconds.")
+def emulate_kraken(
+    port: int,
+    vfos: tuple[str, ...],
+    rate: float,
+    noise: float,
+    torn: float,
+    markup: bool,
+    seed: int,
+    duration: float | None,
+) -> None:
+    """A KrakenSDR serving DOA_value.html on 127.0.0.1.
+
+    \b
+    rfsas aoa emulate kraken --vfo 433.92,45 --torn 0.05
+    rfsas live kraken:http://127.0.0.1:PORT/DOA_value.html --out bearings.jsonl
+    """
+    emulator = KrakenEmulator(
+        [Vfo.parse(v) for v in vfos or DEFAULT_VFOS],
+        noise_deg=noise,
+        torn=torn,
+        markup=markup,
+        seed=seed,
+    )
+    server = KrakenServer(emulator, port, rate_hz=rate)
+    print(server.url, flush=True)
+    click.echo(f"emulating a KrakenSDR at {server.url}; Ctrl-C stops", err=True)
+    _stop_on_sigterm(server.stop_event)
+    with contextlib.suppress(KeyboardInterrupt):
+        server.run(duration)
+    click.echo(f"wrote {emulator.frames} frames ({emulator.torn_pages} torn polls)", err=True)

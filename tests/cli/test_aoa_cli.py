@@ -1,0 +1,111 @@
+"""``rfsas aoa emulate`` feeding ``rfsas live ublox:/kraken:`` as a user runs them."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from rfsas_hw.cli.main import main
+from rfsas_hw.privacy.epochs import DEFAULT_EPOCH_S
+from rfsas_hw.privacy.hashing import DerivedNonces, hash_mac, write_secret
+from rfsas_hw.sources.kraken_emulator import KrakenEmulator, KrakenServer, Vfo
+
+REPO = Path(__file__).resolve().parents[2]
+TAG = 0xCCF9578E0D8A
+
+
+def run(args: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, str, str]:
+    with pytest.raises(SystemExit) as exc:
+        main([*args])
+        raise SystemExit(0)
+    out = capsys.readouterr()
+    return int(exc.value.code or 0), out.out, out.err
+
+
+def _emulator(*args: str) -> tuple[subprocess.Popen[str], str]:
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "rfsas_hw.cli.main", "aoa", "emulate", *args, "--duration", "30"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.DEVNULL,
+        text=True,
+        cwd=REPO,
+    )
+    assert proc.stdout is not None
+    return proc, proc.stdout.readline().strip()
+
+
+def _stop(proc: subprocess.Popen[str]) -> None:
+    proc.terminate()
+    try:
+        proc.wait(timeout=10)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.wait()
+    if proc.stdout is not None:
+        proc.stdout.close()
+
+
+def test_live_ublox_hashes_tags_with_the_deployment_secret(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    secret, out = tmp_path / "nonce.secret", tmp_path / "b.jsonl"
+    write_secret(secret)
+    proc, path = _emulator("ublox", "--link", str(tmp_path / "tty"), "--tag", "CCF9578E0D8A,20")
+    try:
+        time.sleep(0.2)
+        code, _, err = run(
+            [
+                "live",
+                f"ublox:{path}#boresight=90",
+                "--nonce-secret",
+                str(secret),
+                "--duration",
+                "1.5",
+                "--out",
+                str(out),
+            ],
+            capsys,
+        )
+    finally:
+        _stop(proc)
+    assert code == 0, err
+    rows = [json.loads(line) for line in out.read_text().splitlines()]
+    assert len(rows) >= 5
+    nonces = DerivedNonces.from_file(secret)
+    epoch_ns = int(DEFAULT_EPOCH_S * 1e9)
+    for row in rows:
+        want = hash_mac(nonces.nonce_for(row["t_ns"] // epoch_ns), TAG)
+        assert int(row["emitter"], 16) == want
+        assert 100 <= row["azimuth_deg"] <= 120
+    text = out.read_text().lower()
+    assert "ccf9578e0d8a" not in text and str(TAG) not in text
+
+
+def test_live_kraken_from_the_emulator(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "k.jsonl"
+    emulator = KrakenEmulator([Vfo.parse("433.92,45")], torn=0.2)
+    server = KrakenServer(emulator, rate_hz=20.0).start()  # in-process: one start-up less
+    try:
+        code, text, err = run(
+            ["live", f"kraken:{server.url}#poll=0.05", "--duration", "1.5", "--out", str(out)],
+            capsys,
+        )
+    finally:
+        server.stop()
+    assert code == 0, err
+    rows = [json.loads(line) for line in out.read_text().splitlines()]
+    assert len(rows) >= 5
+    assert all(35 <= r["azimuth_deg"] <= 55 and r["sigma_deg"] == 5.0 for r in rows)
+    assert "polls" in text
+
+
+def test_bad_emulator_options_exit_2(capsys: pytest.CaptureFixture[str]) -> None:
+    code, _, err = run(["aoa", "emulate", "ublox", "--tag", "nonsense", "--duration", "0"], capsys)
+    assert code == 2 and "MAC,AZIMUTH" in err
+    code, _, err = run(["aoa", "emulate", "kraken", "--vfo", "1", "--duration", "0"], capsys)
+    assert code == 2 and "FREQ_MHZ,BEARING" in err

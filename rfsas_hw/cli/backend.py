@@ -6,6 +6,7 @@ import math
 import time
 from dataclasses import replace
 from pathlib import Path
+from typing import Any
 
 import click
 import numpy as np
@@ -25,6 +26,7 @@ from rfsas_hw.backend.service import (
 from rfsas_hw.backend.site import parse_origin
 from rfsas_hw.backend.vehicle import VehicleFeed, load_vehicle
 from rfsas_hw.cli.linkopts import join_urls, split_urls
+from rfsas_hw.cli.ros2opts import attach_scene, ros2_options
 from rfsas_hw.errors import ConfigError
 from rfsas_hw.link import Receiver, ReceiverConfig
 from rfsas_hw.link.keys import KeyStore
@@ -173,6 +175,7 @@ def render_table(service: BackendService, alarm: bool) -> Table:
     help="Send fixes and tracks as Cursor-on-Target events to a TAK server (needs an origin).",
 )
 @click.option("--no-table", is_flag=True, help="Do not draw the live table.")
+@ros2_options
 def backend(
     listen: str,
     keys_dir: Path,
@@ -191,6 +194,7 @@ def backend(
     web_token: str | None,
     cot: str | None,
     no_table: bool,
+    **ros2: Any,
 ) -> None:
     """Receive signed bearings, triangulate emitters and judge collision risk live.
 
@@ -242,7 +246,7 @@ def backend(
     try:
         if vehicle is not None and vehicle.startswith("udp://"):
             feed = VehicleFeed.listen(vehicle)
-        if out is not None:
+        if out is not None and out.suffix.lower() != ".mcap":
             sinks.append(JsonlSink(out, origin=config.site.origin, bearings=True))
         if cot is not None and config.site.origin is not None:
             from rfsas_hw.exports.tak import CotSender
@@ -257,6 +261,17 @@ def backend(
         raise
     service = BackendService(config, vehicle=state, sinks=sinks)
     service.link_stats = lambda: dict(receiver.stats.as_dict())
+    try:
+        ros2_out = attach_scene(service, out, ros2)
+    except Exception:
+        receiver.close()
+        if feed is not None:
+            feed.close()
+        service.close()
+        raise
+    for line in ros2_out.lines:
+        click.echo(line, err=True)
+    vehicle_feed = feed or ros2_out.vehicle_feed
     dashboard = None
     if web is not None:
         from rfsas_hw.web import start_dashboard
@@ -275,20 +290,26 @@ def backend(
     started = time.monotonic()
     try:
         if no_table:
-            service.run(receiver, duration_s=duration, vehicle_feed=feed)
+            service.run(receiver, duration_s=duration, vehicle_feed=vehicle_feed)
         else:
             with Live(render_table(service, False), console=console, auto_refresh=False) as live:
 
                 def redraw(_: list[Assessment]) -> None:
                     live.update(render_table(service, receiver.latency.alarm), refresh=True)
 
-                service.run(receiver, duration_s=duration, vehicle_feed=feed, on_step=redraw)
+                service.run(
+                    receiver,
+                    duration_s=duration,
+                    vehicle_feed=vehicle_feed,
+                    on_step=redraw,
+                )
             console.print()
     except KeyboardInterrupt:
         click.echo("stopped", err=True)
     finally:
         if dashboard is not None:
             dashboard.stop()
+        ros2_out.close()
         receiver.close()
         if feed is not None:
             feed.close()

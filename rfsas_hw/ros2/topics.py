@@ -73,6 +73,7 @@ MARKERS = Topic(
     "/rfsas/markers",
     "visualization_msgs/msg/MarkerArray",
     "sensors, bearing rays, 2-sigma fix ellipses, tracks, advisories and the ego",
+    depth=50,
 )
 EGO = Topic(
     "/rfsas/ego",

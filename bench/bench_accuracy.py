@@ -20,6 +20,9 @@ position error is compared with the triangulation CRB ``(GᵀWG)⁻¹`` built
 from each sensor's DF CRB (what an efficient DF would allow) and from its
 measured DF RMS (what the fix can do with the bearings it got).
 
+Interferometer: CSI from the same twin against its CRB, and the hybrid's
+choice of phase branch for a 2λ baseline (bench/accuracy_interferometer.py).
+
 Honest σ: with multipath and blockage on, the reading-noise σ against the
 σ with the environment floor that ``calibrate --check`` measured on the
 first half of the frames, both checked on the second half (goal: error/σ
@@ -31,6 +34,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from accuracy_interferometer import print_interferometer
 
 from rfsas_hw.angles import wrap_deg_180
 from rfsas_hw.backend import bearing_crb, triangulate_batch
@@ -309,6 +313,7 @@ def main() -> None:
     )
     print(f"(per-sensor DF: RMS {f['df_rms']:.3f}°, CRB {f['df_crb']:.3f}°)")
     print_honest_sigma()
+    print_interferometer()
 
 
 if __name__ == "__main__":

@@ -22,8 +22,10 @@ Per frame:
    (N terms).
 3. ``sin θ = (Δφ + 2πm)·λ/(2πD)``: for ``D ≤ λ/2`` one branch ``m`` fits;
    above, several do and the branch nearest a hint (the amplitude monopulse
-   angle — the hybrid) or, without one, nearest boresight is chosen; a
-   second branch within ``gate`` hint-σ flags ``AMBIGUOUS``.
+   angle — the hybrid) or, without one, nearest boresight is chosen. The
+   choice is kept when its probability under a Gaussian hint error (the
+   hint's σ) is at least ``min_branch_probability`` (0.999), else — and
+   always without a hint — the frame is flagged ``AMBIGUOUS``.
 4. σ: the method's formula with the pair's effective SNR
    ``N·2/(1/SNR_a + 1/SNR_b)`` (the Cramér–Rao bound of the phase
    difference when the common channel is unknown: var Δφ = 1/(N·SNR)),
@@ -194,7 +196,7 @@ def bearings(
     fov_deg: tuple[float, float] = (-60.0, 60.0),
     hint_deg: npt.ArrayLike | None = None,
     hint_sigma_deg: npt.ArrayLike | None = None,
-    gate: float = 3.0,
+    min_branch_probability: float = 0.999,
     form: PhaseForm = "textbook",
 ) -> InterferometerResult:
     """Angles and σ from pair phases (see the module text).
@@ -209,7 +211,8 @@ def bearings(
         fov_deg: field of view (lower, upper), degrees from boresight.
         hint_deg, hint_sigma_deg: an independent angle per frame (monopulse) and its σ;
             NaN where none. Used only to choose a branch.
-        gate: a second branch within ``gate``·hint σ of the hint flags ``AMBIGUOUS``.
+        min_branch_probability: when several branches fit, the chosen one must be at
+            least this probable under a Gaussian hint error (σ = hint σ), else ``AMBIGUOUS``.
         form: ``textbook`` (the CRB) or ``published`` (2π larger) σ formula.
 
     Raises:
@@ -255,10 +258,12 @@ def bearings(
     angle = theta[rows, best]
     branch = ms[best]
     if dist.shape[1] > 1:
-        second = dist[rows, order[:, 1]]
-        with np.errstate(invalid="ignore"):
-            close = np.isfinite(second) & ~(second - dist[rows, best] > 2 * gate * tsig)
-        flags[(count > 1) & close] |= np.uint8(IfFlag.AMBIGUOUS)
+        # probability of the chosen branch under a Gaussian hint error
+        with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+            excess = (dist**2 - dist[rows, best][:, None] ** 2) / (2 * tsig[:, None] ** 2)
+            p_best = 1.0 / np.sum(np.where(np.isfinite(dist), np.exp(-excess), 0.0), axis=1)
+        sure = np.isfinite(p_best) & (p_best >= min_branch_probability)
+        flags[(count > 1) & ~sure] |= np.uint8(IfFlag.AMBIGUOUS)
     flags[(count == 0) & (flags == 0)] |= np.uint8(IfFlag.OUTSIDE_FOV)
     # σ through the slope dΔφ/dθ = 2π·(D/λ)·cos θ
     cos = np.cos(np.radians(np.clip(angle, -89.9, 89.9)))

@@ -1,5 +1,9 @@
 """Wi-Fi CSI captures as a source: ``csi:PATH`` (``csi:PATH?freq=2437&format=intel5300``).
 
+Query options: ``freq`` (MHz, for formats that do not record it), ``format``,
+``chip`` (nexmon), ``rssi_offset`` (dB added to every RSSI: a relative scale
+to dBm).
+
 Reads Intel 5300 ``.dat`` and FeitCSI ``.csi`` itself, Atheros ``.dat``,
 PicoScenes ``.csi`` and nexmon_csi pcaps through ``csiread`` (the ``csi``
 extra). The format is recognised from the file (override with ``format=``).
@@ -23,6 +27,8 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 from urllib.parse import parse_qs
+
+import numpy as np
 
 from rfsas_hw.errors import CaptureFormatError, SourceError
 from rfsas_hw.records import ObservationBatch
@@ -131,6 +137,8 @@ class CsiSource(Source[ObservationBatch]):
         freq_mhz: channel centre frequency for formats that do not record it
             (Intel 5300, FeitCSI); decides the 5300's π/2 flag at 2.4 GHz.
         chip: nexmon chip name when the pcap's chip_version is not known.
+        rssi_offset_db: added to every RSSI reading, dB: turns a tool's relative
+            scale into dBm (Atheros reports dB above its noise floor, e.g. −95).
         errors, filter: see :class:`~rfsas_hw.sources.base.Source`.
 
     Raises:
@@ -147,6 +155,7 @@ class CsiSource(Source[ObservationBatch]):
         format: str | None = None,
         freq_mhz: int = 0,
         chip: str | None = None,
+        rssi_offset_db: float = 0.0,
         **base: Any,
     ) -> None:
         if not path:
@@ -155,6 +164,10 @@ class CsiSource(Source[ObservationBatch]):
             raise SourceError(f"csi:{path}: unknown format {format!r}; known: {', '.join(FORMATS)}")
         self.path = path
         self.capture = read_capture(path, format, freq_mhz, chip)
+        if rssi_offset_db:
+            for block in self.capture.blocks:
+                block.rssi_dbm += np.float32(rssi_offset_db)
+            self.capture.rssi_unit = f"{self.capture.rssi_unit} {rssi_offset_db:+g} dB"
         super().__init__(**base)
         self._queue = [b.to_batch() for b in self.capture.blocks]
         self._offset = 0
@@ -175,7 +188,7 @@ class CsiSource(Source[ObservationBatch]):
 
     @classmethod
     def from_spec(cls, arg: str, **options: Any) -> Source[Any]:
-        """``PATH`` or ``PATH?freq=MHz&format=NAME&chip=NAME``; keywords win over the query.
+        """``PATH`` or ``PATH?freq=MHz&format=NAME&chip=NAME&rssi_offset=DB``; keywords win.
 
         Raises:
             SourceError: an unknown query key or a non-numeric frequency.
@@ -187,10 +200,17 @@ class CsiSource(Source[ObservationBatch]):
                     options.setdefault("freq_mhz", int(value))
                 except ValueError as err:
                     raise SourceError(f"csi:{arg}: freq must be MHz, got {value!r}") from err
+            elif key == "rssi_offset":
+                try:
+                    options.setdefault("rssi_offset_db", float(value))
+                except ValueError as err:
+                    raise SourceError(f"csi:{arg}: rssi_offset must be dB, got {value!r}") from err
             elif key in ("format", "chip"):
                 options.setdefault(key, value)
             else:
-                raise SourceError(f"csi:{arg}: unknown option {key!r} (freq, format, chip)")
+                raise SourceError(
+                    f"csi:{arg}: unknown option {key!r} (freq, format, chip, rssi_offset)"
+                )
         return cls(path, **options)
 
     def __repr__(self) -> str:

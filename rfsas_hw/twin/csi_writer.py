@@ -27,6 +27,7 @@ import numpy as np
 import numpy.typing as npt
 
 from rfsas_hw.errors import SimulationError
+from rfsas_hw.twin.world import Receptions
 
 C_MPS = 299_792_458.0
 SPACING_HZ = 312_500.0
@@ -147,3 +148,24 @@ def write_feitcsi(
             out.write(bytes(head))
             out.write(iq[i].tobytes())
     return int(n)
+
+
+def write_sensor_csi(
+    rec: Receptions, array: CsiArray, path: str | Path, seed: int
+) -> npt.NDArray[np.intp]:
+    """Write the frames a sensor heard as a FeitCSI capture; returns their rows in ``rec``.
+
+    The channel of each frame comes from its true angle and true per-chain SNR
+    (:func:`synth_csi`); the RSSI written is what the sensor's driver read
+    (quantised, with its noise), so the amplitude monopulse sees the same
+    readings as from a radiotap capture.
+
+    Raises:
+        SimulationError: the receptions lack two chains.
+    """
+    if rec.snr_db.ndim != 2 or rec.snr_db.shape[1] != 2:
+        raise SimulationError("CSI needs a two-chain receiver")
+    rows = np.flatnonzero(rec.heard.any(axis=1))
+    h = synth_csi(array, rec.true_relative_deg[rows], rec.freq_mhz[rows], rec.snr_db[rows], seed)
+    write_feitcsi(path, rec.t_ns[rows], rec.mac[rows], rec.chain_dbm[rows], h)
+    return rows

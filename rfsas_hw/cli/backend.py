@@ -174,6 +174,18 @@ def render_table(service: BackendService, alarm: bool) -> Table:
     metavar="udp://HOST:PORT|tcp://HOST:PORT",
     help="Send fixes and tracks as Cursor-on-Target events to a TAK server (needs an origin).",
 )
+@click.option(
+    "--advise",
+    metavar="mqtts://HOST?…",
+    help="Publish signed assessments (advisories) to a broker, on the tile topics of "
+    "the emitters and the vehicle's topic (needs the site origin).",
+)
+@click.option(
+    "--vehicle-id",
+    default="",
+    metavar="ID",
+    help="Id of the vehicle judged against (its advisory topic).",
+)
 @click.option("--no-table", is_flag=True, help="Do not draw the live table.")
 @ros2_options
 def backend(
@@ -193,6 +205,8 @@ def backend(
     web: str | None,
     web_token: str | None,
     cot: str | None,
+    advise: str | None,
+    vehicle_id: str,
     no_table: bool,
     **ros2: Any,
 ) -> None:
@@ -252,6 +266,20 @@ def backend(
             from rfsas_hw.exports.tak import CotSender
 
             sinks.append(CotSender(cot, config.site.origin))
+        if advise is not None:
+            if config.site.origin is None:
+                raise ConfigError("--advise needs the site origin: --origin LAT,LON or site.origin")
+            from rfsas_hw.fleet.advisory import AdvisorySink
+
+            sinks.append(
+                AdvisorySink.to_url(
+                    advise,
+                    store.signer(),
+                    config.site.origin,
+                    vehicle_id=vehicle_id,
+                    epoch_s=epoch,
+                )
+            )
     except Exception:
         for sink in sinks:
             sink.close()

@@ -3,7 +3,8 @@
 Layout of a key directory (``rfsas keys new --role sensor --id rsu-1 -o DIR``)::
 
     DIR/identity.yaml   the public card: id, role, public keys (share this)
-    DIR/sign.key        ECDSA P-256 private key, PKCS#8 PEM, mode 0600 (role sensor)
+    DIR/sign.key        ECDSA P-256 private key, PKCS#8 PEM, mode 0600 (sensors: bearings;
+                        backends: advisories)
     DIR/kx.key          X25519 private key, PKCS#8 PEM, mode 0600 (every role)
     DIR/trust/ID.yaml   cards of the parties this identity trusts (enrolled)
 
@@ -11,7 +12,8 @@ Roles and what their keys do:
 
 - ``sensor``: signs safety messages (``sign``) and receives epoch nonces (``kx``);
 - ``authority``: hands out epoch nonces to enrolled receivers (``kx``);
-- ``backend``: receives epoch nonces (``kx``) and verifies enrolled sensors.
+- ``backend``: receives epoch nonces (``kx``), verifies enrolled sensors and signs
+  its assessments (``sign``).
 
 A card is YAML::
 
@@ -199,6 +201,28 @@ def _read_private(path: Path) -> object:
         raise KeyStoreError(f"{path}: not a readable private key: {err}") from err
 
 
+def _check_trusted_path(path: Path) -> None:
+    """Refuse a trust directory or card that another local user could change: what
+    decides trust gets the same protection as a private key.
+
+    Raises:
+        KeyStoreError: writable by group or others, or owned by another user (not root).
+    """
+    try:
+        st = path.stat()
+    except OSError as err:
+        raise KeyStoreError(f"{path}: cannot read: {err.strerror or err}") from err
+    if st.st_mode & (stat.S_IWGRP | stat.S_IWOTH):
+        raise KeyStoreError(
+            f"{path}: permissions {stat.S_IMODE(st.st_mode):04o} let other users change what "
+            f"is trusted; chmod go-w {path}"
+        )
+    if st.st_uid not in (os.getuid(), 0):
+        raise KeyStoreError(
+            f"{path}: owned by user {st.st_uid}, not by you; another user decides what is trusted"
+        )
+
+
 class TrustDir:
     """The enrolled cards of one identity (``DIR/trust/*.yaml``).
 
@@ -219,7 +243,9 @@ class TrustDir:
         """
         cards: dict[str, KeyCard] = {}
         if self.path.is_dir():
+            _check_trusted_path(self.path)
             for file in sorted(self.path.glob("*.yaml")):
+                _check_trusted_path(file)
                 card = KeyCard.load(file)
                 if file.stem != card.id:
                     raise KeyStoreError(f"{file}: holds the card of {card.id!r}")
@@ -243,6 +269,7 @@ class TrustDir:
             )
         tmp = dest.with_suffix(".yaml.tmp")
         tmp.write_text(card.to_yaml(), encoding="utf-8")
+        tmp.chmod(0o644)  # whatever the umask: a group-writable card would not be trusted
         tmp.replace(dest)
         self._cards[card.id] = card
         return dest
@@ -272,6 +299,11 @@ class TrustDir:
         """The enrolled P-256 key of sensor ``sender_id``, or None."""
         card = self._cards.get(sender_id)
         return None if card is None or card.role != "sensor" else card.sign_public
+
+    def backend_key(self, backend_id: str) -> ec.EllipticCurvePublicKey | None:
+        """The enrolled P-256 key of backend ``backend_id`` (it signs advisories), or None."""
+        card = self._cards.get(backend_id)
+        return None if card is None or card.role != "backend" else card.sign_public
 
     def receivers(self) -> dict[str, x25519.X25519PublicKey]:
         """Enrolled sensors and backends: who an authority hands nonces to."""
@@ -335,7 +367,9 @@ class KeyStore:
             p.mkdir(mode=0o700, parents=True, exist_ok=True)
         except OSError as err:
             raise KeyStoreError(f"{p}: cannot create directory: {err.strerror or err}") from err
-        sign = ec.generate_private_key(ec.SECP256R1()) if role == "sensor" else None
+        # sensors sign bearings; backends sign their assessments (advisories)
+        signing = role in ("sensor", "backend")
+        sign = ec.generate_private_key(ec.SECP256R1()) if signing else None
         kx = x25519.X25519PrivateKey.generate()
         if sign is not None:
             _write_new(p / SIGN_FILE, _pem(sign), 0o600)
@@ -362,14 +396,19 @@ class KeyStore:
         return cls(p, KeyCard.load(p / CARD_FILE))
 
     def signer(self) -> Signer:
-        """The signing identity of a sensor.
+        """The signing identity of a sensor (bearings) or a backend (advisories).
 
         Raises:
-            KeyStoreError: not a sensor, or the key file is missing, too open or
-                does not match the card.
+            KeyStoreError: an authority, a backend made before backends had signing
+                keys, or the key file is missing, too open or does not match the card.
         """
-        if self.role != "sensor":
+        if self.role not in ("sensor", "backend"):
             raise KeyStoreError(f"{self.path}: a {self.role} identity does not sign messages")
+        if self.card.sign_public is None:
+            raise KeyStoreError(
+                f"{self.path}: this {self.role} identity has no signing key (made by an older "
+                "release); make a new one with: rfsas keys new --role backend"
+            )
         key = _read_private(self.path / SIGN_FILE)
         if not isinstance(key, ec.EllipticCurvePrivateKey):
             raise KeyStoreError(f"{self.path / SIGN_FILE}: not an EC private key")

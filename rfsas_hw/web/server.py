@@ -1,0 +1,293 @@
+"""The dashboard's web server: a read-only page with live updates over a WebSocket.
+
+Served by aiohttp (the ``web`` extra) on its own thread and event loop, so the
+backend's loop stays as it is. Routes, all ``GET``:
+
+- ``/``: the page (hand-written HTML, JavaScript and SVG; nothing fetched from
+  the internet unless the site names a tile server);
+- ``/static/{name}``: its script and style sheet;
+- ``/api/site``: the site (origin, map in local metres, declared sensors, tile URL);
+- ``/api/state``: the latest :meth:`~rfsas_hw.web.state.DashboardState.snapshot`;
+- ``/ws``: a WebSocket that sends the snapshot at once and after every backend step.
+
+Access: a request from a loopback address whose ``Host`` is a loopback name
+is served; any other needs the token (``?token=…`` or ``Authorization:
+Bearer …``) and is refused with 403 without it. The ``Host`` check keeps a
+web page elsewhere from reaching a localhost dashboard through DNS rebinding.
+Bound to anything but loopback, the server always has a token (a random one
+unless given).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import ipaddress
+import json
+import logging
+import secrets
+import threading
+from importlib import resources
+from typing import Any
+from urllib.parse import urlsplit
+
+from rfsas_hw.errors import ConfigError
+from rfsas_hw.optional import require
+from rfsas_hw.web.state import DashboardState
+
+log = logging.getLogger(__name__)
+
+STATIC_FILES = {"app.js": "text/javascript", "style.css": "text/css"}
+LOOPBACK_NAMES = {"localhost", "localhost.", "ip6-localhost"}
+
+__all__ = ["DashboardServer", "is_loopback", "parse_bind"]
+
+
+def is_loopback(host: str | None) -> bool:
+    """True for ``localhost`` and loopback addresses (``127.0.0.0/8``, ``::1``)."""
+    if not host:
+        return False
+    name = host.strip("[]").lower()
+    if name in LOOPBACK_NAMES:
+        return True
+    try:
+        return ipaddress.ip_address(name.split("%")[0]).is_loopback
+    except ValueError:
+        return False
+
+
+def parse_bind(text: str) -> tuple[str, int]:
+    """``PORT``, ``HOST:PORT`` or ``[V6]:PORT`` to (host, port); the host defaults to 127.0.0.1.
+
+    Raises:
+        ConfigError: not a port in 0–65535 (0: any free port).
+    """
+    host, sep, port = text.rpartition(":")
+    if not sep:
+        host, port = "127.0.0.1", text
+    host = host.strip("[]") or "127.0.0.1"
+    try:
+        number = int(port)
+    except ValueError:
+        number = -1
+    if not 0 <= number <= 65535:
+        raise ConfigError(f"--web {text!r}: expected [HOST:]PORT with a port in 0-65535")
+    return host, number
+
+
+def _host_of(header: str) -> str:
+    return urlsplit(f"//{header}").hostname or ""
+
+
+class DashboardServer:
+    """Serves the dashboard of ``state`` (see the module docstring).
+
+    Args:
+        state: what the page shows.
+        site: the ``/api/site`` payload.
+        host: address to bind (default loopback).
+        port: TCP port (0: any free one).
+        token: access token for non-local clients (default: none on loopback,
+            a random one elsewhere).
+
+    Raises:
+        MissingDependencyError: aiohttp is not installed.
+    """
+
+    def __init__(
+        self,
+        state: DashboardState,
+        site: dict[str, Any],
+        host: str = "127.0.0.1",
+        port: int = 0,
+        token: str | None = None,
+    ) -> None:
+        self._web = require("aiohttp.web")
+        self.state = state
+        self.site = site
+        self.host = host
+        self.port = port
+        if token is None and not is_loopback(host):
+            token = secrets.token_urlsafe(18)
+        self.token = token
+        self._thread: threading.Thread | None = None
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._ready = threading.Event()
+        self._error: BaseException | None = None
+        self._stop: asyncio.Event | None = None
+        self._clients: set[Any] = set()
+        self._pending = False
+        self._csp = self._policy(site.get("tiles"))
+
+    @staticmethod
+    def _policy(tiles: str | None) -> str:
+        img = "'self' data:"
+        if tiles:
+            parts = urlsplit(tiles)
+            img += f" {parts.scheme}://{parts.netloc}"
+        return (
+            "default-src 'none'; script-src 'self'; style-src 'self'; "
+            f"img-src {img}; connect-src 'self'; base-uri 'none'; frame-ancestors 'none'"
+        )
+
+    @property
+    def url(self) -> str:
+        """Where the page is, with the token if there is one."""
+        host = self.host if ":" not in self.host else f"[{self.host}]"
+        shown = "127.0.0.1" if host in ("0.0.0.0", "[::]") else host
+        query = f"?token={self.token}" if self.token else ""
+        return f"http://{shown}:{self.port}/{query}"
+
+    def allows(self, remote: str | None, host_header: str, given: str | None) -> bool:
+        """Whether a request from ``remote`` with this ``Host`` and token is served."""
+        if self.token and given and secrets.compare_digest(given, self.token):
+            return True
+        return is_loopback(remote) and is_loopback(_host_of(host_header))
+
+    def start(self, timeout_s: float = 10.0) -> None:
+        """Bind and serve on a thread of its own; returns once listening.
+
+        Raises:
+            ConfigError: the address cannot be bound (in use, not local, no permission).
+        """
+        self._thread = threading.Thread(target=self._run, name="rfsas-dashboard", daemon=True)
+        self._thread.start()
+        if not self._ready.wait(timeout_s):
+            raise ConfigError(f"dashboard on {self.host}:{self.port}: did not start")
+        if self._error is not None:
+            raise ConfigError(
+                f"dashboard on {self.host}:{self.port}: cannot listen: {self._error}"
+            ) from self._error
+        self.state.listeners.append(self.notify)
+
+    def notify(self) -> None:
+        """A new step was taken in: push the snapshot to every client (any thread)."""
+        loop = self._loop
+        if loop is not None and not loop.is_closed():
+            with contextlib.suppress(RuntimeError):
+                loop.call_soon_threadsafe(self._schedule)
+
+    def stop(self) -> None:
+        """Close every connection and stop serving; idempotent."""
+        with contextlib.suppress(ValueError):
+            self.state.listeners.remove(self.notify)
+        loop, stop = self._loop, self._stop
+        if loop is not None and stop is not None and not loop.is_closed():
+            with contextlib.suppress(RuntimeError):
+                loop.call_soon_threadsafe(stop.set)
+        if self._thread is not None:
+            self._thread.join(10.0)
+            self._thread = None
+
+    def _run(self) -> None:
+        loop = asyncio.new_event_loop()
+        self._loop = loop
+        try:
+            runner = loop.run_until_complete(self._serve())
+        except BaseException as err:
+            self._error = err
+            self._ready.set()
+            loop.close()
+            return
+        self._ready.set()
+        try:
+            assert self._stop is not None
+            loop.run_until_complete(self._stop.wait())
+            loop.run_until_complete(self._shutdown(runner))
+        finally:
+            loop.close()
+
+    async def _serve(self) -> Any:
+        web = self._web
+        self._stop = asyncio.Event()
+
+        @web.middleware  # type: ignore[untyped-decorator]
+        async def guard(request: Any, handler: Any) -> Any:
+            given = request.query.get("token")
+            auth = request.headers.get("Authorization", "")
+            if auth.startswith("Bearer "):
+                given = auth[7:].strip()
+            if not self.allows(request.remote, request.headers.get("Host", ""), given):
+                return web.json_response(
+                    {"error": "forbidden: a token is needed from another host"}, status=403
+                )
+            return await handler(request)
+
+        async def headers(request: Any, response: Any) -> None:
+            response.headers["Content-Security-Policy"] = self._csp
+            response.headers["X-Content-Type-Options"] = "nosniff"
+            # the token may be in the page's URL: never send it to a tile server
+            response.headers["Referrer-Policy"] = "no-referrer"
+            response.headers["Cache-Control"] = "no-store"
+
+        app = web.Application(middlewares=[guard])
+        app.on_response_prepare.append(headers)
+        app.router.add_get("/", self._index)
+        app.router.add_get("/static/{name}", self._static)
+        app.router.add_get("/api/site", self._site)
+        app.router.add_get("/api/state", self._state)
+        app.router.add_get("/ws", self._ws)
+        runner = web.AppRunner(app, access_log=None)
+        await runner.setup()
+        site = web.TCPSite(runner, self.host, self.port)
+        await site.start()
+        if self.port == 0 and runner.addresses:
+            self.port = int(runner.addresses[0][1])
+        return runner
+
+    async def _shutdown(self, runner: Any) -> None:
+        for ws in list(self._clients):
+            with contextlib.suppress(Exception):
+                await ws.close(code=1001, message=b"server stopping")
+        await runner.cleanup()
+
+    @staticmethod
+    def _asset(name: str) -> bytes:
+        return (resources.files("rfsas_hw.web") / "static" / name).read_bytes()
+
+    async def _index(self, request: Any) -> Any:
+        return self._web.Response(body=self._asset("index.html"), content_type="text/html")
+
+    async def _static(self, request: Any) -> Any:
+        name = request.match_info["name"]
+        if name not in STATIC_FILES:
+            raise self._web.HTTPNotFound()
+        return self._web.Response(body=self._asset(name), content_type=STATIC_FILES[name])
+
+    async def _site(self, request: Any) -> Any:
+        return self._web.json_response(self.site)
+
+    async def _state(self, request: Any) -> Any:
+        return self._web.Response(text=self._snapshot_text(), content_type="application/json")
+
+    def _snapshot_text(self) -> str:
+        return json.dumps(self.state.snapshot(), allow_nan=False)
+
+    async def _ws(self, request: Any) -> Any:
+        ws = self._web.WebSocketResponse(heartbeat=10.0)
+        await ws.prepare(request)
+        self._clients.add(ws)
+        try:
+            await ws.send_str(self._snapshot_text())
+            async for _ in ws:
+                pass  # read-only: whatever a client sends is ignored
+        finally:
+            self._clients.discard(ws)
+        return ws
+
+    def _schedule(self) -> None:
+        if self._pending or not self._clients:
+            return
+        self._pending = True
+        asyncio.get_running_loop().create_task(self._broadcast())
+
+    async def _broadcast(self) -> None:
+        self._pending = False
+        text = self._snapshot_text()
+        for ws in list(self._clients):
+            try:
+                await asyncio.wait_for(ws.send_str(text), 2.0)
+            except Exception:
+                self._clients.discard(ws)
+                with contextlib.suppress(Exception):
+                    await ws.close()

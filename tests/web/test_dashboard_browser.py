@@ -1,0 +1,215 @@
+"""The dashboard in a real browser: ``rfsas backend --web`` fed the demo's captures live.
+
+Debian's Chromium, headless, driven by its chromedriver through selenium. The page must
+show the sensors and a fix with its ellipse, switch to BRAKE when the demo does, come
+back by itself after the server restarts, and never show a raw MAC. A screenshot is
+kept as a test artefact (``RFSAS_SCREENSHOT=path.png`` also copies it there).
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import time
+import urllib.request
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from rfsas_hw.link.keys import KeyStore
+from rfsas_hw.studies.demo import EXAMPLE_SCENARIO, DemoResult, run_demo
+
+from .replay import LiveReplay
+
+CHROMIUM = Path("/usr/bin/chromium")
+CHROMEDRIVER = Path("/usr/bin/chromedriver")
+SKIP_REASON = (
+    "needs Debian's chromium and chromium-driver (/usr/bin/chromium, /usr/bin/chromedriver)"
+)
+ORIGIN = "52.2053,0.1218,12"
+MAP_SCRIPT = """
+const q = (s) => Array.from(document.querySelectorAll(s));
+return {
+  sensors: q("#layer-sensors path.sensor").map((e) => e.dataset.id),
+  fov: q("#layer-fov path.fov").length,
+  fixes: q("#layer-fixes circle.fix").map((e) => e.dataset.emitter),
+  ellipses: q("#layer-fixes ellipse.ellipse").map(
+    (e) => [e.dataset.emitter, +e.getAttribute("rx"), +e.getAttribute("ry")]),
+  vehicle: q("#layer-vehicle rect.vehicle").length,
+  links: q("#links tbody tr").map((e) => e.dataset.sensor),
+  emitters: document.getElementById("emitters").innerText,
+};
+"""
+
+pytestmark = pytest.mark.skipif(
+    not (CHROMIUM.exists() and CHROMEDRIVER.exists()), reason=SKIP_REASON
+)
+
+
+def free_port(kind: int) -> int:
+    with socket.socket(socket.AF_INET, kind) as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def wait_for(check: Callable[[], Any], timeout: float, what: str) -> Any:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        value = check()
+        if value:
+            return value
+        time.sleep(0.05)
+    raise AssertionError(f"timed out after {timeout} s waiting for {what}")
+
+
+def http_ok(url: str) -> bool:
+    try:
+        with urllib.request.urlopen(url, timeout=1.0) as r:
+            return bool(r.status == 200)
+    except OSError:
+        return False
+
+
+@pytest.fixture
+def browser(tmp_path: Path) -> Iterator[Any]:
+    webdriver = pytest.importorskip("selenium.webdriver")
+    from selenium.webdriver.chrome.service import Service
+
+    opts = webdriver.ChromeOptions()
+    opts.binary_location = str(CHROMIUM)
+    for arg in (
+        "--headless",
+        "--no-sandbox",
+        "--disable-gpu",
+        "--disable-quic",
+        "--no-first-run",
+        "--disable-background-networking",
+        "--disable-component-update",
+        "--disable-sync",
+        "--window-size=1280,800",
+        f"--user-data-dir={tmp_path / 'chromium-profile'}",
+    ):
+        opts.add_argument(arg)
+    driver = webdriver.Chrome(service=Service(str(CHROMEDRIVER)), options=opts)
+    driver.set_page_load_timeout(15)
+    try:
+        yield driver
+    finally:
+        driver.quit()
+
+
+def test_dashboard_live_in_a_browser(tmp_path: Path, browser: Any) -> None:
+    from selenium.webdriver.common.by import By
+
+    demo: DemoResult = run_demo(out_dir=tmp_path / "demo", plot=False)
+    assert demo.first_brake_s is not None
+    backend_keys = KeyStore.create(tmp_path / "backend", "backend", "obu-1")
+    stores = {}
+    for sid in ("rsu-nw", "car-obu"):
+        stores[sid] = KeyStore.create(tmp_path / sid, "sensor", sid)
+        backend_keys.trust.enroll(stores[sid].card)
+    config = tmp_path / "backend.yaml"
+    config.write_text(
+        "site:\n"
+        f"  map: {EXAMPLE_SCENARIO}\n"
+        "  sensors:\n"
+        "    rsu-nw: {x_m: -9.0, y_m: 9.0, heading_deg: 140.0, fov_deg: 60}\n"
+    )
+    listen = f"udp://127.0.0.1:{free_port(socket.SOCK_DGRAM)}"
+    vehicle = f"udp://127.0.0.1:{free_port(socket.SOCK_DGRAM)}"
+    web_port = free_port(socket.SOCK_STREAM)
+    url = f"http://127.0.0.1:{web_port}/"
+    args = [
+        sys.executable, "-m", "rfsas_hw.cli.main", "backend", "--listen", listen,
+        "--keys", str(tmp_path / "backend"), "--vehicle", vehicle, "--reaction", "0.5",
+        "--config", str(config), "--origin", ORIGIN, "--web", f"127.0.0.1:{web_port}",
+        "--no-table", "--out", str(tmp_path / "run.jsonl"), "--duration", "60",
+    ]  # fmt: skip
+
+    logs: list[Path] = []
+
+    def start_backend() -> subprocess.Popen[bytes]:
+        logs.append(tmp_path / f"backend-{len(logs)}.log")
+        with logs[-1].open("wb") as log:
+            proc = subprocess.Popen(args, stdout=subprocess.DEVNULL, stderr=log)
+        wait_for(lambda: http_ok(url + "api/site") or proc.poll() is not None, 20, "backend")
+        assert proc.poll() is None, logs[-1].read_text()
+        return proc
+
+    proc = start_backend()
+    try:
+        browser.get(url)
+        status = browser.find_element(By.ID, "status")
+        wait_for(lambda: status.get_attribute("data-status") == "live", 10, "the page to go live")
+        # the site map came from the scenario: four buildings and two roads
+        assert len(browser.find_elements(By.CSS_SELECTOR, "#layer-site path.building")) == 4
+
+        replay = LiveReplay(demo, stores, listen, vehicle)
+        replay.start()
+        seen: list[tuple[float, str, str]] = []
+        advisory = browser.find_element(By.ID, "advisory")
+        shot = tmp_path / "dashboard.png"
+        while replay.thread.is_alive():
+            seen.append((replay.t_s, advisory.get_attribute("data-advisory") or "", advisory.text))
+            if seen[-1][1] == "brake" and not shot.exists():
+                assert browser.save_screenshot(str(shot))  # the moment that matters
+            time.sleep(0.05)
+        replay.join(5)
+
+        brake = [(t, text) for t, a, text in seen if a == "brake"]
+        assert brake, f"the page never showed BRAKE; saw {sorted({a for _, a, _ in seen})}"
+        # the demo's first BRAKE came at demo.first_brake_s of scenario time; live steps and
+        # the browser's polling add up to a few tenths of a second either way
+        assert abs(brake[0][0] - demo.first_brake_s) <= 1.0, (brake[0], demo.first_brake_s)
+        assert brake[0][1] == "BRAKE"
+        # before it, the page showed the calmer advisories the demo gave then
+        assert {a for t, a, _ in seen if t < demo.first_brake_s - 1.0} <= {
+            "none",
+            "clear",
+            "caution",
+        }
+
+        # read the map in one go: the page redraws it at every backend step
+        page = browser.execute_script(MAP_SCRIPT)
+        assert set(page["sensors"]) == {"rsu-nw", "car-obu"}
+        assert page["fov"] == 2
+        assert page["fixes"] and page["ellipses"]
+        assert {e[0] for e in page["ellipses"]} <= set(page["fixes"])
+        assert all(rx >= ry > 0 for _, rx, ry in page["ellipses"])
+        assert page["vehicle"] == 1
+        assert set(page["links"]) == {"rsu-nw", "car-obu"}
+        # real-world coordinates next to each fix
+        assert "52.20" in page["emitters"]
+
+        assert shot.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+        if os.environ.get("RFSAS_SCREENSHOT"):
+            shutil.copy(shot, os.environ["RFSAS_SCREENSHOT"])
+
+        macs = [e.mac.lower() for e in demo.scenario.spec.emitters]
+        with urllib.request.urlopen(url + "api/state", timeout=2) as r:
+            served = r.read().decode().lower()
+        for text in (browser.page_source.lower(), served):
+            for mac in macs:
+                assert mac not in text and mac.replace(":", "") not in text
+
+        # restart the server: the page notices, and comes back by itself
+        proc.send_signal(signal.SIGTERM)
+        assert proc.wait(15) in (0, 130, 143)
+        wait_for(lambda: status.get_attribute("data-status") == "reconnecting", 10, "reconnecting")
+        proc = start_backend()
+        wait_for(lambda: status.get_attribute("data-status") == "live", 10, "reconnection")
+        assert len(browser.find_elements(By.CSS_SELECTOR, "#layer-site path.building")) == 4
+    finally:
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGTERM)
+            try:
+                proc.wait(15)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait(5)

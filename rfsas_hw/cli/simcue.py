@@ -4,13 +4,14 @@ from __future__ import annotations
 
 import json
 import math
+from pathlib import Path
 
 import click
 from rich.console import Console
 from rich.table import Table
 
 from rfsas_hw.errors import ConfigError
-from rfsas_hw.studies.cueing import PLANS, CueingConfig, Summary, run_study
+from rfsas_hw.studies.cueing import PLANS, CueingConfig, Summary, brake_comparison, run_study
 
 
 def _s(value: float) -> str:
@@ -48,10 +49,20 @@ def _table(summaries: list[Summary]) -> Table:
     help="Vehicle hop plans to run: 13 (2.4 GHz) and/or 38 (2.4 + 5 GHz), comma-separated.",
 )
 @click.option("--json", "as_json", is_flag=True, help="One JSON object instead of the table.")
-def cueing(seeds: int, first_seed: int, plans: str, as_json: bool) -> None:
+@click.option(
+    "--demo",
+    "demo_dir",
+    type=click.Path(file_okay=False, path_type=Path),
+    help="Instead: run the end-to-end demo with the vehicle sensor fixed, hopping 13 "
+    "channels, and hopping cued (with and without the phone's probe sweeps); outputs here.",
+)
+def cueing(seeds: int, first_seed: int, plans: str, as_json: bool, demo_dir: Path | None) -> None:
     """Twin study: a roadside unit cues a hopping vehicle to the channel it heard a phone on.
     Time from the roadside unit's first bearing to the vehicle's first bearing of the
     same emitter (matched by keyed hash), with and without cueing, over SEEDS seeds."""
+    if demo_dir is not None:
+        _demo(demo_dir, as_json)
+        return
     names = [p.strip() for p in plans.split(",") if p.strip()]
     unknown = [p for p in names if p not in PLANS]
     if unknown or not names:
@@ -90,3 +101,47 @@ def cueing(seeds: int, first_seed: int, plans: str, as_json: bool) -> None:
         click.echo(json.dumps(out, default=lambda v: None if math.isinf(v) else v))
         return
     Console().print(_table(summaries))
+
+
+def _t(value: float | None) -> str:
+    return "no BRAKE" if value is None else f"{value:.1f}"
+
+
+def _demo(out_dir: Path, as_json: bool) -> None:
+    console = Console(stderr=True)
+    rows = []
+    for probes in (True, False):
+        r = brake_comparison(
+            out_dir / ("with-probes" if probes else "data-only"),
+            probes=probes,
+            progress=None if as_json else (lambda m: console.print(f"[dim]{m}[/]")),
+        )
+        rows.append((probes, r))
+    if as_json:
+        click.echo(
+            json.dumps(
+                [
+                    {
+                        "phone_probes": p,
+                        "first_brake_s": {
+                            "fixed": r.fixed_s,
+                            "hopping": r.hopping_s,
+                            "cued": r.cued_s,
+                        },
+                        "brake_needed_by_s": r.needed_by_s,
+                        "cues": r.cues,
+                    }
+                    for p, r in rows
+                ]
+            )
+        )
+        return
+    table = Table(title="Demo: first BRAKE, scenario seconds")
+    for col in ("phone sends", "vehicle fixed on ch 6", "hopping 13 ch", "hopping, cued"):
+        table.add_column(col, justify="left" if col == "phone sends" else "right")
+    for probes, r in rows:
+        table.add_row(
+            "data on 6 + probes on 1/6/11" if probes else "data on 6 only",
+            _t(r.fixed_s), _t(r.hopping_s), _t(r.cued_s),
+        )  # fmt: skip
+    Console().print(table)

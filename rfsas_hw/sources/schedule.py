@@ -64,8 +64,11 @@ class SchedulerConfig:
     """Longest dwell on a cued channel, seconds (about one burst period of a phone)."""
     max_share: float = 0.5
     """Largest fraction of airtime cue dwells may take over ``window_s``."""
-    window_s: float = 10.0
-    """Window of the airtime bound, seconds."""
+    window_s: float = 1.2
+    """Window of the airtime bound, seconds. Short on purpose: with a long window a
+    stream of cues spends the whole budget at once and then leaves the receiver
+    uncued for as long (in the twin's demo a 10 s window ran the budget out just
+    before the pedestrian stepped out)."""
     min_dwell_s: float = 0.05
     """A dwell shorter than this is not started (the budget waits to refill), seconds."""
     max_pending: int = 32
@@ -221,14 +224,30 @@ class CueScheduler:
         return used
 
     def _budget_free_at(self, t: float) -> float:
-        """Earliest time after ``t`` at which a minimal dwell fits the airtime bound."""
+        """Earliest time after ``t`` at which a minimal dwell fits the airtime bound.
+
+        While cues wait for budget nothing is added to the airtime, so the used
+        airtime only falls, linearly between the points where a past dwell's start
+        or end leaves the window: find the first such point where enough is free
+        and interpolate back from it.
+        """
         cfg = self.config
-        need = cfg.min_dwell_s
-        # the window slides over past dwells; try each point where one leaves it
-        for start, end, _ in self._segments:
-            for cand in (start + cfg.window_s, end + cfg.window_s):
-                if cand > t and cfg.max_share * cfg.window_s - self._used_s(cand) >= need - _EPS:
-                    return cand
+        target = cfg.max_share * cfg.window_s - cfg.min_dwell_s
+        points = sorted(
+            {p for seg in self._segments for p in (seg[0] + cfg.window_s, seg[1] + cfg.window_s)}
+        )
+        prev_t, prev_used = t, self._used_s(t)
+        if prev_used <= target + _EPS:
+            return t
+        for p in points:
+            if p <= t:
+                continue
+            used = self._used_s(p)
+            if used <= target + _EPS:
+                # linear on [prev_t, p]
+                frac = (prev_used - target) / (prev_used - used) if prev_used > used else 1.0
+                return prev_t + frac * (p - prev_t)
+            prev_t, prev_used = p, used
         return math.inf
 
     # -- time -------------------------------------------------------------------

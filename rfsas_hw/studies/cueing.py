@@ -26,6 +26,7 @@ import dataclasses
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -44,13 +45,14 @@ from rfsas_hw.link.cue_receiver import (
 )
 from rfsas_hw.link.signing import Signer, TrustedKeys
 from rfsas_hw.pipeline import SensorPipeline
-from rfsas_hw.privacy.hashing import MacHasher
+from rfsas_hw.privacy.hashing import FixedNonce, MacHasher
 from rfsas_hw.records import BearingBatch, Pose, mac_to_int
 from rfsas_hw.sources.schedule import CueScheduler, SchedulerConfig
 from rfsas_hw.sources.virtual import VirtualSource
-from rfsas_hw.studies.locate import default_hasher
+from rfsas_hw.studies.demo import EXAMPLE_SCENARIO, run_demo
+from rfsas_hw.studies.locate import default_hasher, sensor_calibration
 from rfsas_hw.twin.rng import stream
-from rfsas_hw.twin.scenario import Scenario, scenario_from_mapping
+from rfsas_hw.twin.scenario import Scenario, load_scenario, scenario_from_mapping
 from rfsas_hw.twin.turntable import turntable_calibration
 from rfsas_hw.twin.world import World
 
@@ -304,10 +306,15 @@ def _first_after_ns(car: BearingBatch, rsu: BearingBatch, rsu_first_ns: int) -> 
 
 
 def _cues(
-    rsu: BearingBatch, sc: Scenario, signer: Signer, config: CueingConfig, hasher: MacHasher
+    rsu: BearingBatch,
+    sc: Scenario,
+    signer: Signer,
+    config: CueingConfig,
+    hasher: MacHasher,
+    sender: str = RSU,
 ) -> list[tuple[bytes, int]]:
     """Signed cues the roadside unit sends for its bearings, with their arrival times (UTC ns)."""
-    pose = sc.sensor(RSU).pose
+    pose = sc.sensor(sender).pose
     assert pose is not None
     out: list[tuple[bytes, int]] = []
     last: dict[int, int] = {}
@@ -428,3 +435,90 @@ def run_study(
         all_trials[name] = trials
         summaries.append(summarise(name, len(plan), trials))
     return summaries, all_trials
+
+
+DEMO_VEHICLE_SENSOR = "car-obu"
+DEMO_RSU = "rsu-nw"
+
+
+@dataclass(frozen=True)
+class BrakeComparison:
+    """First BRAKE of the end-to-end demo for three vehicle receivers."""
+
+    fixed_s: float | None
+    """The vehicle's sensor parked on the phone's channel (the shipped scenario), seconds."""
+    hopping_s: float | None
+    """The vehicle's sensor hopping the plan, no cues, seconds (None: no BRAKE)."""
+    cued_s: float | None
+    """Hopping, cued by the roadside unit's bearings, seconds (None: no BRAKE)."""
+    needed_by_s: float | None
+    """Last step at which a BRAKE still stops the car short (the demo's yardstick)."""
+    cues: dict[str, float]
+    """Scheduler counters of the cued run."""
+
+
+def brake_comparison(
+    out_dir: str | Path,
+    plan: Sequence[int] = PLAN_13,
+    config: CueingConfig | None = None,
+    progress: Callable[[str], None] | None = None,
+    *,
+    probes: bool = True,
+) -> BrakeComparison:
+    """Run the bundled demo three times: vehicle sensor fixed on channel 6 (as shipped),
+    hopping ``plan`` without cues, and hopping with the roadside unit's cues.
+    ``probes=False`` silences the phone's probe sweeps (on 1, 6 and 11 every second),
+    leaving its data bursts on channel 6: a hopping vehicle then rarely has a bearing
+    of its own.
+
+    Raises:
+        SimulationError, ConfigError, LinkError: as :func:`~rfsas_hw.studies.demo.run_demo`.
+    """
+    config = config or CueingConfig()
+    say = progress or (lambda _msg: None)
+    out = Path(out_dir)
+    shipped = load_scenario(EXAMPLE_SCENARIO)
+    if not probes:
+        shipped = _without_probes(shipped)
+    hopping = _with_scan(shipped, DEMO_VEHICLE_SENSOR, plan)
+    say("demo: vehicle sensor fixed on channel 6")
+    fixed = run_demo(shipped, out / "fixed", plot=False)
+    say(f"demo: vehicle sensor hopping {len(plan)} channels, no cues")
+    hop = run_demo(hopping, out / "hopping", plot=False)
+
+    say("demo: roadside bearings → signed cues → the vehicle's scan scheduler")
+    world = World(hopping)
+    hasher = MacHasher(FixedNonce(stream(hopping.seed, "demo-nonce").bytes(32)))
+    rsu = sensor_bearings(world, DEMO_RSU, sensor_calibration(world, DEMO_RSU), hasher)
+    signer = Signer(DEMO_RSU, ec.generate_private_key(ec.SECP256R1()))
+    rx = CueReceiver(TrustedKeys({DEMO_RSU: signer.public_key}), CueReceiverConfig())
+    scan = hopping.sensor(DEMO_VEHICLE_SENSOR).scan
+    period = scan.dwell_ms / 1e3 * len(scan.channels)
+    scheduler = CueScheduler(
+        scan.channels, scan.dwell_ms / 1e3, config.scheduler, start_s=scan.offset_ms / 1e3 - period
+    )
+    for datagram, arrive_ns in _cues(rsu, hopping, signer, config, hasher, sender=DEMO_RSU):
+        now_s = (arrive_ns - world.t0_ns) / NS
+        got = rx.feed(datagram, arrive_ns)
+        if got is not None:
+            scheduler.offer(to_channel_cue(got, arrive_ns, now_s), now_s)
+    timeline = scheduler.timeline(world.duration_s)
+    say("demo: vehicle sensor hopping, cued")
+    cued = run_demo(
+        hopping, out / "cued", plot=False, listening={DEMO_VEHICLE_SENSOR: timeline.listens}
+    )
+    return BrakeComparison(
+        fixed_s=fixed.first_brake_s,
+        hopping_s=hop.first_brake_s,
+        cued_s=cued.first_brake_s,
+        needed_by_s=fixed.brake_needed_by_s,
+        cues={**scheduler.stats.as_dict(), **{f"rx.{k}": v for k, v in rx.stats.as_dict().items()}},
+    )
+
+
+def _without_probes(sc: Scenario) -> Scenario:
+    emitters = tuple(
+        dataclasses.replace(e, traffic=tuple(t for t in e.traffic if t.model != "probe-bursts"))
+        for e in sc.spec.emitters
+    )
+    return dataclasses.replace(sc, spec=dataclasses.replace(sc.spec, emitters=emitters))

@@ -19,7 +19,7 @@ from __future__ import annotations
 import json
 import math
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -43,7 +43,7 @@ from rfsas_hw.studies.locate import emitter_hash, sensor_calibration
 from rfsas_hw.twin.capture_writer import write_captures
 from rfsas_hw.twin.rng import stream
 from rfsas_hw.twin.scenario import Scenario, load_scenario
-from rfsas_hw.twin.world import World
+from rfsas_hw.twin.world import Listening, World
 
 Array = npt.NDArray[np.float64]
 NS = 1_000_000_000
@@ -182,9 +182,10 @@ def _read_capture(path: Path) -> tuple[ObservationBatch, dict[str, Any]]:
 
 
 def run_demo(
-    scenario: str | Path | None = None,
+    scenario: str | Path | Scenario | None = None,
     out_dir: str | Path = "out/demo",
     *,
+    listening: Mapping[str, Listening] | None = None,
     step_s: float = 0.1,
     threat: str | None = None,
     reaction_s: float = 0.5,
@@ -198,6 +199,8 @@ def run_demo(
     Args:
         scenario: scenario file (default: the bundled ``examples/crossing.yaml``).
         out_dir: output directory (captures, truth, backend JSONL, demo JSONL, map PNG).
+        listening: per sensor, the channel schedule replacing its scan plan (a cued
+            sensor; see :class:`~rfsas_hw.twin.world.World`).
         step_s: backend step, seconds of scenario time.
         threat: emitter id to score (default: the first emitter carried by a pedestrian).
         reaction_s: reaction delay the backend's advisory allows for, seconds.
@@ -216,7 +219,7 @@ def run_demo(
     """
     wall0 = time.perf_counter()
     say = progress or (lambda _msg: None)
-    sc = load_scenario(scenario or EXAMPLE_SCENARIO)
+    sc = scenario if isinstance(scenario, Scenario) else load_scenario(scenario or EXAMPLE_SCENARIO)
     spec = sc.spec
     if spec.ego is None:
         raise SimulationError(f"{sc.source}: the demo needs an ego vehicle (key 'ego')")
@@ -228,7 +231,7 @@ def run_demo(
         threat = peds[0].id
     threat_index = [e.id for e in spec.emitters].index(threat)
     out = Path(out_dir)
-    world = World(sc)
+    world = World(sc, listening=listening)
 
     say("twin: writing captures")
     caps = write_captures(world, out / "captures")

@@ -18,6 +18,7 @@ from rfsas_hw.studies.cueing import (
     Summary,
     Trial,
     _cues,
+    brake_comparison,
     calibrations,
     cueing_scenario,
     run_study,
@@ -106,3 +107,16 @@ def test_cli_rejects_an_unknown_plan(capsys: pytest.CaptureFixture[str]) -> None
         main(["sim", "cueing", "--plans", "7"])
     assert info.value.code == 2
     assert "unknown plan" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("probes", [True, False])
+def test_demo_brake_comes_no_later_with_cueing(
+    tmp_path_factory: pytest.TempPathFactory, probes: bool
+) -> None:
+    r = brake_comparison(tmp_path_factory.mktemp("brake"), probes=probes)
+    assert r.cued_s is not None
+    assert r.hopping_s is None or r.cued_s <= r.hopping_s
+    if not probes:
+        # data on channel 6 only: the hopping vehicle rarely has a bearing of its own
+        assert r.hopping_s is None or r.hopping_s > r.cued_s
+    assert r.cues["rx.accepted"] == r.cues["cues_received"] > 0

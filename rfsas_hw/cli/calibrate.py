@@ -4,11 +4,13 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
+from typing import Any
 
 import click
 from rich.console import Console
 from rich.table import Table
 
+from rfsas_hw.cli.calibrate_phase import phase_options, run_phase
 from rfsas_hw.df import MODES, fit_calibration, load_calibration, read_samples_csv, save_calibration
 from rfsas_hw.df.calibration import Calibration
 from rfsas_hw.df.check import (
@@ -139,6 +141,7 @@ def _sigma_rows(table: Table, report: CheckReport) -> None:
     help="Turntable angle log CSV (time, angle_deg) recorded with --capture.",
 )
 @click.option("--emitter", help="MAC address of the reference emitter in --capture.")
+@phase_options
 def calibrate(
     inputs: tuple[Path, ...],
     output: Path | None,
@@ -153,14 +156,19 @@ def calibrate(
     capture: str | None,
     angles_path: Path | None,
     emitter: str | None,
+    **phase: Any,
 ) -> None:
     """Fit a monopulse calibration from a turntable CSV (angle_deg,rssi1_dbm,rssi2_dbm[,channel]).
 
     \b
     rfsas calibrate samples.csv -o cal.yaml --plot cal.png
     rfsas calibrate --check cal.yaml heldback.csv [-o cal-with-floor.yaml]
+    rfsas calibrate cal.yaml --phase csi:tt.csi --angles log.csv --baseline 0.06 -o out.yaml
     """
     console = Console()
+    if phase["phase_capture"] is not None:
+        run_phase(console, inputs, output, angles_path, emitter, single_table, **phase)
+        return
     if check:
         if len(inputs) != 2:
             raise click.UsageError("--check takes CAL.yaml SAMPLES.csv")

@@ -164,6 +164,39 @@ def fit_phase_offset(
     )
 
 
+def fit_phase_pair(
+    csi: CsiBlock,
+    true_deg: npt.ArrayLike,
+    freq_mhz: npt.ArrayLike,
+    channel: npt.ArrayLike,
+    baseline_m: float,
+    *,
+    a: int = 0,
+    b: int = 1,
+    per_channel: bool = True,
+) -> PhasePair:
+    """A pair's calibration: one offset per channel found (or one for all).
+
+    Raises:
+        CalibrationError: as :func:`fit_phase_offset`, naming the channel.
+    """
+    ch = np.asarray(channel, np.int64)
+    n = len(csi)
+    freq = np.broadcast_to(np.asarray(freq_mhz, np.float64), (n,))
+    theta = np.broadcast_to(np.asarray(true_deg, np.float64), (n,))
+    channels = sorted({int(c) for c in ch if int(c) != 0})
+    groups: list[tuple[int | None, npt.NDArray[np.bool_]]]
+    if per_channel and channels:
+        groups = [(c, ch == c) for c in channels]
+    else:
+        groups = [(None, np.ones(n, bool))]
+    offsets = tuple(
+        fit_phase_offset(csi.select(mask), theta[mask], freq[mask], baseline_m, a=a, b=b, channel=c)
+        for c, mask in groups
+    )
+    return PhasePair(a, b, baseline_m, offsets)
+
+
 def _number(value: Any, where: str) -> float:
     if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
         raise CalibrationError(f"{where}: must be a finite number, got {value!r}")

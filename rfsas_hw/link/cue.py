@@ -39,9 +39,12 @@ field by field in ``docs/protocol.md``)::
     72+L  4     b, float32
     76+L  4     c, float32
     80+L  64    ECDSA P-256 signature over every byte before it: r ‖ s
+    144+L 8     version 2 only: pre-authentication tag (:mod:`rfsas_hw.link.preauth`)
 
-The length is ``144 + L``. Checks follow the safety message's: cheap
-structural ones first (:func:`peek_cue`), values only after the signature.
+The length is ``144 + L`` (version 1) or ``152 + L`` (version 2, the version
+byte 2 and the tag after the signature, as for the safety message). Checks
+follow the safety message's: cheap structural ones first (:func:`peek_cue`),
+the tag, then the signature, values only after it.
 """
 
 from __future__ import annotations
@@ -53,12 +56,16 @@ from dataclasses import dataclass
 
 from rfsas_hw.errors import LinkError
 from rfsas_hw.link.message import (
-    MAGIC,
+    PREAUTH_BYTES,
     SIGNATURE_BYTES,
     VERSION,
+    VERSION_PREAUTH,
     MessageFormatError,
     check_sender_id,
+    pack_prefix,
+    peek_prefix,
 )
+from rfsas_hw.link.preauth import append_tag
 from rfsas_hw.link.signing import Signer
 
 TYPE_CUE = 3
@@ -171,8 +178,8 @@ def _problem(cue: Cue) -> str | None:
     return None
 
 
-def encode_cue_body(cue: Cue) -> bytes:
-    """Every byte of ``cue`` that the signature covers.
+def encode_cue_body(cue: Cue, version: int = VERSION) -> bytes:
+    """Every byte of ``cue`` that the signature covers (``version`` 1 or 2).
 
     Raises:
         LinkError: a field is out of range (sender id, sequence, epoch, emitter,
@@ -192,7 +199,9 @@ def encode_cue_body(cue: Cue) -> bytes:
     a = cue.a
     if cue.kind is CueKind.BEARING and struct.unpack(">f", struct.pack(">f", a))[0] >= 360.0:
         a = 0.0
-    head = _PREFIX.pack(MAGIC, VERSION, TYPE_CUE, 0, len(sender)) + sender
+    if version not in (VERSION, VERSION_PREAUTH):
+        raise LinkError(f"cue version {version}: 1 or 2")
+    head = pack_prefix(version, TYPE_CUE, sender)
     body = _BODY.pack(
         cue.t_gen_us,
         cue.seq,
@@ -215,58 +224,58 @@ def encode_cue_body(cue: Cue) -> bytes:
     return head + body
 
 
-def sign_cue(signer: Signer, cue: Cue) -> bytes:
-    """The signed datagram of ``cue``; its sender id must be the signer's.
+def sign_cue(signer: Signer, cue: Cue, preauth_key: bytes | None = None) -> bytes:
+    """The signed datagram of ``cue``: version 2 tagged with ``preauth_key`` (the
+    sender's pre-authentication key for ``cue.epoch``), else version 1.
 
     Raises:
         LinkError: the cue does not encode, or names another sender.
     """
     if cue.sender_id != signer.sender_id:
         raise LinkError(f"cue from {cue.sender_id!r} cannot be signed as {signer.sender_id!r}")
-    body = encode_cue_body(cue)
-    return body + signer.sign(body)
+    version = VERSION if preauth_key is None else VERSION_PREAUTH
+    body = encode_cue_body(cue, version)
+    signed = body + signer.sign(body)
+    return signed if preauth_key is None else append_tag(preauth_key, signed)
 
 
-def peek_cue(datagram: bytes) -> str:
-    """Cheap structural checks of a cue datagram; returns its sender id.
+@dataclass(frozen=True, slots=True)
+class PeekedCue:
+    """What :func:`peek_cue` learns without any cryptography."""
+
+    version: int
+    sender_id: str
+    epoch: int
+    """Nonce epoch (picks the pre-authentication key)."""
+
+
+def peek_cue(datagram: bytes) -> PeekedCue:
+    """Cheap structural checks of a cue datagram.
 
     Raises:
         MessageFormatError: ``truncated``, ``oversized``, ``bad_magic``,
             ``bad_version``, ``bad_type`` or ``malformed`` (flags, sender id).
     """
-    size = len(datagram)
-    if size < _PREFIX.size:
-        raise MessageFormatError("truncated", f"{size} bytes, header needs {_PREFIX.size}")
-    magic, version, kind, flags, sender_len = _PREFIX.unpack_from(datagram)
-    if magic != MAGIC:
-        raise MessageFormatError("bad_magic", f"starts with {bytes(datagram[:2])!r}")
-    if version != VERSION:
-        raise MessageFormatError("bad_version", f"version {version}, this reader speaks {VERSION}")
+    version, kind, sender = peek_prefix(datagram)
     if kind != TYPE_CUE:
         raise MessageFormatError("bad_type", f"message type {kind}, a cue is {TYPE_CUE}")
-    if flags != 0:
-        raise MessageFormatError("malformed", f"reserved flags {flags:#04x} set")
-    want = CUE_FIXED_BYTES + sender_len
+    size = len(datagram)
+    want = CUE_FIXED_BYTES + len(sender) + (PREAUTH_BYTES if version == VERSION_PREAUTH else 0)
     if size < want:
         raise MessageFormatError("truncated", f"{size} bytes, a cue from this sender is {want}")
     if size > want:
         raise MessageFormatError("oversized", f"{size} bytes, a cue from this sender is {want}")
-    sender = bytes(datagram[_PREFIX.size : _PREFIX.size + sender_len])
-    try:
-        return check_sender_id(sender.decode("ascii")).decode("ascii")
-    except (LinkError, UnicodeDecodeError):
-        raise MessageFormatError(
-            "malformed", f"sender id {sender!r} is not [A-Za-z0-9._-]{{1,32}}"
-        ) from None
+    (epoch,) = struct.unpack_from(">Q", datagram, _PREFIX.size + len(sender) + 12)
+    return PeekedCue(version, sender, epoch)
 
 
 def decode_cue(datagram: bytes) -> Cue:
-    """Parse a cue and check every value (the signature is not checked here).
+    """Parse a cue and check every value (neither tag nor signature is checked here).
 
     Raises:
         MessageFormatError: structure or values are invalid (``reason`` says which).
     """
-    sender = peek_cue(datagram)
+    sender = peek_cue(datagram).sender_id
     at = _PREFIX.size + len(sender)
     (
         t_gen_us,

@@ -5,6 +5,8 @@ first; the first failure decides the reason it is counted under:
 
 1. structure: ``truncated``, ``oversized``, ``bad_magic``, ``bad_version``,
    ``bad_type``, ``malformed`` (before any cryptography), ``unknown_sender``;
+   for version 2, the pre-authentication tag: ``no_preauth_key`` (the epoch's
+   nonce is not held), ``bad_preauth`` (an outsider's forgery: one HMAC spent);
 2. ``bad_signature`` (forged or altered), then value checks (``malformed``);
 3. ``stale`` (generated longer than ``max_age_s`` ago), ``future`` (ahead of
    the clock by more than ``max_future_s``), ``expired`` (its validity window
@@ -29,7 +31,8 @@ import numpy as np
 
 from rfsas_hw.errors import LinkError
 from rfsas_hw.link.cue import Cue, CueKind, decode_cue, peek_cue
-from rfsas_hw.link.message import SIGNATURE_BYTES, MessageFormatError
+from rfsas_hw.link.message import VERSION_PREAUTH, MessageFormatError, signed_part
+from rfsas_hw.link.preauth import PreauthKeys, tag_ok
 from rfsas_hw.link.replay import ReplayGuard
 from rfsas_hw.link.signing import SenderKeys, verify
 from rfsas_hw.link.transport import Transport
@@ -49,6 +52,8 @@ CUE_REASONS = (
     "bad_type",
     "malformed",
     "unknown_sender",
+    "no_preauth_key",
+    "bad_preauth",
     "bad_signature",
     "stale",
     "future",
@@ -118,6 +123,8 @@ class CueReceiver:
         position: the receiver's own (x_m, y_m), or None when unknown.
         transport: where :meth:`receive` reads datagrams from.
         clock: UTC ns.
+        preauth: pre-authentication keys for version-2 cues (None: those are
+            counted as ``no_preauth_key``).
     """
 
     def __init__(
@@ -128,8 +135,10 @@ class CueReceiver:
         position: Callable[[], tuple[float, float] | None] | None = None,
         transport: Transport | None = None,
         clock: Callable[[], int] = time.time_ns,
+        preauth: PreauthKeys | None = None,
     ) -> None:
         self.trust = trust
+        self.preauth = preauth
         self.config = config or CueReceiverConfig()
         self.position = position
         self.transport = transport
@@ -162,11 +171,19 @@ class CueReceiver:
 
     def _check(self, datagram: bytes, now_ns: int) -> Cue:
         cfg = self.config
-        sender = peek_cue(datagram)
+        head = peek_cue(datagram)
+        sender = head.sender_id
         key = self.trust.signing_key(sender)
         if key is None:
             raise _RejectError("unknown_sender", sender)
-        if not verify(key, datagram[:-SIGNATURE_BYTES], datagram[-SIGNATURE_BYTES:]):
+        if head.version == VERSION_PREAUTH:
+            pk = None if self.preauth is None else self.preauth.key_for(sender, head.epoch)
+            if pk is None:
+                raise _RejectError("no_preauth_key", f"{sender} epoch {head.epoch}")
+            if not tag_ok(pk, datagram):
+                raise _RejectError("bad_preauth", sender)
+        body, signature = signed_part(datagram)
+        if not verify(key, body, signature):
             raise _RejectError("bad_signature", sender)
         cue = decode_cue(datagram)
         now_us = now_ns // 1000

@@ -26,7 +26,9 @@ from rfsas_hw.link.cue import (
 )
 from rfsas_hw.link.cue_receiver import CueReceiver, CueReceiverConfig
 from rfsas_hw.link.message import MessageFormatError
+from rfsas_hw.link.preauth import PreauthKeys
 from rfsas_hw.link.signing import verify
+from rfsas_hw.privacy.hashing import NonceUnavailableError
 
 GOLDEN = Path(__file__).parent.parent / "data" / "link_cue_v1_bearing.bin"
 T_GEN_US = (NOW_NS - 20_000_000) // 1000
@@ -180,3 +182,41 @@ def test_receiver_never_raises_on_junk(trust: TrustedKeys) -> None:
     for junk in (b"", b"RF", b"RF\x01\x03\x00\x00", bytes(149), GOLDEN.read_bytes()[:80]):
         assert rx.feed(junk, NOW_NS) is None
     assert rx.stats.accepted == 0 and sum(rx.stats.rejected.values()) == 5
+
+
+class _Nonces:
+    def __init__(self, epoch: int) -> None:
+        self.epoch = epoch
+
+    def nonce_for(self, epoch: int) -> bytes:
+        if epoch != self.epoch:
+            raise NonceUnavailableError(f"no nonce for epoch {epoch}")
+        return bytes(range(32))
+
+
+def test_version_2_cue_is_tagged_and_the_tag_is_checked_first(
+    signer: Signer, trust: TrustedKeys
+) -> None:
+    epoch = SCHEDULE.epoch_of(NOW_NS)
+    keys = PreauthKeys(_Nonces(epoch))
+    pk = keys.key_for("rsu-1", epoch)
+    assert pk is not None
+    raw = sign_cue(signer, cue(), pk)
+    assert raw[2] == 2 and len(raw) == CUE_FIXED_BYTES + 5 + 8
+    assert decode_cue(raw) == cue()
+    rx = CueReceiver(
+        trust, CueReceiverConfig(epoch_s=SCHEDULE.epoch_s, grace_s=SCHEDULE.grace_s), preauth=keys
+    )
+    assert rx.feed(raw, NOW_NS) == cue()
+    # an outsider without the nonce: wrong tag, rejected before the signature
+    outsider = sign_cue(signer, cue(seq=50), bytes(32))
+    assert rx.feed(outsider, NOW_NS) is None
+    # stripping the tag and the version byte breaks the signature, which covers the version
+    stripped = bytearray(raw[:-8])
+    stripped[2] = 1
+    assert rx.feed(bytes(stripped), NOW_NS) is None
+    # a receiver without the epoch's nonce cannot check the tag
+    blind = CueReceiver(trust, CueReceiverConfig(epoch_s=SCHEDULE.epoch_s))
+    assert blind.feed(sign_cue(signer, cue(seq=51), pk), NOW_NS) is None
+    assert dict(rx.stats.rejected) == {"bad_preauth": 1, "bad_signature": 1}
+    assert dict(blind.stats.rejected) == {"no_preauth_key": 1}

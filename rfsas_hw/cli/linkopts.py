@@ -21,18 +21,35 @@ import click
 
 from rfsas_hw.errors import ConfigError
 from rfsas_hw.link.distribution import NonceInbox
+from rfsas_hw.link.fallback import FallbackSender
 from rfsas_hw.link.keys import KeyStore
 from rfsas_hw.link.preauth import NonceSource
 from rfsas_hw.link.publisher import Publisher
-from rfsas_hw.link.transport import open_transport
+from rfsas_hw.link.transport import open_transport, open_transports
 from rfsas_hw.privacy.epochs import DEFAULT_EPOCH_S, DEFAULT_GRACE_S, EpochSchedule
 from rfsas_hw.records import Pose
 
 F = TypeVar("F", bound=Callable[..., Any])
 
 
+FALLBACK_KEY = "rfsas.fallback"
+"""Where ``--fallback`` is kept in the click context (commands need no extra parameter)."""
+
+
+def _keep_fallback(ctx: click.Context, _param: click.Parameter, value: str | None) -> None:
+    ctx.meta[FALLBACK_KEY] = value
+
+
 def send_options(func: F) -> F:
-    """Add ``--send URL`` and ``--keys DIR`` to a click command."""
+    """Add ``--send URL``, ``--fallback URL`` and ``--keys DIR`` to a click command."""
+    func = click.option(
+        "--fallback",
+        metavar="URL",
+        expose_value=False,
+        callback=_keep_fallback,
+        help="Out-of-band path for --send (any URL --send takes): traffic moves there "
+        "after repeated send errors on the primary, and back after 2 s without one.",
+    )(func)
     func = click.option(
         "--keys",
         "keys_dir",
@@ -76,16 +93,36 @@ def make_publisher(
     ``send`` may hold several URLs (see :func:`join_urls`); with the deployment's
     epoch nonces in ``preauth`` it sends version-2 (pre-authenticated) messages.
 
+    With ``--fallback URL`` the publisher sends through a
+    :class:`~rfsas_hw.link.fallback.FallbackSender` (``--send`` is its primary).
+
     Raises:
-        ConfigError: ``--send`` without ``--keys``.
+        ConfigError: ``--send`` without ``--keys``, or ``--fallback`` without ``--send``.
         KeyStoreError: the key directory is not a usable sensor identity.
         LinkError: bad URL or socket failure.
     """
+    ctx = click.get_current_context(silent=True)
+    fallback = ctx.meta.get(FALLBACK_KEY) if ctx is not None else None
     if send is None:
+        if fallback is not None:
+            raise ConfigError("--fallback is the out-of-band path of --send: give --send too")
         return None
     if keys_dir is None:
         raise ConfigError("--send needs --keys DIR: messages are signed with the sensor's key")
-    return Publisher.from_keys(split_urls(send), keys_dir, pose, epoch_s=epoch_s, preauth=preauth)
+    if fallback is None:
+        return Publisher.from_keys(
+            split_urls(send), keys_dir, pose, epoch_s=epoch_s, preauth=preauth
+        )
+    signer = KeyStore.open(keys_dir).signer()
+    primary = open_transports(split_urls(send), "send")
+    try:
+        secondary = open_transport(fallback, "send")
+    except BaseException:
+        primary.close()
+        raise
+    return Publisher(
+        signer, FallbackSender(primary, secondary), pose, epoch_s=epoch_s, preauth=preauth
+    )
 
 
 NONCES_HELP = (

@@ -13,16 +13,22 @@ import threading
 import time
 from collections import Counter
 from collections.abc import Iterator
+from pathlib import Path
 
+import click
 import pytest
-from linkhelp import key, message
+from click.testing import CliRunner
+from linkhelp import NOW_NS, bearings, key, message
 
-from rfsas_hw.errors import LinkError
+from rfsas_hw.cli.linkopts import make_publisher, send_options
+from rfsas_hw.errors import ConfigError, LinkError
 from rfsas_hw.link import Signer, TrustedKeys
 from rfsas_hw.link.fallback import FallbackConfig, FallbackReceiver, FallbackSender
+from rfsas_hw.link.keys import KeyStore
 from rfsas_hw.link.latency import LatencyConfig
 from rfsas_hw.link.receiver import ReceiverConfig
 from rfsas_hw.link.transport import Transport, open_transport
+from rfsas_hw.records import Pose
 
 BUDGET_S = 0.1
 
@@ -171,3 +177,43 @@ def test_send_errors_alone_raise_the_alarm_and_nothing_is_lost() -> None:
     finally:
         tx.close()
         listener.close()
+
+
+def test_send_and_fallback_options_build_a_fallback_publisher(tmp_path: Path) -> None:
+    sensor = KeyStore.create(tmp_path / "rsu-7", "sensor")
+    primary = open_transport("udp://127.0.0.1:0", "recv")
+    secondary = open_transport("udp://127.0.0.1:0", "recv")
+    seen: dict[str, object] = {}
+
+    @click.command()
+    @send_options
+    def cmd(send: str | None, keys_dir: Path | None) -> None:
+        pub = make_publisher(send, keys_dir, Pose(1, 2, 3))
+        assert pub is not None
+        seen["transport"] = pub.transport
+        pub.on_bearings(bearings("any", 2, NOW_NS))
+        pub.close()
+
+    def url(t: Transport) -> str:
+        host, port = t.address  # type: ignore[attr-defined]
+        return f"udp://{host}:{port}"
+
+    try:
+        args = ["--send", url(primary), "--fallback", url(secondary), "--keys", str(sensor.path)]
+        result = CliRunner().invoke(cmd, args)
+        assert result.exit_code == 0, result.output
+        assert isinstance(seen["transport"], FallbackSender)
+        # a healthy primary carries everything; the secondary stays quiet
+        assert primary.recv(1.0) is not None and secondary.recv(0.2) is None
+    finally:
+        primary.close()
+        secondary.close()
+
+    @click.command()
+    @send_options
+    def lonely(send: str | None, keys_dir: Path | None) -> None:
+        make_publisher(send, keys_dir, Pose(0, 0, 0))
+
+    result = CliRunner().invoke(lonely, ["--fallback", "udp://127.0.0.1:9"])
+    assert isinstance(result.exception, ConfigError)
+    assert "give --send too" in str(result.exception)

@@ -108,11 +108,12 @@ def attach_scene(service: Any, out: Path | None, opts: dict[str, Any]) -> Ros2Ou
 
             writers.append(Rosbag2Writer(opts["rosbag2_dir"]))
         if opts.get("foxglove_port") is not None:
-            from rfsas_hw.ros2.foxglove_live import FoxgloveServer
+            from rfsas_hw.ros2.foxglove_live import LAYOUT_FILE, FoxgloveServer
 
             server = FoxgloveServer(opts["foxglove_host"], opts["foxglove_port"])
             writers.append(server)
             result.lines.append(f"foxglove: open {server.url} in the Foxglove app")
+            result.lines.append(f"foxglove: layout {LAYOUT_FILE}")
         if opts.get("ros2_publish") or opts.get("odom_topic"):
             from rfsas_hw.ros2.dds import DdsConfig, DdsPublisher, OdometryFeed
 

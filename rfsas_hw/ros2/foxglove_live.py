@@ -10,6 +10,7 @@ authentication, so exposing it on a network is the operator's decision.
 from __future__ import annotations
 
 import logging
+from pathlib import Path
 from typing import Any
 
 from rfsas_hw.errors import ConfigError
@@ -23,6 +24,9 @@ log = logging.getLogger(__name__)
 
 DEFAULT_PORT = 8765
 """Foxglove's usual WebSocket port."""
+
+LAYOUT_FILE = Path(__file__).resolve().parent / "layouts" / "rfsas.foxglove.json"
+"""The shipped Foxglove layout: 3D scene in ``map``, assessments, risk plot, link diagnostics."""
 
 
 class FoxgloveServer:

@@ -18,6 +18,7 @@ from __future__ import annotations
 import math
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
+from functools import cache
 from typing import Any
 
 import numpy as np
@@ -113,8 +114,9 @@ def yaw_quaternion(yaw_rad: float) -> Any:
 
 
 def compass_yaw(heading_deg: float) -> float:
-    """Compass degrees (clockwise from north) → ENU yaw, radians in (-π, π]."""
-    return float(compass_to_math_rad(float(heading_deg)))
+    """Compass degrees (clockwise from north) → ENU yaw, radians in [-π, π]."""
+    # scalar math: this runs for every marker and transform (compass_to_math_rad is numpy)
+    return math.remainder(math.radians(90.0 - float(heading_deg)), 2.0 * math.pi)
 
 
 def pose_msg(x_m: float, y_m: float, heading_deg: float) -> Any:
@@ -137,21 +139,47 @@ def _rgba(r: float, g: float, b: float, a: float) -> Any:
     return msg_class("std_msgs/msg/ColorRGBA")(r=r, g=g, b=b, a=a)
 
 
+@cache
+def _no_texture() -> Any:
+    """The empty texture every marker carries (shared: serialising never changes it)."""
+    return msg_class("sensor_msgs/msg/CompressedImage")(
+        header=header(0, ""), format="", data=np.empty(0, np.uint8)
+    )
+
+
+@cache
+def _no_mesh() -> Any:
+    """The empty mesh every marker carries (shared)."""
+    return msg_class("visualization_msgs/msg/MeshFile")(filename="", data=np.empty(0, np.uint8))
+
+
 def marker_id(emitter: str) -> int:
     """A stable non-negative int32 marker id for an emitter id (its first 31 bits)."""
     return int(emitter[:8], 16) & 0x7FFF_FFFF
 
 
+@cache
+def _unit_circle(n: int) -> tuple[tuple[float, float], ...]:
+    return tuple(
+        (math.cos(2 * math.pi * k / n), math.sin(2 * math.pi * k / n)) for k in range(n + 1)
+    )
+
+
 def ellipse_points(
-    x_m: float, y_m: float, cov: np.ndarray[Any, Any], n_sigma: float, n: int = 36
+    x_m: float, y_m: float, cov: np.ndarray[Any, Any], n_sigma: float, n: int = 24
 ) -> list[tuple[float, float]]:
     """Closed outline of the ``n_sigma`` ellipse of 2×2 ``cov`` around (x, y), metres."""
-    vals, vecs = np.linalg.eigh((cov + cov.T) / 2)
-    radii = n_sigma * np.sqrt(np.maximum(vals, 0.0))
-    t = np.linspace(0.0, 2 * np.pi, n + 1)
-    unit = np.stack([np.cos(t) * radii[0], np.sin(t) * radii[1]])
-    pts = vecs @ unit
-    return [(x_m + float(px), y_m + float(py)) for px, py in pts.T]
+    # closed-form eigen decomposition of a symmetric 2×2: this runs for every fix each step
+    a, b, c = float(cov[0, 0]), 0.5 * float(cov[0, 1] + cov[1, 0]), float(cov[1, 1])
+    mid, half = 0.5 * (a + c), math.hypot(0.5 * (a - c), b)
+    r1 = n_sigma * math.sqrt(max(mid + half, 0.0))
+    r2 = n_sigma * math.sqrt(max(mid - half, 0.0))
+    theta = 0.5 * math.atan2(2.0 * b, a - c)
+    ct, st = math.cos(theta), math.sin(theta)
+    return [
+        (x_m + ct * r1 * u - st * r2 * v, y_m + st * r1 * u + ct * r2 * v)
+        for u, v in _unit_circle(n)
+    ]
 
 
 class SceneBuilder:
@@ -181,6 +209,7 @@ class SceneBuilder:
         text: str = "",
     ) -> Any:
         m = msg_class("visualization_msgs/msg/Marker")
+        cls_point = msg_class("geometry_msgs/msg/Point")
         return m(
             header=header(t_ns, self.config.map_frame),
             ns=ns,
@@ -192,18 +221,14 @@ class SceneBuilder:
             color=_rgba(*rgba),
             lifetime=_duration(lifetime_s),
             frame_locked=False,
-            points=[point(px, py) for px, py in points],
+            points=[cls_point(x=float(px), y=float(py), z=0.0) for px, py in points],
             colors=[],
             texture_resource="",
-            texture=msg_class("sensor_msgs/msg/CompressedImage")(
-                header=header(0, ""), format="", data=np.empty(0, np.uint8)
-            ),
+            texture=_no_texture(),
             uv_coordinates=[],
             text=text,
             mesh_resource="",
-            mesh_file=msg_class("visualization_msgs/msg/MeshFile")(
-                filename="", data=np.empty(0, np.uint8)
-            ),
+            mesh_file=_no_mesh(),
             mesh_use_embedded_materials=False,
         )
 

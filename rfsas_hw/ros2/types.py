@@ -55,6 +55,7 @@ def typestore() -> Any:
     return store
 
 
+@cache
 def msg_class(typename: str) -> Any:
     """The dataclass of ``typename`` (``pkg/msg/Type``) in :func:`typestore`.
 

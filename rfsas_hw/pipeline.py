@@ -24,6 +24,7 @@ import numpy as np
 from rfsas_hw.angles import relative_to_compass
 from rfsas_hw.df.calibration import Calibration
 from rfsas_hw.df.estimate import DfFlag, estimate
+from rfsas_hw.df.hybrid import phase_df_result
 from rfsas_hw.privacy.hashing import MacHasher, NonceExpiredError, NonceUnavailableError
 from rfsas_hw.records import BearingBatch, ObservationBatch, Pose
 
@@ -131,6 +132,9 @@ class SensorPipeline:
         result = estimate(
             self.calibration, rssi[:, 0], rssi[:, 1], batch.channel, min_snr_db=self.min_snr_db
         )
+        if self.calibration.phase is not None and batch.csi is not None:
+            # a CSI receiver with a phase calibration: interferometer bearings
+            result = phase_df_result(self.calibration, batch, result)
         valid = result.flags == 0
         if not valid.all():
             for flag in DfFlag:

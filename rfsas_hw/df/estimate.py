@@ -54,6 +54,8 @@ class DfFlag(enum.IntFlag):
     """No calibration table for the frame's channel."""
     LOW_SNR = 0x10
     """The stronger antenna is below the minimum SNR."""
+    AMBIGUOUS = 0x20
+    """Interferometer only: more than one phase branch fits and nothing decides."""
 
 
 @dataclass(frozen=True, slots=True)

@@ -17,7 +17,7 @@ import numpy as np
 import numpy.typing as npt
 
 from rfsas_hw.df.calibration import Calibration
-from rfsas_hw.df.estimate import estimate
+from rfsas_hw.df.estimate import DfFlag, DfResult, estimate
 from rfsas_hw.df.interferometer import (
     IfFlag,
     InterferometerResult,
@@ -99,3 +99,28 @@ def estimate_phase(
         result.angle_deg[no_table] = np.nan
         result.sigma_deg[no_table] = np.nan
     return result, snr
+
+
+def phase_df_result(cal: Calibration, batch: ObservationBatch, mono: DfResult) -> DfResult:
+    """The interferometer's bearings in the monopulse's result shape (for the sensor pipeline).
+
+    Angle and σ come from :func:`estimate_phase`; the SNR column and a
+    ``LOW_SNR`` flag are the monopulse's (the stronger antenna's RSSI). A
+    saturated RSSI does not reject a phase bearing.
+
+    Raises:
+        CalibrationError: as :func:`estimate_phase`.
+    """
+    res, _ = estimate_phase(cal, batch)
+    flags = (mono.flags & np.uint8(DfFlag.LOW_SNR)).astype(np.uint8)
+    for src, dst in (
+        (IfFlag.MISSING_CHAIN, DfFlag.MISSING_CHAIN),
+        (IfFlag.OUTSIDE_FOV, DfFlag.OUTSIDE_FOV),
+        (IfFlag.NO_TABLE, DfFlag.NO_TABLE),
+        (IfFlag.AMBIGUOUS, DfFlag.AMBIGUOUS),
+    ):
+        flags |= ((res.flags & np.uint8(src)) != 0).astype(np.uint8) * np.uint8(dst)
+    bad = flags != 0
+    angle = np.where(bad, np.nan, res.angle_deg).astype(np.float32)
+    sigma = np.where(bad, np.nan, res.sigma_deg).astype(np.float32)
+    return DfResult(angle, sigma, mono.snr_db, flags)

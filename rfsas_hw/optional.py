@@ -13,6 +13,7 @@ EXTRAS = {
     "pygame": "sim",
     "stable_baselines3": "rl",
     "PIL": "plot",
+    "csiread": "csi",
 }
 
 

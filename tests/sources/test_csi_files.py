@@ -216,3 +216,16 @@ def test_spec_errors(tmp_path: Path) -> None:
         open_source(f"csi:{DATA / 'los_5.dat'}?band=5")
     with pytest.raises(SourceError, match="unknown format"):
         CsiSource(str(DATA / "los_5.dat"), format="esp")
+
+
+def test_missing_csiread_names_the_extra(monkeypatch: pytest.MonkeyPatch) -> None:
+    import sys
+
+    from rfsas_hw.errors import MissingDependencyError
+
+    monkeypatch.setitem(sys.modules, "csiread", None)
+    with pytest.raises(MissingDependencyError, match=r"rfsas-hw\[csi\]"):
+        CsiSource(str(DATA / "ath_csi_1.dat"))
+    # the formats read without csiread still work
+    with CsiSource(str(DATA / "los_5.dat")) as src:
+        assert sum(len(b) for b in src) == 1006

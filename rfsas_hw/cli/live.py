@@ -67,6 +67,7 @@ def live(
     fmt: str | None,
     sensor_id: str,
     pose: str,
+    origin: str | None,
     min_snr_db: float | None,
     nonce_secret: Path | None,
     errors: str,
@@ -86,7 +87,7 @@ def live(
     tcpdump -i wlan0mon -w - | rfsas live pcap:- --calibration cal.yaml --out b.jsonl
     """
     console = Console(stderr=True)
-    where = parse_pose(pose)
+    where = parse_pose(pose, origin)
     scheme, _ = parse_spec(spec)
     pipeline = None
     schedule = epoch_schedule(epoch_s)

@@ -74,6 +74,7 @@ def replay(
     fmt: str | None,
     sensor_id: str,
     pose: str,
+    origin: str | None,
     min_snr_db: float | None,
     nonce_secret: Path | None,
     errors: str,
@@ -93,7 +94,7 @@ def replay(
     rfsas replay capture.pcap --calibration cal.yaml --out - --json | jq .
     """
     console = Console(stderr=True)
-    where = parse_pose(pose)
+    where = parse_pose(pose, origin)
     epoch_schedule(epoch_s)
     pipeline = build_pipeline(
         calibration_path, sensor_id, where, min_snr_db, nonce_secret=nonce_secret, epoch_s=epoch_s

@@ -18,6 +18,7 @@ from rich.console import Console
 from rich.progress import BarColumn, DownloadColumn, Progress, TimeRemainingColumn
 from rich.table import Table
 
+from rfsas_hw.backend.site import parse_origin, pose_from_mapping
 from rfsas_hw.cli.exitcodes import Interrupted, WorkFailed
 from rfsas_hw.cli.linkopts import make_publisher, send_options
 from rfsas_hw.df import load_calibration
@@ -37,12 +38,26 @@ PROGRESS_MIN_BYTES = 4 * 1024 * 1024
 """Captures at least this large get a progress bar."""
 
 
-def parse_pose(text: str) -> Pose:
-    """``"X,Y,HEADING"`` (metres east, metres north, compass degrees) to a :class:`Pose`.
+def parse_pose(text: str, origin: str | None = None) -> Pose:
+    """``"X,Y,HEADING"`` (metres east, metres north, compass degrees) to a :class:`Pose`,
+    or ``"geo:LAT,LON,HEADING"`` (WGS-84 degrees) placed through ``origin``
+    (``"LAT,LON[,HEIGHT]"``, the site origin).
 
     Raises:
-        ConfigError: not three numbers.
+        ConfigError: not three numbers, or a geodetic pose without a usable origin.
     """
+    if text.startswith("geo:"):
+        if origin is None:
+            raise ConfigError(f"--pose {text!r}: a pose on the globe needs --origin LAT,LON")
+        try:
+            lat, lon, heading = (float(p) for p in text[4:].split(","))
+        except ValueError as err:
+            raise ConfigError(f"--pose {text!r}: expected geo:LAT_DEG,LON_DEG,HEADING_DEG") from err
+        return pose_from_mapping(
+            {"lat_deg": lat, "lon_deg": lon, "heading_deg": heading},
+            parse_origin(origin),
+            f"--pose {text!r}",
+        )
     parts = text.split(",")
     try:
         x, y, heading = (float(p) for p in parts)
@@ -99,7 +114,13 @@ def sensor_options(func: F) -> F:
             "--pose",
             default="0,0,0",
             show_default=True,
-            help="Sensor position and boresight: X_M,Y_M,HEADING_DEG (compass).",
+            help="Sensor position and boresight: X_M,Y_M,HEADING_DEG (compass), or "
+            "geo:LAT_DEG,LON_DEG,HEADING_DEG with --origin.",
+        ),
+        click.option(
+            "--origin",
+            metavar="LAT,LON[,HEIGHT]",
+            help="The site origin on WGS-84 that local metres start from (for --pose geo:…).",
         ),
         click.option(
             "--min-snr",

@@ -87,3 +87,17 @@ def test_origin_option_text() -> None:
     for bad in ("52.2", "a,b", "95,0"):
         with pytest.raises(ConfigError, match="origin"):
             parse_origin(bad)
+
+
+def test_sensor_pose_option_on_the_globe() -> None:
+    from rfsas_hw.cli.sensoropts import parse_pose
+
+    lat, lon, _ = ORIGIN.to_geodetic(-9.0, 9.0)
+    pose = parse_pose(f"geo:{float(lat)!r},{float(lon)!r},140", "52.2053,0.1218,12")
+    assert abs(pose.x_m + 9.0) < 0.01 and abs(pose.y_m - 9.0) < 0.01
+    assert pose.heading_deg == 140.0
+    assert parse_pose("-9,9,500") == parse_pose("-9,9,140")
+    with pytest.raises(ConfigError, match="needs --origin"):
+        parse_pose("geo:52.2,0.12,0")
+    with pytest.raises(ConfigError, match="expected geo:LAT_DEG"):
+        parse_pose("geo:52.2,0.12", "52.2053,0.1218")

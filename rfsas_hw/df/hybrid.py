@@ -26,7 +26,7 @@ from rfsas_hw.df.interferometer import (
     pair_phase,
 )
 from rfsas_hw.errors import CalibrationError
-from rfsas_hw.records import ObservationBatch
+from rfsas_hw.records import ObservationBatch, ObsFlag
 from rfsas_hw.rf.aoa import PhaseForm
 
 
@@ -39,7 +39,8 @@ def estimate_phase(
 ) -> tuple[InterferometerResult, npt.NDArray[np.float64]]:
     """Interferometer angle, σ and flags per frame, and the per-frame SNR of the pair, dB.
 
-    Frames whose channel has no phase offset are flagged ``NO_TABLE``.
+    Frames whose channel has no phase offset are flagged ``NO_TABLE``; frames the
+    source flagged ``PHASE_AMBIGUOUS`` (Intel 5300 at 2.4 GHz) ``AMBIGUOUS``.
     With ``hybrid`` the monopulse angle (where valid) chooses the branch.
 
     Raises:
@@ -98,6 +99,12 @@ def estimate_phase(
         result.flags[no_table] |= np.uint8(IfFlag.NO_TABLE)
         result.angle_deg[no_table] = np.nan
         result.sigma_deg[no_table] = np.nan
+    # the Intel 5300's per-chain phase at 2.4 GHz may be off by kπ/2: no bearing from it
+    unsure = (batch.flags & np.uint16(ObsFlag.PHASE_AMBIGUOUS)) != 0
+    if unsure.any():
+        result.flags[unsure] |= np.uint8(IfFlag.AMBIGUOUS)
+        result.angle_deg[unsure] = np.nan
+        result.sigma_deg[unsure] = np.nan
     return result, snr
 
 

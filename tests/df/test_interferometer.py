@@ -245,3 +245,25 @@ def test_hybrid_estimate_from_observations() -> None:
         csi=block,
     )
     assert np.all(estimate_phase(cal, other)[0].flags & IfFlag.NO_TABLE)
+
+
+def test_5300_phase_ambiguity_withholds_the_bearing() -> None:
+    from rfsas_hw.records import ObsFlag
+
+    array = CsiArray(baseline_m=LAM / 2)
+    theta = np.array([5.0, 10.0])
+    block = _block(array, theta, 30.0, seed=13)
+    batch = ObservationBatch(
+        t_ns=np.arange(2),
+        mac=np.zeros(2),
+        freq_mhz=np.full(2, 2437),
+        channel=np.full(2, 6),
+        rssi_dbm=np.full((2, 2), -50.0),
+        flags=np.array([0, ObsFlag.PHASE_AMBIGUOUS]),
+        csi=block,
+    )
+    phase = PhaseCalibration((PhasePair(0, 1, LAM / 2, (PhaseOffset(None, 0.0),)),))
+    cal = Calibration("linear", (_amplitude_table(),), phase=phase)
+    out, _ = estimate_phase(cal, batch, hybrid=False)
+    assert out.valid.tolist() == [True, False]
+    assert out.flags[1] & IfFlag.AMBIGUOUS

@@ -1,0 +1,209 @@
+"""The SUMO adapter: persons and vehicles in, the ego's speed out.
+
+Works with ``libsumo`` (SUMO inside this process: fast, one simulation at a
+time, no GUI) or ``traci`` (a SUMO started by us or elsewhere, e.g. beside
+Veins; needed for ``sumo-gui``). Both expose the same API, so the adapter is
+given the module.
+
+Each step :meth:`SumoAdapter.read` converts every person and vehicle to an
+:class:`~rfsas_hw.bridges.bridge.Entity` in the rfsas frame (SUMO reports a
+vehicle's front bumper; :mod:`rfsas_hw.bridges.coords` moves it to the box
+centre), and :meth:`SumoAdapter.act` turns the advisory into speed commands:
+BRAKE stops the ego through ``vehicle.setSpeed(ego, 0)`` (SUMO applies the
+type's deceleration) and holds it for ``hold_s``; CAUTION caps its speed
+when a cap is configured; otherwise SUMO drives it again.
+
+Buildings come from SUMO polygons of type ``building`` (:func:`read_buildings`),
+each taken as its bounding rectangle (the twin's buildings are axis-aligned).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from types import ModuleType
+from typing import Literal
+
+from rfsas_hw.bridges.bridge import Entity
+from rfsas_hw.bridges.config import EntityKind
+from rfsas_hw.bridges.coords import FRAMES
+from rfsas_hw.errors import ConfigError, MissingDependencyError, SimulationError
+from rfsas_hw.twin.scenario import BuildingSpec
+
+SumoApi = Literal["libsumo", "traci"]
+BUILDING_TYPES = ("building",)
+"""SUMO polygon types read as buildings."""
+BUILDING_LOSS_DB = 20.0
+"""Extra loss of a path through a SUMO building, dB."""
+
+__all__ = ["SumoAdapter", "SumoControl", "load_sumo", "read_buildings"]
+
+
+def load_sumo(api: SumoApi) -> ModuleType:
+    """The ``libsumo`` or ``traci`` module.
+
+    Raises:
+        MissingDependencyError: it is not installed (names the install command).
+        ConfigError: an unknown API name.
+    """
+    if api not in ("libsumo", "traci"):
+        raise ConfigError(f"SUMO API must be libsumo or traci, not {api!r}")
+    try:
+        import importlib
+
+        return importlib.import_module(api)
+    except ImportError as err:
+        raise MissingDependencyError(
+            f"{api} is not installed; install it with: pip install 'rfsas-hw[sumo]'"
+        ) from err
+
+
+def read_buildings(sumo: ModuleType, origin: tuple[float, float]) -> list[BuildingSpec]:
+    """Every polygon of type ``building`` as an rfsas-frame rectangle (its bounding box)."""
+    out = []
+    for pid in sumo.polygon.getIDList():
+        if sumo.polygon.getType(pid) not in BUILDING_TYPES:
+            continue
+        shape = sumo.polygon.getShape(pid)
+        xs = [p[0] - origin[0] for p in shape]
+        ys = [p[1] - origin[1] for p in shape]
+        if max(xs) > min(xs) and max(ys) > min(ys):
+            out.append(
+                BuildingSpec(
+                    x_min_m=min(xs),
+                    x_max_m=max(xs),
+                    y_min_m=min(ys),
+                    y_max_m=max(ys),
+                    name=str(pid),
+                    loss_db=BUILDING_LOSS_DB,
+                )
+            )
+    return out
+
+
+@dataclass(frozen=True)
+class SumoControl:
+    """How the adapter acts on advisories."""
+
+    hold_s: float = 1.0
+    """A BRAKE holds the ego stopped until no BRAKE came for this long, seconds."""
+    caution_speed_mps: float | None = None
+    """Speed cap while CAUTION is the advisory, m/s (None: no cap)."""
+
+    def __post_init__(self) -> None:
+        if self.hold_s < 0:
+            raise ValueError("hold_s must be >= 0")
+        if self.caution_speed_mps is not None and self.caution_speed_mps < 0:
+            raise ValueError("caution_speed_mps must be >= 0")
+
+
+def _kind_of_vehicle(v_class: str) -> EntityKind:
+    return "cyclist" if v_class == "bicycle" else "vehicle"
+
+
+class SumoAdapter:
+    """Reads SUMO's persons and vehicles and steers the ego (see the module docstring).
+
+    Args:
+        sumo: the ``libsumo`` or ``traci`` module, with a simulation started.
+        ego_id: the ego vehicle's SUMO id.
+        origin: the site origin in SUMO's net coordinates, metres.
+        control: how advisories act on the ego.
+    """
+
+    def __init__(
+        self,
+        sumo: ModuleType,
+        ego_id: str,
+        *,
+        origin: tuple[float, float] = (0.0, 0.0),
+        control: SumoControl | None = None,
+    ) -> None:
+        self.sumo = sumo
+        self.ego_id = ego_id
+        self.origin = origin
+        self.control = control or SumoControl()
+        self.frame = FRAMES["sumo"]
+        self._braking_until = -math.inf
+        self._capped = False
+        self._vclass: dict[str, str] = {}
+        self.ego_seen = False
+
+    def _vehicle(self, vid: str, kind: EntityKind) -> Entity:
+        v = self.sumo.vehicle
+        x, y = v.getPosition(vid)
+        length = float(v.getLength(vid))
+        e, n, h = self.frame.to_rfsas(
+            x, y, v.getAngle(vid), length_m=length, reference="front-bumper", origin=self.origin
+        )
+        return Entity(
+            id=vid,
+            kind=kind,
+            x_m=float(e),
+            y_m=float(n),
+            heading_deg=float(h),
+            speed_mps=float(v.getSpeed(vid)),
+            length_m=length,
+            width_m=float(v.getWidth(vid)),
+        )
+
+    def read(self) -> tuple[Entity | None, list[Entity]]:
+        """The ego (None while it is not in the network) and every other entity now."""
+        sumo = self.sumo
+        ego: Entity | None = None
+        others: list[Entity] = []
+        for vid in sumo.vehicle.getIDList():
+            if vid == self.ego_id:
+                ego = self._vehicle(vid, "vehicle")
+                self.ego_seen = True
+                continue
+            if vid not in self._vclass:
+                self._vclass[vid] = str(sumo.vehicle.getVehicleClass(vid))
+            others.append(self._vehicle(vid, _kind_of_vehicle(self._vclass[vid])))
+        p = sumo.person
+        for pid in p.getIDList():
+            x, y = p.getPosition(pid)
+            e, n, h = self.frame.to_rfsas(
+                x, y, p.getAngle(pid), reference="centre", origin=self.origin
+            )
+            others.append(
+                Entity(
+                    id=f"person:{pid}",
+                    kind="pedestrian",
+                    x_m=float(e),
+                    y_m=float(n),
+                    heading_deg=float(h),
+                    speed_mps=float(p.getSpeed(pid)),
+                    length_m=float(p.getLength(pid)),
+                    width_m=float(p.getWidth(pid)),
+                )
+            )
+        return ego, others
+
+    def act(self, t_s: float, advisory: str) -> str:
+        """Apply ``advisory`` to the ego at ``t_s``; what was done (``brake``, ``hold``,
+        ``cap``, ``release`` or ``none``).
+
+        Raises:
+            SimulationError: the ego is not in the network.
+        """
+        v = self.sumo.vehicle
+        if self.ego_id not in v.getIDList():
+            raise SimulationError(f"ego vehicle {self.ego_id!r} is not in the simulation")
+        if advisory == "brake":
+            self._braking_until = t_s + self.control.hold_s
+            v.setSpeed(self.ego_id, 0.0)
+            return "brake"
+        if t_s < self._braking_until:
+            return "hold"
+        cap = self.control.caution_speed_mps
+        if advisory == "caution" and cap is not None:
+            v.setSpeed(self.ego_id, min(float(v.getSpeed(self.ego_id)), cap))
+            self._capped = True
+            return "cap"
+        if self._capped or self._braking_until > -math.inf:
+            v.setSpeed(self.ego_id, -1.0)
+            self._capped = False
+            self._braking_until = -math.inf
+            return "release"
+        return "none"

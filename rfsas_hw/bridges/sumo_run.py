@@ -1,0 +1,384 @@
+"""Closed loop in SUMO: run a scenario over seeds with RF-SAS steering the ego, and score it.
+
+One run file configures both sides: the bridge (units, devices, backend
+profile; :mod:`rfsas_hw.bridges.config`) and a ``sumo:`` section
+(:class:`SumoRunConfig`: which vehicle is the ego, how advisories act, how
+walking speeds vary by seed). Per seed, SUMO gets ``--seed``, the bridge the
+same seed, and every person a walking speed drawn from it.
+
+Controllers: ``rfsas`` (advisories act on the ego), ``ignore`` (RF-SAS runs,
+the ego ignores it: the baseline with advisory times) and ``off`` (no RF-SAS
+at all: the fastest baseline).
+
+Scored per seed (:class:`SeedResult`): collision with a person and the ego's
+speed then, the smallest gap between the ego's box and any person, the first
+CAUTION and BRAKE, how many fixes were trustworthy and their median error
+against the truth (looked up beside the backend, never in it), and the wall
+time of SUMO's steps and the bridge's.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import IO, Any, Literal
+
+import numpy as np
+
+from rfsas_hw.bridges.bridge import Bridge, Entity, StepResult
+from rfsas_hw.bridges.config import BridgeConfig, bridge_config_from_mapping
+from rfsas_hw.bridges.sumo import SumoAdapter, SumoApi, SumoControl, load_sumo, read_buildings
+from rfsas_hw.config import from_mapping, read_yaml
+from rfsas_hw.errors import ConfigError, SimulationError
+from rfsas_hw.twin.rng import stream
+
+Controller = Literal["rfsas", "ignore", "off"]
+
+__all__ = [
+    "RunSummary",
+    "SeedResult",
+    "SumoRunConfig",
+    "load_run_file",
+    "run_seed",
+    "run_seeds",
+]
+
+
+@dataclass(frozen=True)
+class SumoRunConfig:
+    """The ``sumo:`` section of a run file."""
+
+    ego: str = "ego"
+    """SUMO id of the ego vehicle."""
+    hold_s: float = 1.0
+    """A BRAKE holds the ego stopped until no BRAKE came for this long, seconds."""
+    caution_speed_mps: float | None = None
+    """Speed cap under CAUTION, m/s (None: no cap)."""
+    person_speed_mps: tuple[float, float] | None = None
+    """Range of each person's walking speed, drawn per seed, m/s (None: SUMO's own)."""
+    end_s: float = 60.0
+    """Stop a seed at this simulation time at the latest, seconds."""
+    ego_speed_mode: int | None = 38
+    """SUMO speed mode given to the ego when it appears. 38 keeps the limits of
+    acceleration and deceleration but drops SUMO's own yielding and safe-speed
+    rules: the driver does not see the hidden pedestrian, so only RF-SAS can
+    stop the car. None: SUMO's default (31)."""
+
+    def __post_init__(self) -> None:
+        if self.person_speed_mps is not None:
+            lo, hi = self.person_speed_mps
+            if not 0 < lo <= hi:
+                raise ValueError("person_speed_mps must be [low, high] with 0 < low <= high")
+        if not self.end_s > 0:
+            raise ValueError("end_s must be positive")
+
+
+def load_run_file(path: str | Path) -> tuple[BridgeConfig, SumoRunConfig]:
+    """The bridge settings and the ``sumo:`` section of a run file.
+
+    Raises:
+        ConfigError: unreadable file, invalid YAML, unknown key or bad value.
+    """
+    p = Path(path)
+    data = read_yaml(p) or {}
+    if not isinstance(data, dict):
+        raise ConfigError(f"{p}: expected a mapping at the top level")
+    data = dict(data)
+    section = data.pop("sumo", None) or {}
+    if not isinstance(section, dict):
+        raise ConfigError(f"{p}: sumo: expected a mapping")
+    run = from_mapping(SumoRunConfig, section, f"{p}: sumo")
+    return bridge_config_from_mapping(data, str(p), p.resolve().parent), run
+
+
+@dataclass
+class SeedResult:
+    """The outcome of one seed."""
+
+    seed: int
+    controller: Controller
+    collision: bool = False
+    """The ego hit a person."""
+    collision_t_s: float | None = None
+    impact_speed_mps: float = 0.0
+    """The ego's speed at the collision, m/s (0 without one)."""
+    min_gap_m: float = math.inf
+    """Smallest distance from the ego's box to any person's centre, metres."""
+    first_caution_s: float | None = None
+    first_brake_s: float | None = None
+    stopped: bool = False
+    """The ego came to a stop."""
+    fixes_ok: int = 0
+    fixes_flagged: int = 0
+    median_fix_error_m: float = math.nan
+    """Median distance of trustworthy fixes from the person they belong to, metres."""
+    steps: int = 0
+    sumo_ms: float = math.nan
+    """Mean wall time of one SUMO step, milliseconds."""
+    bridge_ms: float = math.nan
+    """Mean wall time of one bridge step, milliseconds."""
+
+    def as_dict(self) -> dict[str, Any]:
+        """JSON-ready (non-finite numbers as None)."""
+        return {
+            k: (None if isinstance(v, float) and not math.isfinite(v) else v)
+            for k, v in asdict(self).items()
+        }
+
+
+@dataclass
+class RunSummary:
+    """Seeds of one controller, summed up."""
+
+    controller: Controller
+    results: list[SeedResult] = field(default_factory=list)
+
+    @property
+    def collisions(self) -> int:
+        """Seeds with a collision."""
+        return sum(r.collision for r in self.results)
+
+    @property
+    def brakes(self) -> int:
+        """Seeds with at least one BRAKE."""
+        return sum(r.first_brake_s is not None for r in self.results)
+
+    def impact_speeds(self) -> list[float]:
+        """Impact speeds of the seeds with a collision, m/s."""
+        return [r.impact_speed_mps for r in self.results if r.collision]
+
+    def row(self) -> dict[str, Any]:
+        """One line of the docs table."""
+        speeds = self.impact_speeds()
+        brakes = [r.first_brake_s for r in self.results if r.first_brake_s is not None]
+        errors = [r.median_fix_error_m for r in self.results if math.isfinite(r.median_fix_error_m)]
+        gaps = [r.min_gap_m for r in self.results]
+        return {
+            "controller": self.controller,
+            "seeds": len(self.results),
+            "collisions": self.collisions,
+            "mean_impact_mps": float(np.mean(speeds)) if speeds else 0.0,
+            "max_impact_mps": max(speeds) if speeds else 0.0,
+            "median_min_gap_m": float(np.median(gaps)) if gaps else math.nan,
+            "seeds_with_brake": self.brakes,
+            "median_first_brake_s": float(np.median(brakes)) if brakes else math.nan,
+            "fixes_ok": sum(r.fixes_ok for r in self.results),
+            "median_fix_error_m": float(np.median(errors)) if errors else math.nan,
+            "sumo_ms": float(np.nanmean([r.sumo_ms for r in self.results])),
+            "bridge_ms": float(np.nanmean([r.bridge_ms for r in self.results])),
+        }
+
+
+def _gap(ego: Entity, other: Entity) -> float:
+    """Distance from ``other``'s centre to the ego's box, metres (0 inside)."""
+    a = math.radians(ego.heading_deg)
+    u = (math.sin(a), math.cos(a))
+    dx, dy = other.x_m - ego.x_m, other.y_m - ego.y_m
+    along = dx * u[0] + dy * u[1]
+    across = -dx * u[1] + dy * u[0]
+    return math.hypot(
+        max(abs(along) - ego.length_m / 2, 0.0), max(abs(across) - ego.width_m / 2, 0.0)
+    )
+
+
+def _step_line(seed: int, res: StepResult, action: str, ego: Entity) -> dict[str, Any]:
+    top = res.top
+    return {
+        "record": "step",
+        "seed": seed,
+        "t_s": round(res.t_s, 3),
+        "advisory": res.advisory,
+        "action": action,
+        "ego": {
+            "x_m": round(ego.x_m, 3),
+            "y_m": round(ego.y_m, 3),
+            "speed_mps": round(ego.speed_mps, 3),
+        },
+        "bearings": {k: len(v) for k, v in res.bearings.items()},
+        "fixes": [f.as_dict() for f in res.fixes],
+        "top": top.as_dict() if top is not None else None,
+    }
+
+
+def run_seed(
+    sumocfg: str | Path,
+    config: BridgeConfig,
+    run: SumoRunConfig,
+    seed: int,
+    *,
+    controller: Controller = "rfsas",
+    api: SumoApi = "libsumo",
+    gui: bool = False,
+    out: IO[str] | None = None,
+    truth_path: str | Path | None = None,
+    fcd_path: str | Path | None = None,
+    on_step: Callable[[float], None] | None = None,
+) -> SeedResult:
+    """Run one seed of a SUMO scenario closed loop and score it.
+
+    Args:
+        sumocfg: a ``.sumocfg`` file (or a ``.net.xml`` with routes given in it).
+        config: the bridge settings (their ``seed`` is replaced by ``seed``).
+        run: the ``sumo:`` section.
+        seed: SUMO's ``--seed``, the bridge's seed and the walking-speed draw.
+        controller: ``rfsas``, ``ignore`` or ``off`` (see the module docstring).
+        api: ``libsumo`` (in-process) or ``traci`` (a SUMO process; needed for ``gui``).
+        gui: run ``sumo-gui`` (TraCI only).
+        out: where step lines go (JSON per line; hashed ids only).
+        truth_path: the bridge's truth file.
+        fcd_path: SUMO's FCD output (for the offline path).
+        on_step: called with the simulation time after every step (a progress bar).
+
+    Raises:
+        MissingDependencyError: the SUMO API is missing.
+        SimulationError: SUMO cannot start, or the ego never appears.
+    """
+    from dataclasses import replace
+
+    if gui and api != "traci":
+        raise ConfigError("--gui needs the TraCI API (sumo-gui runs as its own process)")
+    sumo = load_sumo(api)
+    cmd = ["sumo-gui" if gui else "sumo"]
+    cfg_path = Path(sumocfg)
+    cmd += ["-c", str(cfg_path)] if cfg_path.suffix == ".sumocfg" else ["-n", str(cfg_path)]
+    cmd += ["--seed", str(seed), "--collision.check-junctions", "true"]
+    cmd += ["--collision.action", "warn", "--no-step-log", "true", "--no-warnings", "true"]
+    if fcd_path is not None:
+        cmd += ["--fcd-output", str(fcd_path)]
+    if gui:
+        cmd += ["--start", "true", "--quit-on-end", "true"]
+    try:
+        sumo.start(cmd)
+    except Exception as err:  # libsumo and traci raise their own types
+        raise SimulationError(f"{cfg_path}: SUMO did not start: {err}") from err
+    result = SeedResult(seed=seed, controller=controller)
+    bridge: Bridge | None = None
+    try:
+        adapter = SumoAdapter(
+            sumo,
+            run.ego,
+            origin=config.origin_m,
+            control=SumoControl(run.hold_s, run.caution_speed_mps),
+        )
+        if controller != "off":
+            buildings = read_buildings(sumo, config.origin_m)
+            bridge = Bridge(replace(config, seed=seed), buildings=buildings, truth_path=truth_path)
+        _loop(sumo, adapter, bridge, run, result, controller, out, on_step)
+    finally:
+        if bridge is not None:
+            bridge.close()
+        sumo.close()
+    if not adapter.ego_seen:
+        raise SimulationError(f"{cfg_path}: the ego vehicle {run.ego!r} never appeared")
+    return result
+
+
+def _loop(
+    sumo: Any,
+    adapter: SumoAdapter,
+    bridge: Bridge | None,
+    run: SumoRunConfig,
+    result: SeedResult,
+    controller: Controller,
+    out: IO[str] | None,
+    on_step: Callable[[float], None] | None,
+) -> None:
+    speeds_set: set[str] = set()
+    sumo_s: list[float] = []
+    bridge_s: list[float] = []
+    errors: list[float] = []
+    while True:
+        w0 = time.perf_counter()
+        sumo.simulationStep()
+        sumo_s.append(time.perf_counter() - w0)
+        t = float(sumo.simulation.getTime())
+        if run.person_speed_mps is not None:
+            for pid in sumo.person.getIDList():
+                if pid not in speeds_set:
+                    lo, hi = run.person_speed_mps
+                    v = lo + (hi - lo) * float(stream(result.seed, "walk-speed", pid).random())
+                    sumo.person.setSpeed(pid, v)
+                    speeds_set.add(pid)
+        seen_before = adapter.ego_seen
+        ego, others = adapter.read()
+        if ego is not None and not seen_before and run.ego_speed_mode is not None:
+            sumo.vehicle.setSpeedMode(run.ego, run.ego_speed_mode)
+        if on_step is not None:
+            on_step(t)
+        if ego is None:
+            if adapter.ego_seen or t >= run.end_s or sumo.simulation.getMinExpectedNumber() == 0:
+                break
+            continue
+        result.steps += 1
+        people = [o for o in others if o.kind == "pedestrian"]
+        for p in people:
+            result.min_gap_m = min(result.min_gap_m, _gap(ego, p))
+        hit = [
+            c
+            for c in sumo.simulation.getCollisions()
+            if c.collider == run.ego and c.victim in sumo.person.getIDList()
+        ]
+        if ego.speed_mps < 0.05 and result.steps > 1:
+            result.stopped = True
+        if bridge is not None:
+            w0 = time.perf_counter()
+            res = bridge.step(t, ego, others)
+            bridge_s.append(time.perf_counter() - w0)
+            action = adapter.act(t, res.advisory) if controller == "rfsas" and not hit else "none"
+            if res.advisory == "caution" and result.first_caution_s is None:
+                result.first_caution_s = t
+            if res.advisory == "brake" and result.first_brake_s is None:
+                result.first_brake_s = t
+            where = {o.id: o for o in others}
+            for f in res.fixes:
+                if not f.ok:
+                    result.fixes_flagged += 1
+                    continue
+                result.fixes_ok += 1
+                who = bridge.entity_of(f.emitter, res.t_ns)
+                if who is not None and who in where:
+                    errors.append(math.hypot(f.x_m - where[who].x_m, f.y_m - where[who].y_m))
+            if out is not None:
+                out.write(json.dumps(_step_line(result.seed, res, action, ego)) + "\n")
+        if hit:
+            result.collision = True
+            result.collision_t_s = t
+            result.impact_speed_mps = float(hit[0].colliderSpeed)
+            break
+        if t >= run.end_s:
+            break
+    result.sumo_ms = float(np.mean(sumo_s)) * 1e3 if sumo_s else math.nan
+    result.bridge_ms = float(np.mean(bridge_s)) * 1e3 if bridge_s else math.nan
+    result.median_fix_error_m = float(np.median(errors)) if errors else math.nan
+
+
+def run_seeds(
+    sumocfg: str | Path,
+    config: BridgeConfig,
+    run: SumoRunConfig,
+    seeds: Sequence[int],
+    *,
+    controller: Controller = "rfsas",
+    api: SumoApi = "libsumo",
+    out: IO[str] | None = None,
+    on_seed: Callable[[SeedResult], None] | None = None,
+    **options: Any,
+) -> RunSummary:
+    """:func:`run_seed` for every seed; the summary.
+
+    Raises:
+        as :func:`run_seed`.
+    """
+    summary = RunSummary(controller)
+    for seed in seeds:
+        r = run_seed(sumocfg, config, run, seed, controller=controller, api=api, out=out, **options)
+        summary.results.append(r)
+        if out is not None:
+            out.write(json.dumps({"record": "seed", **r.as_dict()}) + "\n")
+        if on_seed is not None:
+            on_seed(r)
+    return summary

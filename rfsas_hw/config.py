@@ -22,6 +22,45 @@ from rfsas_hw.errors import ConfigError, RfsasError
 T = TypeVar("T")
 
 
+MAX_TEXT_BYTES = 64 * 1024 * 1024
+"""Largest text input (YAML, CSV, key card) read into memory, bytes."""
+
+
+def read_text_input(
+    path: str | Path,
+    what: str,
+    max_bytes: int = MAX_TEXT_BYTES,
+    error: type[RfsasError] = ConfigError,
+) -> str:
+    """The text of a UTF-8 input file (a leading byte-order mark is dropped).
+
+    Raises:
+        ConfigError (or ``error``): unreadable, larger than ``max_bytes``, binary,
+            or not UTF-8 (UTF-16 is named as such), with the file and the byte offset.
+    """
+    p = Path(path)
+    try:
+        with p.open("rb") as fh:
+            raw = fh.read(max_bytes + 1)
+    except OSError as err:
+        raise error(f"{p}: cannot read: {err.strerror or err}") from err
+    if len(raw) > max_bytes:
+        raise error(f"{p}: larger than {max_bytes // (1024 * 1024)} MiB; not a {what} file")
+    if raw.startswith((b"\xff\xfe", b"\xfe\xff")):
+        raise error(f"{p}: UTF-16 text; save the {what} file as UTF-8")
+    if raw.startswith(b"\xef\xbb\xbf"):
+        raw = raw[3:]
+    nul = raw.find(b"\x00")
+    if nul >= 0:
+        raise error(f"{p}: byte {nul}: a NUL byte; this is not a {what} text file")
+    try:
+        return raw.decode("utf-8")
+    except UnicodeDecodeError as err:
+        raise error(
+            f"{p}: byte {err.start}: not UTF-8 text; save the {what} file as UTF-8"
+        ) from err
+
+
 def read_yaml(path: str | Path) -> Any:
     """Parse a YAML file.
 
@@ -29,12 +68,11 @@ def read_yaml(path: str | Path) -> Any:
         ConfigError: the file is missing or is not valid YAML (with line/column).
     """
     p = Path(path)
-    try:
-        text = p.read_text(encoding="utf-8")
-    except OSError as err:
-        raise ConfigError(f"{p}: cannot read: {err.strerror or err}") from err
+    text = read_text_input(p, "YAML")
     try:
         return yaml.safe_load(text)
+    except RecursionError as err:
+        raise ConfigError(f"{p}: invalid YAML: nested too deeply") from err
     except yaml.YAMLError as err:
         mark = getattr(err, "problem_mark", None)
         where = f" line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""

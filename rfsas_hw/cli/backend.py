@@ -30,6 +30,7 @@ from rfsas_hw.cli.ros2opts import attach_scene, ros2_options
 from rfsas_hw.errors import ConfigError
 from rfsas_hw.link import Receiver, ReceiverConfig
 from rfsas_hw.link.keys import KeyStore
+from rfsas_hw.outpaths import check_output
 from rfsas_hw.privacy.epochs import DEFAULT_EPOCH_S, EpochSchedule
 from rfsas_hw.records import Assessment
 
@@ -217,6 +218,10 @@ def backend(
     more sensors within the window become a fix with its covariance; fixes feed
     a track per emitter; every track is judged against the vehicle state.
     """
+    inputs = [p for p in (config_file, site_map, vehicle) if p is not None]
+    for target in (out, plot):
+        if target is not None:  # an existing result is replaced: it is this run's output
+            check_output(target, [*inputs, *Path(keys_dir).glob("**/*")], force=True)
     config = BackendConfig() if config_file is None else load_backend_config(config_file)
     assoc, enc = config.association, config.encounter
     config = replace(

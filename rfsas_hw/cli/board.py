@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import json
 import logging
+import os
 import shutil
 import signal
 import tempfile
@@ -50,9 +52,22 @@ def list_ports() -> None:
 
 @board.command("info")
 @click.argument("url")
-@click.option("--baud", default=921_600, show_default=True, help="Line rate, bit/s.")
-@click.option("--timeout", default=0.5, show_default=True, help="Seconds to wait per answer.")
-def info(url: str, baud: int, timeout: float) -> None:
+@click.option(
+    "--baud",
+    type=click.IntRange(min=1),
+    default=921_600,
+    show_default=True,
+    help="Line rate, bit/s.",
+)
+@click.option(
+    "--timeout",
+    type=click.FloatRange(min=0, min_open=True),
+    default=0.5,
+    show_default=True,
+    help="Seconds to wait per answer.",
+)
+@click.option("--json", "as_json", is_flag=True, help="Print one JSON object instead of a table.")
+def info(url: str, baud: int, timeout: float, as_json: bool) -> None:
     """Handshake with the board at URL (device path or pyserial URL) and show what it says.
 
     Use spy://DEVICE to see every byte on stderr.
@@ -61,6 +76,20 @@ def info(url: str, baud: int, timeout: float) -> None:
 
     msg, facts = board_info(url, baudrate=baud, handshake_timeout_s=timeout)
     caps = [c.name for c in Capability if c and c & msg.capabilities and c.name]
+    rtt = facts["best_rtt_us"]
+    if as_json:
+        record = {
+            "url": url,
+            "protocol_version": msg.protocol_version,
+            "firmware": msg.firmware,
+            "board_id": f"{msg.board_id:016x}",
+            "antennas": msg.n_antennas,
+            "capabilities": caps,
+            "best_rtt_us": rtt,
+            "clock_offset_ns": facts["clock_offset_ns"],
+        }
+        click.echo(json.dumps(record))
+        return
     table = Table(title=f"Board at {url}")
     table.add_column("field")
     table.add_column("value")
@@ -69,7 +98,6 @@ def info(url: str, baud: int, timeout: float) -> None:
     table.add_row("board id", f"{msg.board_id:016x}")
     table.add_row("antennas", str(msg.n_antennas))
     table.add_row("capabilities", ", ".join(caps) or "none")
-    rtt = facts["best_rtt_us"]
     table.add_row("best round trip", "—" if rtt is None else f"{rtt:.0f} µs")
     zero = datetime.fromtimestamp(-facts["clock_offset_ns"] / 1e9, tz=UTC)
     table.add_row("board clock zero", zero.isoformat(timespec="milliseconds"))
@@ -100,14 +128,38 @@ def _load_capture(capture: str, loop: bool) -> CaptureFeed:
     return CaptureFeed.from_observations(batches, loop=loop)
 
 
+def check_link(link: Path) -> None:
+    """``--link`` may be a new name or a stale link to a pseudo-terminal (an emulator that
+    was killed leaves one); anything else is somebody's file, and the emulator would
+    replace it and delete it when it stops.
+
+    Raises:
+        ConfigError: ``link`` exists and is not a symlink to ``/dev/pts/…``.
+    """
+    if not link.is_symlink() and not link.exists():
+        return
+    target = os.readlink(link) if link.is_symlink() else ""
+    if not target.startswith("/dev/pts/"):
+        raise ConfigError(
+            f"--link {link} exists and is not a pseudo-terminal link; "
+            "the emulator would replace and then delete it: choose a new name"
+        )
+
+
 @board.command("emulate")
 @click.option("--pty", "use_pty", is_flag=True, default=True, help="Serve on a pseudo-terminal.")
-@click.option("--tcp", type=int, default=None, help="Serve on this TCP port (0: any free port).")
+@click.option(
+    "--tcp",
+    type=click.IntRange(0, 65535),
+    default=None,
+    help="Serve on this TCP port (0: any free port).",
+)
 @click.option(
     "--link",
     type=click.Path(path_type=Path),
     default=None,
-    help="Symlink to keep pointing at the pty (default: one in a fresh temp directory).",
+    help="Symlink to keep pointing at the pty (default: one in a fresh temp directory); "
+    "must not exist, or be a link an earlier emulator left.",
 )
 @click.option(
     "--emitters",
@@ -124,10 +176,27 @@ def _load_capture(capture: str, loop: bool) -> CaptureFeed:
     help="garbage=P, bitflip=P, drop=P (per frame), stall=EVERY_S:LEN_S, "
     "disconnect=EVERY_S:DOWN_S, seed=N.",
 )
-@click.option("--baud", default=921_600, show_default=True, help="Line rate to pace at (0: none).")
-@click.option("--batch", default=1, show_default=True, help="Measurements per frame.")
+@click.option(
+    "--baud",
+    type=click.IntRange(min=0),
+    default=921_600,
+    show_default=True,
+    help="Line rate to pace at (0: none).",
+)
+@click.option(
+    "--batch",
+    type=click.IntRange(min=1),
+    default=1,
+    show_default=True,
+    help="Measurements per frame.",
+)
 @click.option("--seed", default=0, show_default=True, help="Seed of the RF scenario.")
-@click.option("--duration", type=float, default=None, help="Stop after this many seconds.")
+@click.option(
+    "--duration",
+    type=click.FloatRange(min=0),
+    default=None,
+    help="Stop after this many seconds.",
+)
 def emulate(
     use_pty: bool,
     tcp: int | None,
@@ -160,6 +229,8 @@ def emulate(
         if link is None:
             made_dir = Path(tempfile.mkdtemp(prefix="rfsas-board-"))
             link = made_dir / "ttyBOARD"
+        else:
+            check_link(link)
         try:
             endpoint = PtyEndpoint(link)
         except OSError as err:

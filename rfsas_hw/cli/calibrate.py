@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import math
 from pathlib import Path
 from typing import Any
@@ -11,6 +12,7 @@ from rich.console import Console
 from rich.table import Table
 
 from rfsas_hw.cli.calibrate_phase import phase_options, run_phase
+from rfsas_hw.cli.exitcodes import WorkFailed
 from rfsas_hw.df import MODES, fit_calibration, load_calibration, read_samples_csv, save_calibration
 from rfsas_hw.df.calibration import Calibration
 from rfsas_hw.df.check import (
@@ -20,6 +22,7 @@ from rfsas_hw.df.check import (
     with_environment_floor,
 )
 from rfsas_hw.df.plot import plot_calibration
+from rfsas_hw.outpaths import check_output
 
 
 def _fmt(value: float, unit: str = "", digits: int = 2) -> str:
@@ -77,6 +80,39 @@ def _sigma_rows(table: Table, report: CheckReport) -> None:
         table.add_row(f"measured environment floor, {name}", _fmt(floor, "°"))
     if report.measured_floor_deg:
         table.add_row("error / σ with measured floor", _fmt(report.ratio_with_floor, "", 3))
+
+
+def _num(value: float) -> float | None:
+    return None if not math.isfinite(value) else round(float(value), 6)
+
+
+def check_record(report: CheckReport, cal_path: Path, samples_path: Path) -> dict[str, object]:
+    """The ``--check --json`` report: one JSON object (``null`` for what is undefined)."""
+    return {
+        "calibration": str(cal_path),
+        "samples_file": str(samples_path),
+        "samples": report.samples,
+        "inside_fov": report.inside_fov,
+        "valid": report.valid,
+        "rejected": dict(report.rejected),
+        "rms_error_deg": _num(report.rms_error_deg),
+        "rms_sigma_deg": _num(report.rms_sigma_deg),
+        "error_over_sigma": _num(report.ratio),
+        "max_abs_error_deg": _num(report.max_abs_error_deg),
+        "limit": CONSISTENT_RATIO,
+        "consistent": bool(report.consistent),
+        "sigma_terms_deg": {
+            "noise": _num(report.terms.noise_deg),
+            "model": _num(report.terms.model_deg),
+            "environment": _num(report.terms.environment_deg),
+        },
+        "dominant_term": report.terms.dominant if report.valid else None,
+        "error_over_sigma_by_band": [_num(r) for r in report.band_ratios],
+        "measured_floor_deg": {
+            "all" if ch is None else str(ch): _num(f) for ch, f in report.measured_floor_deg.items()
+        },
+        "error_over_sigma_with_floor": _num(report.ratio_with_floor),
+    }
 
 
 @click.command()
@@ -141,6 +177,10 @@ def _sigma_rows(table: Table, report: CheckReport) -> None:
     help="Turntable angle log CSV (time, angle_deg) recorded with --capture.",
 )
 @click.option("--emitter", help="MAC address of the reference emitter in --capture.")
+@click.option("--force", is_flag=True, help="Replace an existing -o/--plot file (never an input).")
+@click.option(
+    "--json", "as_json", is_flag=True, help="--check: print the report as one JSON object."
+)
 @phase_options
 def calibrate(
     inputs: tuple[Path, ...],
@@ -156,6 +196,8 @@ def calibrate(
     capture: str | None,
     angles_path: Path | None,
     emitter: str | None,
+    force: bool,
+    as_json: bool,
     **phase: Any,
 ) -> None:
     """Fit a monopulse calibration from a turntable CSV (angle_deg,rssi1_dbm,rssi2_dbm[,channel]).
@@ -165,7 +207,15 @@ def calibrate(
     rfsas calibrate --check cal.yaml heldback.csv [-o cal-with-floor.yaml]
     rfsas calibrate cal.yaml --phase csi:tt.csi --angles log.csv --baseline 0.06 -o out.yaml
     """
-    console = Console()
+    console = Console(stderr=as_json)
+    sources: list[str | Path] = [*inputs, *[p for p in (capture, angles_path) if p is not None]]
+    for path in (output, plot_path):
+        if path is not None:
+            check_output(path, sources, force=force)
+    if output is not None and plot_path is not None and output.resolve() == plot_path.resolve():
+        raise click.UsageError("-o and --plot name the same file")
+    if as_json and not check:
+        raise click.UsageError("--json goes with --check")
     if phase["phase_capture"] is not None:
         run_phase(console, inputs, output, angles_path, emitter, single_table, **phase)
         return
@@ -175,13 +225,21 @@ def calibrate(
         cal = load_calibration(inputs[0])
         samples = read_samples_csv(inputs[1])
         report = check_calibration(cal, samples)
-        console.print(_check_table(report, inputs[0], inputs[1]))
+        if as_json:
+            click.echo(json.dumps(check_record(report, inputs[0], inputs[1])))
+        else:
+            console.print(_check_table(report, inputs[0], inputs[1]))
         if output is not None:
             save_calibration(with_environment_floor(cal, report), output)
             console.print(f"calibration with the measured environment floor written to {output}")
         if plot_path is not None:
             plot_calibration(cal, samples, plot_path)
             console.print(f"plot written to {plot_path}")
+        if not report.consistent:
+            raise WorkFailed(
+                f"{inputs[0]} is NOT consistent with {inputs[1]}: error/σ "
+                f"{_fmt(report.ratio, '', 3)} (limit {CONSISTENT_RATIO}×)"
+            )
         return
     if capture is not None:
         if inputs or angles_path is None or emitter is None:

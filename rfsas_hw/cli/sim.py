@@ -12,8 +12,9 @@ from rich.table import Table
 
 from rfsas_hw.df import save_calibration
 from rfsas_hw.errors import ConfigError
+from rfsas_hw.outpaths import check_output, inside
 from rfsas_hw.studies.braking import BrakingCase, plot_braking, run_braking
-from rfsas_hw.twin.capture_writer import write_captures
+from rfsas_hw.twin.capture_writer import TRUTH_FILE, card_file_names, write_captures
 from rfsas_hw.twin.scenario import Detail, load_scenario
 from rfsas_hw.twin.turntable import turntable_calibration
 from rfsas_hw.twin.world import World
@@ -48,9 +49,12 @@ def sim() -> None:
     default=None,
     help="Override the scenario's level of detail.",
 )
-def capture(scenario: Path, out_dir: Path, fmt: str, detail: str | None) -> None:
+@click.option("--force", is_flag=True, help="Replace capture files already in the directory.")
+def capture(scenario: Path, out_dir: Path, fmt: str, detail: str | None, force: bool) -> None:
     """Write one radiotap capture per receiver card of SCENARIO, plus the ground truth."""
     world = World(load_scenario(scenario), detail)  # type: ignore[arg-type]
+    for name in capture_names(world, fmt):
+        check_output(inside(out_dir, name), [scenario], force=force)
     result = write_captures(world, out_dir, fmt)  # type: ignore[arg-type]
     table = Table(
         title=f"{world.scenario.spec.name}: {world.duration_s:g} s, "
@@ -69,6 +73,17 @@ def capture(scenario: Path, out_dir: Path, fmt: str, detail: str | None) -> None
     Console().print(table)
 
 
+def capture_names(world: World, fmt: str) -> list[str]:
+    """The file names :func:`write_captures` will create for ``world``."""
+    names = [TRUTH_FILE]
+    for s in world.scenario.spec.sensors:
+        if s.receiver == "serial-board":
+            names.append(f"{s.id}.board.bin")
+        else:
+            names += card_file_names(s.id, s.n_cards, fmt)  # type: ignore[arg-type]
+    return names
+
+
 @sim.command()
 @click.argument("scenario", type=click.Path(dir_okay=False, path_type=Path))
 @click.option("--sensor", "sensors", multiple=True, help="Only this sensor (repeatable).")
@@ -79,13 +94,20 @@ def capture(scenario: Path, out_dir: Path, fmt: str, detail: str | None) -> None
     show_default=True,
     help="Monopulse ratio mode of the fitted tables.",
 )
-def turntable(scenario: Path, sensors: tuple[str, ...], mode: str) -> None:
-    """Calibrate SCENARIO's sensors on a simulated turntable; write their calibration files."""
+@click.option(
+    "--force", is_flag=True, help="Replace calibration files that exist (refused otherwise)."
+)
+def turntable(scenario: Path, sensors: tuple[str, ...], mode: str, force: bool) -> None:
+    """Calibrate SCENARIO's sensors on a simulated turntable; write the calibration files the
+    scenario names (an existing one only with --force; never the scenario itself)."""
     sc = load_scenario(scenario)
-    for s in sc.spec.sensors:
-        if sensors and s.id not in sensors:
-            continue
-        path = sc.calibration_path(s.id)
+    chosen = [s for s in sc.spec.sensors if not sensors or s.id in sensors]
+    paths = {s.id: sc.calibration_path(s.id) for s in chosen}
+    for path in paths.values():  # refuse before anything is written
+        if path is not None:
+            check_output(path, [scenario], force=force, what="calibration file")
+    for s in chosen:
+        path = paths[s.id]
         if path is None:
             click.echo(f"{s.id}: no calibration file named in the scenario; skipped")
             continue

@@ -29,6 +29,7 @@ from rfsas_hw.df.calibration import (
 from rfsas_hw.df.monopulse import Mode
 from rfsas_hw.df.phasecal import phase_from_mapping, phase_to_mapping
 from rfsas_hw.errors import CalibrationError, ConfigError
+from rfsas_hw.outpaths import write_text_atomic
 
 
 @dataclass
@@ -224,6 +225,11 @@ def calibration_to_mapping(cal: Calibration) -> dict[str, Any]:
 
 
 def save_calibration(cal: Calibration, path: str | Path) -> None:
-    """Write ``cal`` as YAML (round-trips through :func:`load_calibration`)."""
+    """Write ``cal`` as YAML (round-trips through :func:`load_calibration`), beside the
+    target first and renamed over it, so a failed write never leaves half a table.
+
+    Raises:
+        ConfigError: the file cannot be written.
+    """
     text = yaml.dump(calibration_to_mapping(cal), Dumper=_Dumper, sort_keys=False, width=100)
-    Path(path).write_text(text, encoding="utf-8")
+    write_text_atomic(path, text)

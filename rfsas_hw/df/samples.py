@@ -8,11 +8,13 @@ without saying so).
 from __future__ import annotations
 
 import csv
+import io
 import math
 from pathlib import Path
 
 import numpy as np
 
+from rfsas_hw.config import read_text_input
 from rfsas_hw.errors import DataFormatError
 from rfsas_hw.rf.synth import TurntableSamples
 
@@ -28,59 +30,60 @@ def read_samples_csv(path: str | Path) -> TurntableSamples:
             that is not a number (with its line and column).
     """
     p = Path(path)
+    text = read_text_input(p, "CSV", error=DataFormatError)
     try:
-        handle = p.open(newline="", encoding="utf-8")
-    except OSError as err:
-        raise DataFormatError(f"{p}: cannot read: {err.strerror or err}") from err
-    with handle:
-        reader = csv.reader(handle)
-        header = next(reader, None)
-        if header is None or not any(h.strip() for h in header):
+        return _parse_samples(p, text)
+    except csv.Error as err:
+        raise DataFormatError(f"{p}: not a CSV file: {err}") from err
+
+
+def _parse_samples(p: Path, text: str) -> TurntableSamples:
+    reader = csv.reader(io.StringIO(text, newline=""))
+    header = next(reader, None)
+    if header is None or not any(h.strip() for h in header):
+        raise DataFormatError(f"{p}: empty file (expected a header {','.join(REQUIRED)}[,channel])")
+    names = [h.strip() for h in header]
+    for col in REQUIRED:
+        if col not in names:
             raise DataFormatError(
-                f"{p}: empty file (expected a header {','.join(REQUIRED)}[,channel])"
+                f"{p}: line 1: missing column {col!r} (header is {','.join(names)})"
             )
-        names = [h.strip() for h in header]
+    unknown = [n for n in names if n not in REQUIRED + OPTIONAL]
+    if unknown:
+        raise DataFormatError(f"{p}: line 1: unknown column {unknown[0]!r}")
+    idx = {n: names.index(n) for n in names}
+    rows: list[tuple[float, float, float, int]] = []
+    for line_no, record in enumerate(reader, start=2):
+        if not record or all(not f.strip() for f in record):
+            continue
+        if len(record) != len(names):
+            raise DataFormatError(
+                f"{p}: line {line_no}: {len(record)} fields, header has {len(names)}"
+            )
+        values = []
         for col in REQUIRED:
-            if col not in names:
+            text = record[idx[col]].strip()
+            try:
+                value = float(text)
+            except ValueError as err:
                 raise DataFormatError(
-                    f"{p}: line 1: missing column {col!r} (header is {','.join(names)})"
-                )
-        unknown = [n for n in names if n not in REQUIRED + OPTIONAL]
-        if unknown:
-            raise DataFormatError(f"{p}: line 1: unknown column {unknown[0]!r}")
-        idx = {n: names.index(n) for n in names}
-        rows: list[tuple[float, float, float, int]] = []
-        for line_no, record in enumerate(reader, start=2):
-            if not record or all(not f.strip() for f in record):
-                continue
-            if len(record) != len(names):
+                    f"{p}: line {line_no}: column {col!r}: {text!r} is not a number"
+                ) from err
+            if not math.isfinite(value):
                 raise DataFormatError(
-                    f"{p}: line {line_no}: {len(record)} fields, header has {len(names)}"
+                    f"{p}: line {line_no}: column {col!r}: {text!r} is not finite"
                 )
-            values = []
-            for col in REQUIRED:
-                text = record[idx[col]].strip()
-                try:
-                    value = float(text)
-                except ValueError as err:
-                    raise DataFormatError(
-                        f"{p}: line {line_no}: column {col!r}: {text!r} is not a number"
-                    ) from err
-                if not math.isfinite(value):
-                    raise DataFormatError(
-                        f"{p}: line {line_no}: column {col!r}: {text!r} is not finite"
-                    )
-                values.append(value)
-            channel = 0
-            if "channel" in idx:
-                text = record[idx["channel"]].strip()
-                try:
-                    channel = int(text) if text else 0
-                except ValueError as err:
-                    raise DataFormatError(
-                        f"{p}: line {line_no}: column 'channel': {text!r} is not an integer"
-                    ) from err
-            rows.append((values[0], values[1], values[2], channel))
+            values.append(value)
+        channel = 0
+        if "channel" in idx:
+            text = record[idx["channel"]].strip()
+            try:
+                channel = int(text) if text else 0
+            except ValueError as err:
+                raise DataFormatError(
+                    f"{p}: line {line_no}: column 'channel': {text!r} is not an integer"
+                ) from err
+        rows.append((values[0], values[1], values[2], channel))
     if not rows:
         raise DataFormatError(f"{p}: no samples after the header")
     arr = np.array([r[:3] for r in rows], dtype=np.float64)

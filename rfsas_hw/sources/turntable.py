@@ -15,6 +15,7 @@ from boresight). Rows must be in time order.
 from __future__ import annotations
 
 import csv
+import io
 from dataclasses import dataclass
 from datetime import datetime
 from pathlib import Path
@@ -24,6 +25,7 @@ import numpy as np
 import numpy.typing as npt
 
 from rfsas_hw.angles import wrap_deg_180
+from rfsas_hw.config import read_text_input
 from rfsas_hw.errors import DataFormatError
 from rfsas_hw.records import ObservationBatch, ObsFlag, mac_to_int
 from rfsas_hw.rf.synth import TurntableSamples
@@ -31,6 +33,8 @@ from rfsas_hw.rf.synth import TurntableSamples
 TIME_COLUMNS = ("t_ns", "time_s", "unix_s", "time", "timestamp")
 ANGLE_COLUMNS = ("angle_deg", "angle")
 NS_PER_S = 1_000_000_000
+MAX_T_NS = 2**63 - 1
+"""Latest time an int64 nanosecond stamp can hold (2262)."""
 
 
 @dataclass(frozen=True)
@@ -73,9 +77,19 @@ def _time_ns(text: str, column: str, where: str) -> int:
                 f"{where}: {column} {value!r} has no time zone (use Z or +00:00)"
             ) from None
         return round(stamp.timestamp() * NS_PER_S)
-    if column == "t_ns":
-        return int(value) if value.lstrip("-").isdigit() else round(number)
-    return round(number * NS_PER_S)
+    if not abs(number) < float("inf"):
+        raise DataFormatError(f"{where}: {column} {value!r} is not a finite time")
+    t = (
+        (int(value) if value.lstrip("-").isdigit() else round(number))
+        if column == "t_ns"
+        else (round(number * NS_PER_S))
+    )
+    if not 0 <= t < MAX_T_NS:
+        hint = " (milliseconds? this column is in seconds)" if column != "t_ns" else ""
+        raise DataFormatError(
+            f"{where}: {column} {value!r} is not a time between 1970 and 2262{hint}"
+        )
+    return t
 
 
 def read_angle_log(path: str | Path) -> AngleLog:
@@ -86,13 +100,17 @@ def read_angle_log(path: str | Path) -> AngleLog:
             line), rows out of time order, or no rows.
     """
     p = Path(path)
+    text = read_text_input(p, "CSV", error=DataFormatError)
     try:
-        handle = p.open(newline="", encoding="utf-8")
-    except OSError as err:
-        raise DataFormatError(f"{p}: cannot read: {err.strerror or err}") from err
+        return _parse_angle_log(p, text)
+    except csv.Error as err:
+        raise DataFormatError(f"{p}: not a CSV file: {err}") from err
+
+
+def _parse_angle_log(p: Path, text: str) -> AngleLog:
     times: list[int] = []
     angles: list[float] = []
-    with handle:
+    with io.StringIO(text, newline="") as handle:
         reader = csv.reader(handle)
         header = [h.strip().lower() for h in next(reader, [])]
         t_col = next((c for c in TIME_COLUMNS if c in header), None)
@@ -114,6 +132,8 @@ def read_angle_log(path: str | Path) -> AngleLog:
                 angle = float(row[ai])
             except ValueError as err:
                 raise DataFormatError(f"{where}: {a_col} {row[ai]!r} is not a number") from err
+            if not abs(angle) < float("inf"):
+                raise DataFormatError(f"{where}: {a_col} {row[ai]!r} is not finite")
             if times and t < times[-1]:
                 raise DataFormatError(f"{where}: time goes backwards")
             times.append(t)

@@ -24,6 +24,7 @@ from typing import Any, Literal
 
 from rfsas_hw.config import from_mapping, read_yaml
 from rfsas_hw.errors import ConfigError, DataFormatError
+from rfsas_hw.outpaths import safe_name
 from rfsas_hw.records import mac_to_int
 from rfsas_hw.rf.channels import channel_to_freq_mhz
 from rfsas_hw.rf.link_budget import MAX_EIRP_DBM
@@ -468,8 +469,64 @@ def parse_utc_ns(text: str) -> int:
         raise ConfigError(f"start_utc: not an ISO 8601 time: {text!r}") from err
     if when.tzinfo is None:
         raise ConfigError(f"start_utc: {text!r} has no time zone; add Z for UTC")
-    delta = when - dt.datetime(1970, 1, 1, tzinfo=dt.UTC)
+    try:
+        delta = when - dt.datetime(1970, 1, 1, tzinfo=dt.UTC)
+    except OverflowError as err:
+        raise ConfigError(f"start_utc: {text!r} is out of range") from err
     return (delta.days * 86_400 + delta.seconds) * 1_000_000_000 + delta.microseconds * 1000
+
+
+MAX_DURATION_S = 86_400.0
+"""Longest scenario, seconds (a day)."""
+MIN_INTERVAL_S = 0.001
+"""Shortest traffic interval, seconds: no real emitter repeats faster than 1 ms."""
+MAX_FRAMES = 5_000_000
+"""Most frames a scenario may transmit: the twin holds them in memory (about 100 bytes
+each before captures are written), so a file cannot ask for gigabytes."""
+START_UTC_RANGE = ("1970-01-01T00:00:00Z", "2200-01-01T00:00:00Z")
+"""start_utc must lie in this range: capture times are int64 nanoseconds since 1970."""
+
+
+def frames_per_event(tr: TrafficSpec) -> int:
+    """Frames one event of a traffic model sends (a beacon, a probe sweep, a burst)."""
+    if tr.model == "probe-bursts":
+        return len(tr.effective_channels()) * tr.frames_per_channel
+    if tr.model == "ble-adv":
+        return len(tr.effective_channels())
+    if tr.model == "data-bursts":
+        return tr.burst_frames
+    return 1
+
+
+def expected_frames(spec: ScenarioSpec) -> int:
+    """Frames the scenario's emitters transmit over its duration (an upper estimate)."""
+    total = 0.0
+    for e in spec.emitters:
+        for tr in e.traffic:
+            events = spec.duration_s / tr.effective_interval_s() + 1
+            total += events * frames_per_event(tr)
+    return int(min(total, 2**62))
+
+
+def _check_size(spec: ScenarioSpec, where: str) -> None:
+    """Bound every size the file can ask for, and say which key asked."""
+    if not spec.duration_s <= MAX_DURATION_S:
+        raise ConfigError(
+            f"{where}.duration_s: {spec.duration_s:g} s is longer than {MAX_DURATION_S:g} s"
+        )
+    for i, e in enumerate(spec.emitters):
+        for j, tr in enumerate(e.traffic):
+            if tr.effective_interval_s() < MIN_INTERVAL_S:
+                raise ConfigError(
+                    f"{where}.emitters[{i}].traffic[{j}].interval_s: "
+                    f"{tr.effective_interval_s():g} s is below {MIN_INTERVAL_S:g} s"
+                )
+    frames = expected_frames(spec)
+    if frames > MAX_FRAMES:
+        raise ConfigError(
+            f"{where}: the emitters would send about {frames:,} frames in {spec.duration_s:g} s, "
+            f"more than {MAX_FRAMES:,} (memory): shorten duration_s or lengthen interval_s"
+        )
 
 
 def _check(spec: ScenarioSpec, where: str) -> None:
@@ -478,7 +535,14 @@ def _check(spec: ScenarioSpec, where: str) -> None:
             f"{where}.version: scenario format {spec.version} is not supported "
             f"(this version reads {SCHEMA_VERSION})"
         )
-    parse_utc_ns(spec.start_utc)
+    start = parse_utc_ns(spec.start_utc)
+    lo, hi = (parse_utc_ns(t) for t in START_UTC_RANGE)
+    if not lo <= start < hi:
+        raise ConfigError(
+            f"{where}.start_utc: {spec.start_utc!r} is outside {START_UTC_RANGE[0]} … "
+            f"{START_UTC_RANGE[1]}"
+        )
+    _check_size(spec, where)
     movers = {m.id: m for m in spec.movers}
     if len(movers) != len(spec.movers):
         raise ConfigError(f"{where}.movers: duplicate mover id")
@@ -498,6 +562,7 @@ def _check(spec: ScenarioSpec, where: str) -> None:
         raise ConfigError(f"{where}.sensors: duplicate sensor id")
     for i, s in enumerate(spec.sensors):
         at = f"{where}.sensors[{i}]"
+        safe_name(s.id, f"{at}.id")  # names capture files
         if s.kind == "roadside" and (s.pose is None or s.mounted_on is not None):
             raise ConfigError(f"{at}: a roadside sensor needs pose and no mounted_on")
         if s.kind == "on-board":

@@ -17,8 +17,10 @@ bytes]``. Code ``0xBB`` is a beamforming-feedback record (little-endian)::
 Other codes are skipped. The CSI rows come per RF chain; the permutation in
 ``antenna_sel`` maps chain k to antenna ``perm[k]`` and is undone here, so
 antenna 0 is port A. RSSI is per antenna port already. The per-chain RSSI in
-dBm is ``rssi_x − 44 − agc`` (the tool's own conversion). The records carry
-no MAC address (a capture with ``connector_log`` 0x1 holds 0xBB records only).
+dBm is ``rssi_x − 44 − agc`` (the tool's own conversion). The 0xBB records
+carry no MAC address: a capture with ``connector_log`` 0x1 has MAC 0; with
+0x5 the k-th 0xC1 record (the 802.11 frame) gives the k-th frame its
+transmitter address and sequence number.
 """
 
 from __future__ import annotations
@@ -39,6 +41,10 @@ from rfsas_hw.sources.csi_frames import (
 )
 
 BFEE_CODE = 0xBB
+FRAME_CODE = 0xC1
+"""A record holding the 802.11 frame (``connector_log`` 0x4): fc, duration, addr1,
+addr2 (the transmitter), addr3, sequence control, … — the k-th pairs with the
+k-th 0xBB record."""
 HEADER_BYTES = 20
 N_SUBCARRIERS = 30
 RSSI_OFFSET_DB = 44.0
@@ -103,6 +109,7 @@ def read_intel5300(path: str | Path, freq_mhz: int = 0) -> CsiCapture:
     name = str(path)
     data = np.fromfile(path, dtype=np.uint8)
     offsets: list[int] = []
+    frame_offsets: list[int] = []
     pos, record, total = 0, 0, len(data)
     problems: list[tuple[str, CaptureFormatError]] = []
     while pos + 3 <= total:
@@ -121,6 +128,8 @@ def read_intel5300(path: str | Path, freq_mhz: int = 0) -> CsiCapture:
             break
         if code == BFEE_CODE:
             offsets.append(pos + 3)
+        elif code == FRAME_CODE and length - 1 >= 24:
+            frame_offsets.append(pos + 3)
         pos += 2 + length
         record += 1
     if not offsets:
@@ -138,6 +147,9 @@ def read_intel5300(path: str | Path, freq_mhz: int = 0) -> CsiCapture:
     expect = np.where(good, (N_SUBCARRIERS * (nrx * ntx * 16 + 3) + 7) // 8, -1)
     good &= heads["len"].astype(int) == expect
     notes: Counter[str] = Counter()
+    if frame_offsets and len(frame_offsets) != len(offsets):
+        # pairing by order is then unsure past the first mismatch: say so
+        notes["0xC1 frame records not one per 0xBB record"] = len(frame_offsets)
     for k in np.flatnonzero(~good):
         problems.append(
             (
@@ -170,6 +182,11 @@ def read_intel5300(path: str | Path, freq_mhz: int = 0) -> CsiCapture:
         frames.rssi_dbm[:, :] = rssi[:, :max_rx]
         frames.flags[np.any(sentinel[:, :max_rx], axis=1)] |= np.uint16(ObsFlag.SENTINEL_CHAIN)
         frames.freq_mhz[:] = freq_mhz
+        for row, i in enumerate(run):
+            if i < len(frame_offsets):
+                f = frame_offsets[i]
+                frames.mac[row] = int.from_bytes(data[f + 10 : f + 16].tobytes(), "big")
+                frames.seq[row] = int.from_bytes(data[f + 22 : f + 24].tobytes(), "little") >> 4
         sel = h["antenna_sel"].astype(int)
         perm = np.stack([(sel >> (2 * k)) & 0x3 for k in range(3)], axis=1)
         for rx_n, tx_n in sorted({(int(nrx[i]), int(ntx[i])) for i in run}):

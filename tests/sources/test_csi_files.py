@@ -229,3 +229,24 @@ def test_missing_csiread_names_the_extra(monkeypatch: pytest.MonkeyPatch) -> Non
     # the formats read without csiread still work
     with CsiSource(str(DATA / "los_5.dat")) as src:
         assert sum(len(b) for b in src) == 1006
+
+
+def test_intel_frame_records_give_the_transmitter(tmp_path: Path) -> None:
+    """connector_log 0x5: each 0xC1 record (the 802.11 frame) names the k-th frame's MAC."""
+    raw = (DATA / "log.all_csi.6.7.6.dat").read_bytes()
+    out = bytearray()
+    pos, k = 0, 0
+    while pos < len(raw):
+        length = int.from_bytes(raw[pos : pos + 2], "big")
+        header = bytes([0x08, 0x00, 0, 0]) + bytes(6) + (0x020000000100 + k).to_bytes(6, "big")
+        header += bytes(6) + ((k + 7) << 4).to_bytes(2, "little")
+        out += (len(header) + 1).to_bytes(2, "big") + bytes([0xC1]) + header
+        out += raw[pos : pos + 2 + length]
+        pos += 2 + length
+        k += 1
+    path = tmp_path / "with_frames.dat"
+    path.write_bytes(bytes(out))
+    obs = capture_frames(path)
+    assert len(obs) == 29
+    assert obs.mac.tolist() == [0x020000000100 + i for i in range(29)]
+    assert obs.seq.tolist() == [i + 7 for i in range(29)]

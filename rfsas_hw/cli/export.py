@@ -67,6 +67,9 @@ FORMATS: dict[str, Callable[[tuple[Path, ...], Path, str, dict[str, Any]], list[
 }
 """Export function of each ``--to`` format."""
 
+DEFAULT_SUFFIX = {"mcap": ".mcap", "geojson": ".geojson", "kml": ".kml", "cot": ".cot"}
+"""Suffix of the default output file per format (rosbag2, a directory, has none)."""
+
 
 @click.command("export")
 @click.argument("runs", nargs=-1, required=True, type=click.Path(dir_okay=False, path_type=Path))
@@ -74,9 +77,9 @@ FORMATS: dict[str, Callable[[tuple[Path, ...], Path, str, dict[str, Any]], list[
 @click.option(
     "--out",
     "-o",
-    required=True,
     type=click.Path(path_type=Path),
-    help="Output file (a directory for rosbag2).",
+    help="Output file (a directory for rosbag2) [default: the run's name with the format's "
+    "suffix; rosbag2 needs it].",
 )
 @click.option(
     "--pose",
@@ -103,7 +106,7 @@ FORMATS: dict[str, Callable[[tuple[Path, ...], Path, str, dict[str, Any]], list[
 def export(
     runs: tuple[Path, ...],
     fmt: str,
-    out: Path,
+    out: Path | None,
     poses: tuple[str, ...],
     storage: str,
     origin: str | None,
@@ -114,9 +117,15 @@ def export(
     \b
     rfsas export run.jsonl --to mcap --out run.mcap
     rfsas export bearings.jsonl --to rosbag2 --out run_bag --pose rsu-1=0,0,90
-    rfsas export run.jsonl --to geojson --out run.geojson
+    rfsas export run.jsonl --to geojson        # writes run.geojson
     rfsas export run.jsonl --to kml --out run.kml --origin 52.2053,0.1218
     """
+    if out is None:
+        if fmt not in DEFAULT_SUFFIX:
+            raise click.UsageError(f"--to {fmt} needs --out")
+        out = runs[0].with_suffix(DEFAULT_SUFFIX[fmt])
+        if out == runs[0]:
+            raise click.UsageError(f"{out} is the input; give --out")
     opts = {"poses": poses, "storage": storage, "origin": origin, "flagged": flagged}
     for line in FORMATS[fmt](runs, out, fmt, opts):
         click.echo(line)

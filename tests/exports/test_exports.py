@@ -302,3 +302,15 @@ def test_live_cot_to_nobody_counts_drops() -> None:
     sender.on_results([fix, fix], [])
     sender.close()
     assert sender.sent == 0 and sender.dropped == 2
+
+
+def test_cli_writes_beside_the_run_by_default(run_path: Path, tmp_path: Path) -> None:
+    run = tmp_path / "run.jsonl"
+    run.write_bytes(run_path.read_bytes())
+    _load_commands()
+    res = CliRunner().invoke(cli, ["export", str(run), "--to", "kml"])
+    assert res.exit_code == 0, res.output
+    assert f"wrote {tmp_path / 'run.kml'}" in res.output
+    assert ET.parse(tmp_path / "run.kml").getroot().tag == f"{{{KML_NS}}}kml"
+    res = CliRunner().invoke(cli, ["export", str(run), "--to", "rosbag2"])
+    assert res.exit_code != 0 and "needs --out" in res.output

@@ -223,9 +223,10 @@ def _rosbags_qos(topic: Topic) -> Any:
 
 
 def open_recording(
-    path: str | Path, fmt: RecordFormat, *, storage: str = "sqlite3", overwrite: bool = True
+    path: str | Path, fmt: RecordFormat, *, storage: str = "sqlite3", overwrite: bool = False
 ) -> McapFileWriter | Rosbag2Writer:
-    """An MCAP file writer or a rosbag2 directory writer at ``path``.
+    """An MCAP file writer (replacing a file) or a rosbag2 directory writer (a new
+    directory unless ``overwrite``) at ``path``.
 
     Raises:
         ConfigError / MissingDependencyError: see the writer classes.

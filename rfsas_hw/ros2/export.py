@@ -28,7 +28,7 @@ from typing import Any
 
 import numpy as np
 
-from rfsas_hw.errors import DataFormatError
+from rfsas_hw.errors import ConfigError, DataFormatError
 from rfsas_hw.records import Assessment, BearingBatch, Fix, Pose
 from rfsas_hw.ros2.bag import RecordFormat, open_recording
 from rfsas_hw.ros2.scene import SceneBuilder, SceneConfig
@@ -253,7 +253,7 @@ def export_runs(
 
     Args:
         runs: JSONL files (backend run logs and/or bearings files).
-        out: the MCAP file, or the rosbag2 directory (replaced if it exists).
+        out: the MCAP file (replaced if it exists), or the rosbag2 directory (must be new).
         fmt: ``mcap`` or ``rosbag2``.
         poses: sensor poses by id, for bearings that carry none (they win over a
             pose in the file).
@@ -262,9 +262,15 @@ def export_runs(
 
     Raises:
         DataFormatError: an input cannot be read.
-        ConfigError / MissingDependencyError: the output cannot be written.
+        ConfigError: ``out`` is an input, the rosbag2 directory exists, or the
+            output cannot be written.
+        MissingDependencyError: the ros2 extra is not installed.
     """
     poses = dict(poses or {})
+    target = Path(out).resolve()
+    for path in runs:
+        if Path(path).resolve() == target:
+            raise ConfigError(f"{out} is also an input; refusing to write over it")
     result = ExportResult()
     events: list[Event] = []
     for path in runs:

@@ -300,3 +300,50 @@ def test_export_of_a_bearings_file_needs_poses_for_rays(tmp_path: Path) -> None:
     assert math.isnan(b2.sensor_pose.position.x) and b2.relative_deg == 3.0 and b2.channel == 11
     tfs = [t.child_frame_id for m in by_topic(msgs, topics.TF.name) for t in m.message.transforms]
     assert tfs == ["rfsas/sensor/s1"]
+
+
+def test_export_refuses_what_it_must_not_write(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """One line and exit code 2: a missing input, the input as output, an existing bag."""
+    src = tmp_path / "run.jsonl"
+    src.write_text("")
+    bag = tmp_path / "bag"
+    bag.mkdir()
+    (bag / "keep.txt").write_text("precious")
+    cases = [
+        (
+            ["export", str(tmp_path / "missing.jsonl"), "--to", "mcap", "--out", "x.mcap"],
+            "cannot read",
+        ),
+        (["export", str(src), "--to", "mcap", "--out", str(src)], "is also an input"),
+        (["export", str(src), "--to", "rosbag2", "--out", str(bag)], "must be new"),
+    ]
+    for argv, message in cases:
+        with pytest.raises(SystemExit) as exit_info:
+            main(argv)
+        assert exit_info.value.code == 2
+        err = capsys.readouterr().err
+        assert message in err and len(err.strip().splitlines()) == 1, err
+    assert (bag / "keep.txt").read_text() == "precious"
+
+
+def test_rosbag2_with_mcap_storage(recorded: tuple[Path, Any], tmp_path: Path) -> None:
+    """``--storage mcap``: a rosbag2 directory whose storage file mcap-ros2-support reads."""
+    tmp, _ = recorded
+    out = tmp_path / "bag_mcap"
+    main(
+        [
+            "export",
+            str(tmp / "run.jsonl"),
+            "--to",
+            "rosbag2",
+            "--out",
+            str(out),
+            "--storage",
+            "mcap",
+        ]
+    )
+    (inner,) = out.glob("*.mcap")
+    assert "storage_identifier: mcap" in (out / "metadata.yaml").read_text()
+    check_against_jsonl(read_mcap(inner), tmp / "run.jsonl", live=False)

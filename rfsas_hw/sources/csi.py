@@ -4,7 +4,7 @@ Query options: ``freq`` (MHz, for formats that do not record it), ``format``,
 ``chip`` (nexmon), ``rssi_offset`` (dB added to every RSSI: a relative scale
 to dBm).
 
-Reads Intel 5300 ``.dat`` and FeitCSI ``.csi`` itself, Atheros ``.dat``,
+Reads Intel 5300 ``.dat``, FeitCSI ``.csi`` and ESP32 CSI text itself, Atheros ``.dat``,
 PicoScenes ``.csi`` and nexmon_csi pcaps through ``csiread`` (the ``csi``
 extra). The format is recognised from the file (override with ``format=``).
 Every observation carries the raw MAC (0 where the format has none), RSSI
@@ -40,7 +40,7 @@ from rfsas_hw.sources.csi_frames import (
     mark_missing,
 )
 
-FORMATS = ("intel5300", "atheros", "picoscenes", "feitcsi", "nexmon")
+FORMATS = ("intel5300", "atheros", "picoscenes", "feitcsi", "nexmon", "esp32")
 BATCH_FRAMES = 4096
 """Most frames per batch."""
 
@@ -49,18 +49,14 @@ def detect_format(path: Path) -> str:
     """The CSI tool that wrote ``path``, from its name and first bytes.
 
     Raises:
-        CaptureFormatError: an ESP32 CSV (one antenna: no phase difference) or an
-            unrecognised file.
+        CaptureFormatError: an unrecognised file.
     """
     head = path.read_bytes()[:512]
     suffix = path.suffix.lower()
     if suffix in (".pcap", ".pcapng"):
         return "nexmon"
     if suffix == ".csv" or head.startswith((b"CSI_DATA", b"type,")):
-        raise CaptureFormatError(
-            f"{path}: ESP32 CSI text: one antenna per packet, so no inter-antenna phase; "
-            "not supported as a DF source"
-        )
+        return "esp32"
     if len(head) >= 3 and head[2] in (0xBB, 0xC1):
         return "intel5300"
     if suffix == ".dat":
@@ -75,7 +71,7 @@ def detect_format(path: Path) -> str:
         return "picoscenes"
     raise CaptureFormatError(
         f"{path}: not a CSI capture this build reads (.dat Intel 5300/Atheros, .csi "
-        "PicoScenes/FeitCSI, .pcap nexmon_csi); name the format with ?format=…"
+        "PicoScenes/FeitCSI, .pcap nexmon_csi, .csv ESP32); name the format with ?format=…"
     )
 
 
@@ -97,6 +93,10 @@ def read_capture(
         from rfsas_hw.sources.csi_intel import read_intel5300
 
         capture = read_intel5300(p, freq_mhz)
+    elif fmt == "esp32":
+        from rfsas_hw.sources.csi_esp32 import read_esp32
+
+        capture = read_esp32(p, freq_mhz)
     elif fmt == "feitcsi":
         from rfsas_hw.sources.csi_feit import read_feitcsi
 

@@ -154,10 +154,29 @@ def test_nexmon_old_format_core0() -> None:
     assert np.all(obs.flags & ObsFlag.NO_SIGNAL)
 
 
-@pytest.mark.parametrize("name", ["example_csi.csv", "example_data.csv"])
-def test_esp32_is_refused_with_the_reason(name: str) -> None:
-    with pytest.raises(CaptureFormatError, match="one antenna"):
-        CsiSource(str(DATA / name))
+@pytest.mark.parametrize(
+    ("name", "frames", "channel"), [("example_csi.csv", 13, 1), ("example_data.csv", 60, 6)]
+)
+def test_esp32_one_antenna(name: str, frames: int, channel: int) -> None:
+    src, batches = _read(name)
+    obs = batches[0]
+    assert len(obs) == frames and obs.n_antennas == 1
+    assert obs.csi is not None and obs.csi.h.shape[1:] == (1, 1, 64)
+    assert set(obs.channel.tolist()) == {channel}
+    assert np.all(obs.rssi_dbm < -60) and obs.mac.max() > 0
+    assert src.stats.extra["one antenna per packet"] == frames
+
+
+def test_esp32_bad_line_costs_only_itself(tmp_path: Path) -> None:
+    lines = (DATA / "example_data.csv").read_text().splitlines()
+    lines[3] = lines[3].partition("[")[0] + "[1 2 3 ]"
+    lines[5] = lines[5][:60]
+    path = tmp_path / "bad.csv"
+    path.write_text("\n".join(lines) + "\n")
+    with CsiSource(str(path)) as src:
+        assert sum(len(b) for b in src) == 58
+    assert src.stats.skipped["bad line"] == 2
+    assert any("line 4:" in e for e in src.stats.errors)
 
 
 def test_truncated_intel_file_costs_only_the_last_record(tmp_path: Path) -> None:

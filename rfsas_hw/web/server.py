@@ -203,15 +203,7 @@ class DashboardServer:
 
         @web.middleware  # type: ignore[untyped-decorator]
         async def guard(request: Any, handler: Any) -> Any:
-            given = request.query.get("token")
-            auth = request.headers.get("Authorization", "")
-            if auth.startswith("Bearer "):
-                given = auth[7:].strip()
-            if not self.allows(request.remote, request.headers.get("Host", ""), given):
-                return web.json_response(
-                    {"error": "forbidden: a token is needed from another host"}, status=403
-                )
-            return await handler(request)
+            return await self.guard(request, handler)
 
         async def headers(request: Any, response: Any) -> None:
             response.headers["Content-Security-Policy"] = self._csp
@@ -234,6 +226,18 @@ class DashboardServer:
         if self.port == 0 and runner.addresses:
             self.port = int(runner.addresses[0][1])
         return runner
+
+    async def guard(self, request: Any, handler: Any) -> Any:
+        """The access check of every request (see the module docstring): 403 or ``handler``."""
+        given = request.query.get("token")
+        auth = request.headers.get("Authorization", "")
+        if auth.startswith("Bearer "):
+            given = auth[7:].strip()
+        if not self.allows(request.remote, request.headers.get("Host", ""), given):
+            return self._web.json_response(
+                {"error": "forbidden: a token is needed from another host"}, status=403
+            )
+        return await handler(request)
 
     async def _shutdown(self, runner: Any) -> None:
         for ws in list(self._clients):

@@ -110,6 +110,43 @@ def test_non_local_clients_need_the_token(served: tuple[DashboardServer, Backend
     assert server.allows("127.0.0.1", "localhost:8080", None)
 
 
+def test_a_request_from_another_host_is_refused_without_the_token(
+    served: tuple[DashboardServer, BackendService],
+) -> None:
+    from unittest import mock
+
+    from aiohttp import web
+    from aiohttp.test_utils import make_mocked_request
+
+    server, _ = served
+
+    async def handler(request: web.Request) -> web.Response:
+        return web.Response(text="served")
+
+    def from_peer(peer: str, path: str, headers: dict[str, str]) -> web.Request:
+        transport = mock.Mock()
+        transport.get_extra_info.side_effect = lambda key, default=None: (
+            (peer, 50000) if key == "peername" else default
+        )
+        return make_mocked_request("GET", path, headers=headers, transport=transport)
+
+    async def status(peer: str, path: str, headers: dict[str, str]) -> int:
+        response = await server.guard(from_peer(peer, path, headers), handler)
+        return int(response.status)
+
+    async def check() -> None:
+        lan = {"Host": "192.0.2.1:8080"}
+        assert await status("192.0.2.7", "/api/state", lan) == 403
+        # a forged loopback Host does not help a client that is not on this machine
+        assert await status("192.0.2.7", "/api/state", {"Host": "127.0.0.1:8080"}) == 403
+        assert await status("192.0.2.7", "/api/state?token=s3cret", lan) == 200
+        bearer = {**lan, "Authorization": "Bearer s3cret"}
+        assert await status("192.0.2.7", "/ws", bearer) == 200
+        assert await status("127.0.0.1", "/api/state", {"Host": "127.0.0.1:8080"}) == 200
+
+    asyncio.run(check())
+
+
 def test_bound_elsewhere_always_has_a_token() -> None:
     site = SiteConfig()
     state = DashboardState(site, clock=time.time_ns)

@@ -19,9 +19,13 @@ from rfsas_hw.cli.sensoropts import (
     sensor_options,
 )
 from rfsas_hw.errors import ConfigError
+from rfsas_hw.link.cue_receiver import CueInbox, CueReceiver
+from rfsas_hw.link.keys import KeyStore
+from rfsas_hw.link.transport import open_transport
 from rfsas_hw.privacy.hashing import DerivedNonces, MacHasher
 from rfsas_hw.runner import Runner
 from rfsas_hw.sources.registry import parse_spec, source_class
+from rfsas_hw.sources.schedule import NoteHeard, SchedulerConfig
 
 
 def parse_channels(text: str) -> list[int]:
@@ -57,6 +61,12 @@ def parse_channels(text: str) -> list[int]:
     is_flag=True,
     help="wifi: accept an interface that is not radiotap (ARPHRD 803); for tests on veth pairs.",
 )
+@click.option(
+    "--cues",
+    metavar="URL",
+    help="Obey signed cues arriving here (roadside units, the backend; senders enrolled "
+    "in --keys): dwell on the cued channel, then resume --channels.",
+)
 def live(
     spec: str,
     calibration_path: Path | None,
@@ -78,6 +88,7 @@ def live(
     channels: str | None,
     dwell: float,
     any_link_type: bool,
+    cues: str | None,
 ) -> None:
     """Run the sensor on SPEC until Ctrl-C, the end of the input, or --duration.
 
@@ -124,6 +135,10 @@ def live(
             raise ConfigError("--channels needs a wifi: source (it hops the interface with iw)")
         options["channels"] = parse_channels(channels)
         options["dwell_s"] = dwell
+    if cues is not None:
+        if channels is None or keys_dir is None:
+            raise ConfigError("--cues needs --channels (the plan cues interrupt) and --keys")
+        options["cues"] = SchedulerConfig()
     if any_link_type:
         if scheme != "wifi":
             raise ConfigError("--any-link-type applies to wifi: sources only")
@@ -138,6 +153,15 @@ def live(
     except BaseException:
         source.close()
         raise
+    scheduler = getattr(source, "scheduler", None)
+    if cues is not None and scheduler is not None and keys_dir is not None:
+        try:
+            trust = KeyStore.open(keys_dir).trust
+            scheduler.inbox = CueInbox(CueReceiver(trust, transport=open_transport(cues, "recv")))
+        except BaseException:
+            source.close()
+            raise
+        listeners.add(NoteHeard(scheduler, source.now_s))  # type: ignore[attr-defined]
     console.print(f"reading {spec}; Ctrl-C ends the run", highlight=False)
     summary = Runner(source, pipeline, listeners, duration_s=duration).run()
     finish_run(

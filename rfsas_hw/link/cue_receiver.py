@@ -256,3 +256,25 @@ def cue_bearing(cue: Cue) -> tuple[BearingBatch, Pose]:
         emitter=np.array([cue.emitter], np.uint64),
     )
     return batch, Pose(cue.x_m, cue.y_m, 0.0)
+
+
+class CueInbox:
+    """Cues arriving on a cue receiver's transport, handed to a scan scheduler
+    (:attr:`rfsas_hw.sources.schedule.CueScheduler.inbox`) on its clock.
+
+    Args:
+        receiver: a cue receiver with a transport.
+    """
+
+    def __init__(self, receiver: CueReceiver) -> None:
+        self.receiver = receiver
+
+    def poll(self, now_s: float) -> list[ChannelCue]:
+        """Accepted cues waiting now (no wait), with expiry on the scheduler clock ``now_s``."""
+        cues = self.receiver.receive(0)
+        now_ns = self.receiver.clock()
+        return [to_channel_cue(c, now_ns, now_s) for c in cues]
+
+    def close(self) -> None:
+        """Close the receiver's transport."""
+        self.receiver.close()

@@ -27,13 +27,15 @@ It knows nothing of the link: whoever receives a signed cue turns it into a
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from typing import Protocol
 
 import numpy as np
 import numpy.typing as npt
 
 from rfsas_hw.errors import ConfigError
+from rfsas_hw.records import BearingBatch
 
 _EPS = 1e-9
 
@@ -170,6 +172,38 @@ class Timeline:
         return np.asarray(self.channel_at(t_s) == np.asarray(channel), bool)
 
 
+class CueInbox(Protocol):
+    """Where a scheduler pulls newly arrived cues from (a cue receiver on the link)."""
+
+    def poll(self, now_s: float) -> list[ChannelCue]:
+        """Cues that arrived since the last poll, on the scheduler's clock (``now_s``)."""
+        ...
+
+
+class NoteHeard:
+    """A bearing listener that tells a scheduler which emitters its sensor now hears.
+
+    Args:
+        scheduler: the source's scheduler.
+        now_s: the scheduler's clock (the source's ``now_s``).
+    """
+
+    def __init__(self, scheduler: CueScheduler, now_s: Callable[[], float]) -> None:
+        self.scheduler = scheduler
+        self.now_s = now_s
+
+    def on_bearings(self, batch: BearingBatch) -> None:
+        """Report every emitter of ``batch`` as heard now."""
+        if len(batch) == 0:
+            return
+        now = self.now_s()
+        for emitter in np.unique(batch.emitter).tolist():
+            self.scheduler.note_heard(int(emitter), now)
+
+    def close(self) -> None:
+        """Nothing to release."""
+
+
 class CueScheduler:
     """Hop plan plus cues (see the module docstring).
 
@@ -199,6 +233,8 @@ class CueScheduler:
         self.config = config or SchedulerConfig()
         self.start_s = float(start_s)
         self.stats = SchedulerStats()
+        self.inbox: CueInbox | None = None
+        """Where :meth:`pull` takes new cues from (None: cues are only :meth:`offer` ed)."""
         self._now = self.start_s
         self._plan_s = 0.0
         self._active: _Dwell | None = None
@@ -334,6 +370,15 @@ class CueScheduler:
             self._pending.sort(key=lambda c: (-c.risk, c.expires_s))
         if self._active is None:
             self._try_start(now_s)
+
+    def pull(self, now_s: float) -> int:
+        """Offer every cue waiting in :attr:`inbox` at ``now_s``; returns how many."""
+        if self.inbox is None:
+            return 0
+        cues = self.inbox.poll(now_s)
+        for cue in cues:
+            self.offer(cue, now_s)
+        return len(cues)
 
     def note_heard(self, emitter: int, now_s: float) -> bool:
         """Report that ``emitter`` was heard at ``now_s``; True if it was the cued one.

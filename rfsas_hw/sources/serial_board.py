@@ -386,6 +386,7 @@ class SerialSource(Source[ObservationBatch]):
         sched = self.scheduler
         if sched is None or self._port is None or not self._configured:
             return
+        sched.pull(self.now_s())
         sched.channel_at(self.now_s())
         cue = sched.cued
         want = cue.channel if cue is not None else None

@@ -139,6 +139,7 @@ class VirtualSource(Source[ObservationBatch]):
         if self._next_ns >= self._end_ns:
             self._end()
             return None
+        start_ns = self._next_ns
         stop_ns = min(self._next_ns + self.batch_ns, self._end_ns)
         if self.realtime:
             if self._wall0 is None:
@@ -162,6 +163,8 @@ class VirtualSource(Source[ObservationBatch]):
                 self._cursor = len(self._obs)
             self._end()
         if self.scheduler is not None:
+            # cues that arrived by the start of this batch act on it
+            self.scheduler.pull((start_ns - self.world.t0_ns) / 1e9)
             until_s = (stop_ns - self.world.t0_ns) / 1e9
             tl = self.scheduler.timeline(until_s)
             t_s = (batch.t_ns - self.world.t0_ns) / 1e9

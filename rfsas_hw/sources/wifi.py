@@ -230,6 +230,7 @@ class ChannelHopper:
     def tick(self) -> bool:
         """Switch channel if the plan (or the scheduler) says so; True when a hop was made."""
         if self.scheduler is not None:
+            self.scheduler.pull(self.now_s())
             want = self.scheduler.channel_at(self.now_s())
         else:
             want = self.plan.channel_at(self.now_s())

@@ -61,7 +61,9 @@ class SumoRunConfig:
     person_speed_mps: tuple[float, float] | None = None
     """Range of each person's walking speed, drawn per seed, m/s (None: SUMO's own)."""
     end_s: float = 60.0
-    """Stop a seed at this simulation time at the latest, seconds."""
+    """End a seed at this simulation time at the latest, seconds."""
+    end_when_passed: bool = True
+    """End a seed once every person is behind the ego's rear bumper."""
     ego_speed_mode: int | None = 38
     """SUMO speed mode given to the ego when it appears. 38 keeps the limits of
     acceleration and deceleration but drops SUMO's own yielding and safe-speed
@@ -183,6 +185,13 @@ def _gap(ego: Entity, other: Entity) -> float:
     return math.hypot(
         max(abs(along) - ego.length_m / 2, 0.0), max(abs(across) - ego.width_m / 2, 0.0)
     )
+
+
+def _behind(ego: Entity, other: Entity) -> bool:
+    """Whether ``other``'s centre is behind the ego's rear bumper (nothing left to hit)."""
+    a = math.radians(ego.heading_deg)
+    along = (other.x_m - ego.x_m) * math.sin(a) + (other.y_m - ego.y_m) * math.cos(a)
+    return along < -ego.length_m / 2
 
 
 def _step_line(seed: int, res: StepResult, action: str, ego: Entity) -> dict[str, Any]:
@@ -349,7 +358,9 @@ def _loop(
             result.collision_t_s = t
             result.impact_speed_mps = float(hit[0].colliderSpeed)
             break
-        if t >= run.end_s:
+        if t >= run.end_s or (
+            run.end_when_passed and people and all(_behind(ego, p) for p in people)
+        ):
             break
     result.sumo_ms = float(np.mean(sumo_s)) * 1e3 if sumo_s else math.nan
     result.bridge_ms = float(np.mean(bridge_s)) * 1e3 if bridge_s else math.nan

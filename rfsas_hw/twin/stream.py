@@ -302,7 +302,7 @@ class StreamTwin(World):
     # -- frames ---------------------------------------------------------------------
 
     def _generate(self, t_end_s: float) -> None:
-        """Generate every live emitter's frames up to ``t_end_s``; drop what all sensors used."""
+        """Generate every live emitter's frames up to ``t_end_s``."""
         if t_end_s > self.generated_s:
             for i, traffic in enumerate(self._traffic):
                 if traffic is None:
@@ -317,7 +317,11 @@ class StreamTwin(World):
                         np.concatenate([old.seq, new.seq]),
                     )
             self.generated_s = t_end_s
-        done = min(self.cursor_s.values(), default=t_end_s)
+            self._trim()
+
+    def _trim(self) -> None:
+        """Drop frames and knots every sensor is done with (once per new window end)."""
+        done = min(self.cursor_s.values(), default=self.generated_s)
         for i, tx in enumerate(self._buffer):
             if len(tx) and tx.t_s[0] < done:
                 cut = int(np.searchsorted(tx.t_s, done, side="left"))

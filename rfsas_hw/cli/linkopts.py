@@ -20,6 +20,7 @@ from typing import Any, TypeVar
 import click
 
 from rfsas_hw.errors import ConfigError
+from rfsas_hw.link.cue_publisher import CuePublisher
 from rfsas_hw.link.distribution import NonceInbox
 from rfsas_hw.link.fallback import FallbackSender
 from rfsas_hw.link.keys import KeyStore
@@ -36,12 +37,28 @@ FALLBACK_KEY = "rfsas.fallback"
 """Where ``--fallback`` is kept in the click context (commands need no extra parameter)."""
 
 
+SEND_CUES_KEY = "rfsas.send_cues"
+"""Where ``--send-cues`` is kept in the click context."""
+
+
 def _keep_fallback(ctx: click.Context, _param: click.Parameter, value: str | None) -> None:
     ctx.meta[FALLBACK_KEY] = value
 
 
+def _keep_send_cues(ctx: click.Context, _param: click.Parameter, value: str | None) -> None:
+    ctx.meta[SEND_CUES_KEY] = value
+
+
 def send_options(func: F) -> F:
     """Add ``--send URL``, ``--fallback URL`` and ``--keys DIR`` to a click command."""
+    func = click.option(
+        "--send-cues",
+        metavar="URL",
+        expose_value=False,
+        callback=_keep_send_cues,
+        help="Also send signed cues for the bearings (channel, bearing, validity 2 s; one per "
+        "emitter every 0.5 s) so that vehicles' sensors tune to the channel (needs --keys).",
+    )(func)
     func = click.option(
         "--fallback",
         metavar="URL",
@@ -123,6 +140,26 @@ def make_publisher(
     return Publisher(
         signer, FallbackSender(primary, secondary), pose, epoch_s=epoch_s, preauth=preauth
     )
+
+
+def make_cue_publisher(
+    keys_dir: Path | None, pose: Pose, epoch_s: float = DEFAULT_EPOCH_S
+) -> CuePublisher | None:
+    """The cue publisher ``--send-cues URL`` asks for (signing with ``--keys``), or None.
+
+    Raises:
+        ConfigError: ``--send-cues`` without ``--keys``.
+        KeyStoreError: the key directory is not a usable sensor identity.
+        LinkError: bad URL or socket failure.
+    """
+    ctx = click.get_current_context(silent=True)
+    url = ctx.meta.get(SEND_CUES_KEY) if ctx is not None else None
+    if url is None:
+        return None
+    if keys_dir is None:
+        raise ConfigError("--send-cues needs --keys DIR: cues are signed with the sensor's key")
+    signer = KeyStore.open(keys_dir).signer()
+    return CuePublisher(signer, open_transport(url, "send"), pose, epoch_s=epoch_s)
 
 
 NONCES_HELP = (

@@ -20,7 +20,7 @@ from rich.table import Table
 
 from rfsas_hw.backend.site import parse_origin, pose_from_mapping
 from rfsas_hw.cli.exitcodes import Interrupted, WorkFailed
-from rfsas_hw.cli.linkopts import make_publisher, send_options
+from rfsas_hw.cli.linkopts import make_cue_publisher, make_publisher, send_options
 from rfsas_hw.df import load_calibration
 from rfsas_hw.errors import ConfigError
 from rfsas_hw.outpaths import STDIO, check_output
@@ -202,6 +202,7 @@ def build_listeners(
     if out is not None:
         check_output(out, inputs, force=force, what="--out")
     publisher = make_publisher(send, keys_dir, pose, epoch_s)
+    cue_publisher = make_cue_publisher(keys_dir, pose, epoch_s)
     if out is not None:
         from rfsas_hw.ros2.outputs import sensor_recording
 
@@ -209,6 +210,8 @@ def build_listeners(
         fanout.add(recording if recording is not None else BearingWriter(out, fmt))
     if publisher is not None:
         fanout.add(publisher)
+    if cue_publisher is not None:
+        fanout.add(cue_publisher)
     return fanout
 
 

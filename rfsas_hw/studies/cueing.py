@@ -36,7 +36,8 @@ from cryptography.hazmat.primitives.asymmetric import ec
 from rfsas_hw.backend.association import AssociationConfig, Associator
 from rfsas_hw.backend.triangulation import triangulate
 from rfsas_hw.df import Calibration
-from rfsas_hw.link.cue import Cue, CueKind, Phy, band_of, sign_cue
+from rfsas_hw.link.cue import Cue
+from rfsas_hw.link.cue_publisher import CuePublisher
 from rfsas_hw.link.cue_receiver import (
     CueReceiver,
     CueReceiverConfig,
@@ -44,6 +45,7 @@ from rfsas_hw.link.cue_receiver import (
     to_channel_cue,
 )
 from rfsas_hw.link.signing import Signer, TrustedKeys
+from rfsas_hw.link.transport import Transport
 from rfsas_hw.pipeline import SensorPipeline
 from rfsas_hw.privacy.hashing import FixedNonce, MacHasher
 from rfsas_hw.records import BearingBatch, Pose, mac_to_int
@@ -305,6 +307,23 @@ def _first_after_ns(car: BearingBatch, rsu: BearingBatch, rsu_first_ns: int) -> 
     return int(car.t_ns[ok].min()) if ok.any() else None
 
 
+class _Captured(Transport):
+    """Keeps what a cue publisher sends, with the time it was sent (the twin's link)."""
+
+    def __init__(self, clock: Callable[[], int]) -> None:
+        self.clock = clock
+        self.sent: list[tuple[bytes, int]] = []
+
+    def send(self, datagram: bytes) -> None:
+        self.sent.append((datagram, self.clock()))
+
+    def recv(self, timeout: float | None = None) -> bytes | None:
+        return None
+
+    def close(self) -> None:
+        pass
+
+
 def _cues(
     rsu: BearingBatch,
     sc: Scenario,
@@ -313,41 +332,26 @@ def _cues(
     hasher: MacHasher,
     sender: str = RSU,
 ) -> list[tuple[bytes, int]]:
-    """Signed cues the roadside unit sends for its bearings, with their arrival times (UTC ns)."""
+    """Signed cues the roadside unit's cue publisher sends for its bearings, each bearing
+    handed over ``process_s`` after its capture, with arrival times ``link_s`` later (UTC ns)."""
     pose = sc.sensor(sender).pose
     assert pose is not None
-    out: list[tuple[bytes, int]] = []
-    last: dict[int, int] = {}
-    every_ns = int(config.cue_every_s * NS)
-    seq = 0
-    for k in np.argsort(rsu.t_ns, kind="stable"):
-        emitter = int(rsu.emitter[k])
-        t_ns = int(rsu.t_ns[k])
-        if emitter in last and t_ns - last[emitter] < every_ns:
-            continue
-        last[emitter] = t_ns
-        gen_ns = t_ns + int(config.process_s * NS)
-        cue = Cue(
-            sender_id=signer.sender_id,
-            t_gen_us=gen_ns // 1000,
-            seq=seq,
-            epoch=t_ns // int(hasher.epoch_s * NS),
-            emitter=emitter,
-            t_obs_us=t_ns // 1000,
-            valid_until_us=(t_ns + int(config.cue_valid_s * NS)) // 1000,
-            channel=int(rsu.channel[k]),
-            band=band_of(int(rsu.channel[k])),
-            phy=Phy.UNKNOWN,
-            kind=CueKind.BEARING,
-            risk=1.0,
-            x_m=pose.x_m,
-            y_m=pose.y_m,
-            a=float(rsu.azimuth_deg[k]) % 360.0,
-            b=float(rsu.sigma_deg[k]),
-        )
-        seq += 1
-        out.append((sign_cue(signer, cue), gen_ns + int(config.link_s * NS)))
-    return out
+    now = [0]
+    link = _Captured(lambda: now[0])
+    pub = CuePublisher(
+        signer,
+        link,
+        Pose(pose.x_m, pose.y_m, pose.heading_deg),
+        every_s=config.cue_every_s,
+        valid_s=config.cue_valid_s,
+        epoch_s=hasher.epoch_s,
+        clock=lambda: now[0],
+    )
+    for k in np.argsort(rsu.t_ns, kind="stable").tolist():
+        now[0] = int(rsu.t_ns[k]) + int(config.process_s * NS)
+        pub.on_bearings(rsu.select(np.array([k])))
+    link_ns = int(config.link_s * NS)
+    return [(datagram, t_ns + link_ns) for datagram, t_ns in link.sent]
 
 
 @dataclass(frozen=True)

@@ -1,5 +1,5 @@
-"""DDS: the bytes Cyclone DDS publishes are rosbags' CDR, and a loopback round trip
-to another process delivers every message of a short run.
+"""DDS: the bytes Cyclone DDS publishes are rosbags' CDR (as samples and as captured on the
+wire), and a loopback round trip to another process delivers every message of a short run.
 
 Cyclone DDS is confined to the loopback interface (``lo``, multicast off,
 unicast discovery to 127.0.0.1) on a domain id picked from the process id,
@@ -10,9 +10,11 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import subprocess
 import sys
 import time
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -21,6 +23,7 @@ import pytest
 pytest.importorskip("cyclonedds")
 
 from rosrun import read_mcap, run_backend
+from rtps import user_samples
 
 from rfsas_hw.ros2 import topics
 from rfsas_hw.ros2.bag import McapFileWriter
@@ -74,10 +77,46 @@ class AckedPublisher:
         self.publisher.close()
 
 
-def test_loopback_round_trip_delivers_every_message(tmp_path: Path) -> None:
-    (tmp_path / "a").mkdir()
-    ref = run_backend(tmp_path / "a", [McapFileWriter(tmp_path / "a" / "ref.mcap")])
+@dataclass
+class RoundTrip:
+    recorded: list[tuple[str, bytes]]
+    """(topic, CDR) of every message of the reference recording."""
+    received: list[tuple[str, bytes]]
+    """(topic, re-serialised sample) of every message the other process took."""
+    done_line: str
+    expected: int
+    wire: Path | None
+    """A pcap of the domain's UDP ports during the run (None: capture not permitted)."""
+    stderr: str
+
+
+def start_capture(path: Path) -> subprocess.Popen[bytes] | None:
+    """dumpcap on lo, this test's domain's RTPS ports only; None where capturing is not
+    permitted or dumpcap is missing."""
+    if shutil.which("dumpcap") is None:
+        return None
+    base = 7400 + 250 * DOMAIN  # RTPS port mapping: PB + DG · domain, 250 ports per domain
+    cmd = ["dumpcap", "-q", "-P", "-i", "lo", "-f", f"udp portrange {base}-{base + 249}"]
+    cap = subprocess.Popen([*cmd, "-w", str(path)], stderr=subprocess.DEVNULL)
+    deadline = time.monotonic() + 5
+    while not path.exists() and cap.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.05)
+    if cap.poll() is not None or not path.exists():
+        cap.kill()
+        cap.wait()
+        return None
+    return cap
+
+
+@pytest.fixture(scope="module")
+def round_trip(tmp_path_factory: pytest.TempPathFactory) -> RoundTrip:
+    """The short run published on loopback DDS to a subscriber in another process."""
+    tmp = tmp_path_factory.mktemp("dds")
+    (tmp / "a").mkdir()
+    ref = run_backend(tmp / "a", [McapFileWriter(tmp / "a" / "ref.mcap")])
     expected = sum(ref.sink.counts.values())
+    wire = tmp / "wire.pcap"
+    cap = start_capture(wire)
     env = {k: v for k, v in os.environ.items() if not k.startswith("CYCLONEDDS")}
     proc = subprocess.Popen(
         [sys.executable, str(HERE / "dds_listen.py"), str(DOMAIN), str(expected), "40"],
@@ -96,8 +135,8 @@ def test_loopback_round_trip_delivers_every_message(tmp_path: Path) -> None:
         while not all(publisher.matched(t) for t in topics.ALL):
             assert time.monotonic() < deadline, "the listener was never discovered"
             time.sleep(0.05)
-        (tmp_path / "b").mkdir()
-        run_backend(tmp_path / "b", [AckedPublisher(publisher)])
+        (tmp / "b").mkdir()
+        run_backend(tmp / "b", [AckedPublisher(publisher)])
         out, err = proc.communicate(timeout=60)
     finally:
         if publisher is not None:
@@ -105,11 +144,38 @@ def test_loopback_round_trip_delivers_every_message(tmp_path: Path) -> None:
         if proc.poll() is None:
             proc.kill()
             proc.wait()
+        if cap is not None:
+            time.sleep(0.3)  # let dumpcap write the last packets
+            cap.terminate()
+            cap.wait(timeout=10)
     lines = out.splitlines()
-    assert lines[-1] == f"done {expected}", err[-2000:]
-    received = sorted((d["topic"], bytes.fromhex(d["cdr"])) for d in map(json.loads, lines[:-1]))
-    recorded = sorted((m.topic, m.data) for m in read_mcap(tmp_path / "a" / "ref.mcap"))
-    assert received == recorded
+    return RoundTrip(
+        recorded=[(m.topic, m.data) for m in read_mcap(tmp / "a" / "ref.mcap")],
+        received=[(d["topic"], bytes.fromhex(d["cdr"])) for d in map(json.loads, lines[:-1])],
+        done_line=lines[-1] if lines else "",
+        expected=expected,
+        wire=wire if cap is not None else None,
+        stderr=err,
+    )
+
+
+def test_loopback_round_trip_delivers_every_message(round_trip: RoundTrip) -> None:
+    assert round_trip.done_line == f"done {round_trip.expected}", round_trip.stderr[-2000:]
+    assert sorted(round_trip.received) == sorted(round_trip.recorded)
+
+
+def test_rtps_payloads_on_the_wire_are_rosbags_cdr(round_trip: RoundTrip) -> None:
+    """The serialized payload of every user DATA submessage captured on lo is the rosbags
+    CDR of a recorded message, followed only by the zero padding that aligns the next
+    RTPS submessage to 4 bytes."""
+    if round_trip.wire is None:
+        pytest.skip("capturing on lo is not permitted here (dumpcap missing or not privileged)")
+    samples = user_samples(round_trip.wire)
+    assert len(samples) == round_trip.expected
+    padded = sorted(data + bytes(-len(data) % 4) for _, data in round_trip.recorded)
+    assert sorted(samples.values()) == padded
+    # CDR little-endian, plain (XCDR1) encapsulation, as rosbags writes it
+    assert {payload[:4] for payload in samples.values()} == {b"\x00\x01\x00\x00"}
 
 
 def test_odometry_feed_gives_the_vehicle_state() -> None:

@@ -8,14 +8,20 @@ kept as a test artefact (``RFSAS_SCREENSHOT=path.png`` also copies it there).
 
 from __future__ import annotations
 
+import http.server
+import math
 import os
+import re
 import shutil
 import signal
 import socket
+import struct
 import subprocess
 import sys
+import threading
 import time
 import urllib.request
+import zlib
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
@@ -76,6 +82,46 @@ def http_ok(url: str) -> bool:
         return False
 
 
+def one_pixel_png(rgb: tuple[int, int, int]) -> bytes:
+    def chunk(kind: bytes, data: bytes) -> bytes:
+        crc = struct.pack(">I", zlib.crc32(kind + data))
+        return struct.pack(">I", len(data)) + kind + data + crc
+
+    header = struct.pack(">IIBBBBB", 1, 1, 8, 2, 0, 0, 0)
+    pixels = zlib.compress(b"\x00" + bytes(rgb))
+    body = chunk(b"IHDR", header) + chunk(b"IDAT", pixels) + chunk(b"IEND", b"")
+    return b"\x89PNG\r\n\x1a\n" + body
+
+
+@pytest.fixture
+def tile_server() -> Iterator[tuple[str, list[tuple[str, str | None]]]]:
+    """A map tile server on loopback: every tile is one pale pixel; requests are recorded."""
+    asked: list[tuple[str, str | None]] = []
+    tile = one_pixel_png((250, 250, 247))  # the page's own background colour
+
+    class Tiles(http.server.BaseHTTPRequestHandler):
+        def do_GET(self) -> None:
+            asked.append((self.path, self.headers.get("Referer")))
+            self.send_response(200)
+            self.send_header("Content-Type", "image/png")
+            self.send_header("Content-Length", str(len(tile)))
+            self.end_headers()
+            self.wfile.write(tile)
+
+        def log_message(self, *args: Any) -> None:
+            pass
+
+    server = http.server.ThreadingHTTPServer(("127.0.0.1", 0), Tiles)
+    thread = threading.Thread(target=server.serve_forever, daemon=True)
+    thread.start()
+    try:
+        yield f"http://127.0.0.1:{server.server_address[1]}/{{z}}/{{x}}/{{y}}.png", asked
+    finally:
+        server.shutdown()
+        server.server_close()
+        thread.join(5)
+
+
 @pytest.fixture
 def browser(tmp_path: Path) -> Iterator[Any]:
     webdriver = pytest.importorskip("selenium.webdriver")
@@ -104,7 +150,9 @@ def browser(tmp_path: Path) -> Iterator[Any]:
         driver.quit()
 
 
-def test_dashboard_live_in_a_browser(tmp_path: Path, browser: Any) -> None:
+def test_dashboard_live_in_a_browser(
+    tmp_path: Path, browser: Any, tile_server: tuple[str, list[tuple[str, str | None]]]
+) -> None:
     from selenium.webdriver.common.by import By
 
     demo: DemoResult = run_demo(out_dir=tmp_path / "demo", plot=False)
@@ -118,6 +166,7 @@ def test_dashboard_live_in_a_browser(tmp_path: Path, browser: Any) -> None:
     config.write_text(
         "site:\n"
         f"  map: {EXAMPLE_SCENARIO}\n"
+        f"  tiles: {tile_server[0]}\n"
         "  sensors:\n"
         "    rsu-nw: {x_m: -9.0, y_m: 9.0, heading_deg: 140.0, fov_deg: 60}\n"
     )
@@ -149,6 +198,16 @@ def test_dashboard_live_in_a_browser(tmp_path: Path, browser: Any) -> None:
         wait_for(lambda: status.get_attribute("data-status") == "live", 10, "the page to go live")
         # the site map came from the scenario: four buildings and two roads
         assert len(browser.find_elements(By.CSS_SELECTOR, "#layer-site path.building")) == 4
+        # tiles under it, from the site's tile server, the one under the origin among them;
+        # the page's address (which may hold the token) is never sent along
+        asked = wait_for(lambda: list(tile_server[1]), 10, "map tiles")
+        tiles = {tuple(map(int, re.findall(r"\d+", path))) for path, _ in asked}
+        z = next(iter(tiles))[0]
+        lat = math.radians(52.2053)
+        x0 = int((0.1218 + 180) / 360 * 2**z)
+        y0 = int((1 - math.log(math.tan(lat) + 1 / math.cos(lat)) / math.pi) / 2 * 2**z)
+        assert 15 <= z <= 19 and (z, x0, y0) in tiles
+        assert all(referer is None for _, referer in asked)
 
         replay = LiveReplay(demo, stores, listen, vehicle)
         replay.start()

@@ -64,14 +64,18 @@ function drawTiles() {
   if (!site.tiles || !site.origin || !site.m_per_deg || !view) return;
   const o = site.origin, k = site.m_per_deg;
   const toLat = (y) => o.lat_deg + y / k.lat, toLon = (x) => o.lon_deg + x / k.lon;
-  const z = Math.max(0, Math.min(19, Math.round(Math.log2((40075016 * Math.cos(rad(o.lat_deg))) / (view.w / 4)))));
+  // tiles about half the view wide, over the view and a margin as wide (the page is
+  // rarely the view's shape)
+  const z = Math.max(0, Math.min(19, Math.round(Math.log2((40075016 * Math.cos(rad(o.lat_deg))) / (view.w / 2)))));
+  const m = Math.max(view.w, view.h);
+  const area = { x0: view.x0 - m, y0: view.y0 - m, w: view.w + 2 * m, h: view.h + 2 * m };
   const n = 2 ** z;
   const tx = (lon) => ((lon + 180) / 360) * n;
   const ty = (lat) => ((1 - Math.log(Math.tan(rad(lat)) + 1 / Math.cos(rad(lat))) / Math.PI) / 2) * n;
   const lonOf = (x) => (x / n) * 360 - 180;
   const latOf = (y) => (Math.atan(Math.sinh(Math.PI * (1 - (2 * y) / n))) * 180) / Math.PI;
-  const xa = Math.floor(tx(toLon(view.x0))), xb = Math.floor(tx(toLon(view.x0 + view.w)));
-  const ya = Math.floor(ty(toLat(view.y0 + view.h))), yb = Math.floor(ty(toLat(view.y0)));
+  const xa = Math.floor(tx(toLon(area.x0))), xb = Math.floor(tx(toLon(area.x0 + area.w)));
+  const ya = Math.floor(ty(toLat(area.y0 + area.h))), yb = Math.floor(ty(toLat(area.y0)));
   if ((xb - xa + 1) * (yb - ya + 1) > 64) return;
   for (let x = xa; x <= xb; x++) {
     for (let y = ya; y <= yb; y++) {

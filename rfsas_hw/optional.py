@@ -14,6 +14,7 @@ EXTRAS = {
     "stable_baselines3": "rl",
     "PIL": "plot",
     "csiread": "csi",
+    "aiohttp": "web",
 }
 
 

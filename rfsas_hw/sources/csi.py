@@ -102,14 +102,9 @@ def read_capture(
 
         capture = read_feitcsi(p, freq_mhz)
     elif fmt in ("atheros", "picoscenes", "nexmon"):
-        from rfsas_hw.sources import csi_csiread
+        from rfsas_hw.sources.csi_csiread import read_isolated
 
-        if fmt == "atheros":
-            capture = csi_csiread.read_atheros(p, freq_mhz)
-        elif fmt == "picoscenes":
-            capture = csi_csiread.read_picoscenes(p, freq_mhz)
-        else:
-            capture = csi_csiread.read_nexmon(p, freq_mhz, chip)
+        capture = read_isolated(fmt, p, freq_mhz, chip)
     else:
         raise SourceError(f"{path}: unknown CSI format {fmt!r}; known: {', '.join(FORMATS)}")
     for block in capture.blocks:

@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from rfsas_hw.errors import CaptureFormatError
+from rfsas_hw.errors import CaptureFormatError, RfsasError
 from rfsas_hw.optional import require
 from rfsas_hw.records import ObsFlag
 from rfsas_hw.sources.csi_frames import CsiCapture, new_frames, ofdm_subcarriers
@@ -305,3 +305,70 @@ def read_nexmon(path: str | Path, freq_mhz: int = 0, chip: str | None = None) ->
     caplen = np.asarray(d.caplen[:n])
     notes["packets longer than the CSI they carry"] = int(np.sum(caplen > np.median(caplen)))
     return CsiCapture(name, "nexmon", [frames], "dBm", [], notes)
+
+
+READERS = {"atheros": "read_atheros", "picoscenes": "read_picoscenes", "nexmon": "read_nexmon"}
+CHILD_TIMEOUT_S = 300.0
+"""Longest a child process may take to parse one file."""
+
+
+def _child(conn: Any, fmt: str, path: str, freq_mhz: int, chip: str | None) -> None:
+    try:
+        reader = globals()[READERS[fmt]]
+        args: tuple[Any, ...] = (path, freq_mhz, chip) if fmt == "nexmon" else (path, freq_mhz)
+        conn.send(("ok", reader(*args)))
+    except RfsasError as err:
+        conn.send(("error", err))
+    except Exception as err:  # a bug or a csiread failure: report it, do not hang the parent
+        conn.send(("error", CaptureFormatError(f"{path}: {type(err).__name__}: {err}")))
+    finally:
+        conn.close()
+
+
+def read_isolated(
+    fmt: str, path: str | Path, freq_mhz: int = 0, chip: str | None = None
+) -> CsiCapture:
+    """Run one of this module's readers in a child process.
+
+    ``csiread`` is C code; on some corrupted files it crashes the process
+    (a segmentation fault on a damaged PicoScenes file). In a child, such a
+    crash costs that file only and becomes an error here.
+
+    Raises:
+        CaptureFormatError: the child crashed, timed out, or the file is bad.
+        MissingDependencyError: csiread is not installed.
+    """
+    import multiprocessing
+
+    if fmt not in READERS:
+        raise ValueError(f"no csiread reader for {fmt!r}")
+    _csiread()  # a missing dependency is reported here, with the install command
+    # one fork server, started once with the parser loaded, forks a cheap child per file
+    ctx = multiprocessing.get_context("forkserver")
+    ctx.set_forkserver_preload(["csiread", "rfsas_hw.sources.csi_csiread"])
+    parent, child = ctx.Pipe(duplex=False)
+    proc = ctx.Process(target=_child, args=(child, fmt, str(path), freq_mhz, chip), daemon=True)
+    proc.start()
+    child.close()
+    try:
+        if not parent.poll(CHILD_TIMEOUT_S):
+            proc.kill()
+            raise CaptureFormatError(f"{path}: csiread took over {CHILD_TIMEOUT_S:g} s; stopped")
+        status, value = parent.recv()
+    except EOFError:
+        proc.join(5)
+        raise CaptureFormatError(
+            f"{path}: csiread crashed on this {fmt} file (exit code {proc.exitcode}): "
+            "the file is damaged or not of this format"
+        ) from None
+    finally:
+        parent.close()
+        proc.join(5)
+        if proc.is_alive():
+            proc.kill()
+            proc.join(5)
+        proc.close()
+    if status == "error":
+        raise value
+    capture: CsiCapture = value
+    return capture

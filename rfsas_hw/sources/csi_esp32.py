@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from rfsas_hw.errors import CaptureFormatError
+from rfsas_hw.errors import CaptureFormatError, DataFormatError
 from rfsas_hw.records import mac_to_int
 from rfsas_hw.sources.csi_frames import CsiCapture, new_frames
 
@@ -70,7 +70,7 @@ def read_esp32(path: str | Path, freq_mhz: int = 0) -> CsiCapture:
             rssi = float(fields[3])
             channel = int(fields[16])
             t_us = int(fields[18])
-        except (ValueError, CaptureFormatError) as err:
+        except (ValueError, DataFormatError) as err:
             problems.append(("bad line", CaptureFormatError(f"{name}: line {line_no}: {err}")))
             continue
         rows.append((mac, rssi, channel, t_us, values[:LLTF_BYTES]))

@@ -29,6 +29,43 @@ FTM_CLOCK_NS = 3.125
 """Tick of the AX200's FTM clock (320 MHz), ns."""
 
 
+_Head = tuple[int, int, int, int, int, int, int, int]
+"""(csi length, n_rx, n_tx, n_subcarriers, clock, rssi_1, rssi_2, mac)."""
+
+
+def _header(raw: bytes, pos: int, total: int) -> _Head | None:
+    """The header at ``pos`` if its fields are consistent, else None."""
+    length = int.from_bytes(raw[pos : pos + 4], "little")
+    nrx, ntx = raw[pos + 46], raw[pos + 47]
+    nsc = int.from_bytes(raw[pos + 52 : pos + 56], "little")
+    sane = 1 <= nrx <= 4 and 1 <= ntx <= 4 and 1 <= nsc <= 4096
+    if not sane or length != 4 * nrx * ntx * nsc or pos + HEADER_BYTES + length > total:
+        return None
+    return (
+        length,
+        nrx,
+        ntx,
+        nsc,
+        int.from_bytes(raw[pos + 8 : pos + 12], "little"),
+        int.from_bytes(raw[pos + 60 : pos + 64], "little"),
+        int.from_bytes(raw[pos + 64 : pos + 68], "little"),
+        int.from_bytes(raw[pos + 68 : pos + 74], "big"),
+    )
+
+
+def _resync(raw: bytes, start: int, total: int, layout: tuple[int, ...]) -> int | None:
+    """The next position at or after ``start`` holding a header of ``layout``
+    (n_rx, n_tx, n_subcarriers), or None."""
+    length = (4 * layout[0] * layout[1] * layout[2]).to_bytes(4, "little")
+    pos = raw.find(length, start)
+    while pos != -1 and pos + HEADER_BYTES <= total:
+        head = _header(raw, pos, total)
+        if head is not None and head[1:4] == layout:
+            return pos
+        pos = raw.find(length, pos + 1)
+    return None
+
+
 def read_feitcsi(path: str | Path, freq_mhz: int = 0) -> CsiCapture:
     """Every frame of a FeitCSI capture, in runs of one layout.
 
@@ -40,7 +77,7 @@ def read_feitcsi(path: str | Path, freq_mhz: int = 0) -> CsiCapture:
     raw = Path(path).read_bytes()
     total = len(raw)
     pos = 0
-    heads: list[tuple[int, int, int, int, int, int, int, int, int]] = []
+    heads: list[tuple[int, int, int, int, int, int, int, int, int]] = []  # (pos, *_Head)
     problems: list[tuple[str, CaptureFormatError]] = []
     while pos < total:
         if pos + HEADER_BYTES > total:
@@ -54,37 +91,35 @@ def read_feitcsi(path: str | Path, freq_mhz: int = 0) -> CsiCapture:
                 )
             )
             break
-        length = int.from_bytes(raw[pos : pos + 4], "little")
-        clock = int.from_bytes(raw[pos + 8 : pos + 12], "little")
-        nrx, ntx = raw[pos + 46], raw[pos + 47]
-        nsc = int.from_bytes(raw[pos + 52 : pos + 56], "little")
-        r1 = int.from_bytes(raw[pos + 60 : pos + 64], "little")
-        r2 = int.from_bytes(raw[pos + 64 : pos + 68], "little")
-        mac = int.from_bytes(raw[pos + 68 : pos + 74], "big")
-        sane = 1 <= nrx <= 4 and 1 <= ntx <= 4 and 1 <= nsc <= 4096
-        if not sane or length != 4 * nrx * ntx * nsc or pos + HEADER_BYTES + length > total:
+        head = _header(raw, pos, total)
+        if head is None:
             err = CaptureFormatError(
-                f"{name}: frame {len(heads)} at byte {pos}: header says {nrx} RX × {ntx} TX × "
-                f"{nsc} subcarriers in {length} bytes ({total - pos - HEADER_BYTES} left): "
-                "not a FeitCSI frame"
+                f"{name}: frame {len(heads)} at byte {pos}: not a FeitCSI frame header "
+                "(antenna, subcarrier and length fields disagree or run past the end)"
             )
             if not heads:
                 raise err
-            problems.append(("bad frame", err))
-            break
-        heads.append((pos, length, clock, nrx, ntx, nsc, r1, r2, mac))
-        pos += HEADER_BYTES + length
+            # resynchronise on the next header of the layout seen so far
+            found = _resync(raw, pos + 1, total, heads[-1][2:5])
+            where = f"skipped to byte {found}" if found is not None else "rest of file lost"
+            problems.append(("bad frame", CaptureFormatError(f"{err}; {where}")))
+            if found is None:
+                break
+            pos = found
+            continue
+        heads.append((pos, *head))
+        pos += HEADER_BYTES + head[0]
     notes: Counter[str] = Counter()
     blocks: list[CsiFrames] = []
     i = 0
     while i < len(heads):
-        layout = heads[i][3:6]
+        layout = heads[i][2:5]
         j = i
-        while j < len(heads) and heads[j][3:6] == layout:
+        while j < len(heads) and heads[j][2:5] == layout:
             j += 1
         nrx, ntx, nsc = layout
         frames = new_frames("feitcsi", j - i, nrx, ntx, ofdm_subcarriers(nsc))
-        for row, (start, length, clock, _, _, _, r1, r2, mac) in enumerate(heads[i:j]):
+        for row, (start, length, _, _, _, clock, r1, r2, mac) in enumerate(heads[i:j]):
             body = np.frombuffer(raw, "<i2", length // 2, start + HEADER_BYTES).astype(np.float32)
             iq = body[0::2] + 1j * body[1::2]
             frames.h[row] = iq.reshape(nrx, ntx, nsc)

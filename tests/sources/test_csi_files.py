@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from rfsas_hw.errors import CaptureFormatError, SourceError
+from rfsas_hw.errors import CaptureFormatError, RfsasError, SourceError
 from rfsas_hw.records import ObservationBatch, ObsFlag
 from rfsas_hw.sources.csi import CsiSource, capture_frames, read_capture
 from rfsas_hw.sources.registry import open_source
@@ -269,3 +269,48 @@ def test_intel_frame_records_give_the_transmitter(tmp_path: Path) -> None:
     assert len(obs) == 29
     assert obs.mac.tolist() == [0x020000000100 + i for i in range(29)]
     assert obs.seq.tolist() == [i + 7 for i in range(29)]
+
+
+CORRUPTIBLE = {
+    "intel5300": "los_5.dat",
+    "atheros": "ath_csi_1.dat",
+    "picoscenes": "rx_by_qca9300.csi",
+    "feitcsi": "HT20_2452.csi",
+    "nexmon": "example_4366c0.pcap",
+    "esp32": "example_data.csv",
+}
+
+
+@pytest.mark.parametrize("fmt", sorted(CORRUPTIBLE))
+def test_corrupted_bytes_fail_only_with_rfsas_errors(tmp_path: Path, fmt: str) -> None:
+    """Flipped bytes, cuts and noise: frames or one clear error, never a crash."""
+    raw = (DATA / CORRUPTIBLE[fmt]).read_bytes()
+    rng = np.random.default_rng(17)
+    path = tmp_path / "x"
+    outcomes = []
+    for trial in range(12):
+        data = bytearray(raw)
+        if trial % 3 == 0:
+            data = data[: int(rng.integers(1, len(data)))]
+        else:
+            for _ in range(int(rng.integers(1, 40))):
+                data[int(rng.integers(0, len(data)))] = int(rng.integers(0, 256))
+        path.write_bytes(bytes(data))
+        try:
+            with CsiSource(str(path), format=fmt) as src:
+                outcomes.append(sum(len(b) for b in src))
+        except RfsasError:
+            outcomes.append(-1)
+    assert any(n > 0 for n in outcomes)
+
+
+def test_feitcsi_resynchronises_after_a_broken_header(tmp_path: Path) -> None:
+    raw = bytearray((DATA / "HT20_2452.csi").read_bytes())
+    frame = len(raw) // 48
+    raw[10 * frame + 46] = 9  # frame 10 claims 9 RX chains
+    path = tmp_path / "x.csi"
+    path.write_bytes(bytes(raw))
+    with CsiSource(str(path)) as src:
+        assert sum(len(b) for b in src) == 47
+    assert src.stats.skipped["bad frame"] == 1
+    assert f"skipped to byte {11 * frame}" in src.stats.errors[0]

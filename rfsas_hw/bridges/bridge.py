@@ -79,7 +79,15 @@ EGO_MOVER = "ego"
 """Mover id of the ego vehicle inside the twin."""
 _SEVERITY = {"brake": 3, "caution": 2, "clear": 1, "none": 0}
 
-__all__ = ["Bridge", "BridgeStats", "Entity", "StepResult", "fitted_calibration"]
+__all__ = [
+    "Bridge",
+    "BridgeStats",
+    "Entity",
+    "StepResult",
+    "device_mac",
+    "device_model_of",
+    "fitted_calibration",
+]
 
 
 @dataclass(frozen=True, slots=True)
@@ -186,6 +194,27 @@ def _unit_sensor(u: UnitSpec | EgoUnitSpec) -> SensorSpec:
         heading_offset_deg=u.heading_offset_deg,
         **common,  # type: ignore[arg-type]
     )
+
+
+def device_mac(config: BridgeConfig, entity: str, rotation: int = 0) -> int:
+    """The MAC an entity's device uses in its ``rotation``-th period (drawn from the seed).
+
+    Randomised MACs are locally administered unicast addresses, as phones use.
+    """
+    value = int(stream(config.seed, "mac", entity, str(rotation)).integers(0, 1 << 48))
+    if config.mac.randomise:
+        return (value | (0x02 << 40)) & ~(0x01 << 40)
+    return value & ~(0x03 << 40)
+
+
+def device_model_of(config: BridgeConfig, entity: str, kind: EntityKind) -> str | None:
+    """The device model an entity carries, or None (drawn once per entity from the seed
+    against the kind's penetration rate)."""
+    dev = config.devices.get(kind)
+    if dev is None or dev.model is None:
+        return None
+    draw = float(stream(config.seed, "penetration", entity).random())
+    return dev.model if draw < dev.penetration else None
 
 
 _FITTED: dict[tuple[str, int], Calibration] = {}
@@ -318,24 +347,12 @@ class Bridge:
             pose = Pose(float(xy[0, 0]), float(xy[0, 1]), float(heading[0]))
             self._pipelines[s.id] = SensorPipeline(self.calibrations[s.id], self.hasher, s.id, pose)
 
-    def _mac(self, entity: str, rotation: int) -> int:
-        rng = stream(self.config.seed, "mac", entity, str(rotation))
-        value = int(rng.integers(0, 1 << 48))
-        if self.config.mac.randomise:
-            # locally administered, unicast: what phones use for randomised addresses
-            return (value | (0x02 << 40)) & ~(0x01 << 40)
-        return value & ~(0x03 << 40)
-
     def _give_device(self, twin: StreamTwin, e: Entity, t_s: float, rotation: int) -> None:
-        dev = self.config.devices.get(e.kind)
-        if dev is None or dev.model is None:
+        name = device_model_of(self.config, e.id, e.kind)
+        if name is None:
             return
-        if rotation == 0:
-            draw = float(stream(self.config.seed, "penetration", e.id).random())
-            if draw >= dev.penetration:
-                return
-        model = self.config.device_model(dev.model)
-        mac = self._mac(e.id, rotation)
+        model = self.config.device_model(name)
+        mac = device_mac(self.config, e.id, rotation)
         while np.any(twin.emitter_macs == np.uint64(mac)):
             mac = (mac + 1) & ((1 << 48) - 1)
         spec = EmitterSpec(
@@ -348,7 +365,7 @@ class Bridge:
             carried_by=e.id,
         )
         index = twin.add_emitter(spec, start_s=t_s)
-        self._devices[e.id] = _Device(e.id, e.kind, dev.model, mac, index, t_s, rotation)
+        self._devices[e.id] = _Device(e.id, e.kind, name, mac, index, t_s, rotation)
         self.stats.devices += 1
         self._write_truth(
             {
@@ -356,7 +373,7 @@ class Bridge:
                 "t_s": t_s,
                 "entity": e.id,
                 "kind": e.kind,
-                "device": dev.model,
+                "device": name,
                 "mac": int_to_mac(mac),
                 "emitter": emitter_hex(self.hasher.hash_one(mac, self._ns(t_s))),
             }

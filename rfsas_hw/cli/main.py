@@ -27,6 +27,7 @@ EXIT_BAD_INPUT = BAD_INPUT
 # "module:attribute" of every subcommand, imported when the CLI starts.
 COMMANDS: list[str] = [
     "rfsas_hw.cli.sim:sim",
+    "rfsas_hw.cli.sumo:sumo",
     "rfsas_hw.cli.plan:plan",
     "rfsas_hw.cli.demo:demo",
     "rfsas_hw.cli.calibrate:calibrate",

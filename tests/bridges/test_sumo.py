@@ -26,7 +26,7 @@ SEEDS = range(20)
 
 @pytest.fixture(scope="module")
 def run_file() -> tuple[object, object]:
-    return load_run_file(EXAMPLE / "crossing.yaml")
+    return load_run_file(EXAMPLE / "units.yaml")
 
 
 def test_closed_loop_over_20_seeds(run_file: tuple[object, object], tmp_path: Path) -> None:

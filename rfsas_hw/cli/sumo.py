@@ -1,0 +1,242 @@
+"""``rfsas sumo``: RF-SAS closed loop inside SUMO, and SUMO's FCD output as a twin scenario."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+from pathlib import Path
+from typing import IO, TYPE_CHECKING, cast
+
+import click
+from rich.console import Console
+from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+from rich.table import Table
+
+from rfsas_hw.errors import ConfigError
+
+if TYPE_CHECKING:
+    from rfsas_hw.bridges.sumo_run import Controller, SeedResult
+
+EXAMPLE_DIR = Path(__file__).resolve().parents[2] / "examples" / "sumo"
+"""The bundled SUMO scenario (in a source checkout)."""
+RUN_FILE = "units.yaml"
+"""The run file looked for next to a SUMO configuration when ``--units`` is not given."""
+
+
+@click.group()
+def sumo() -> None:
+    """RF-SAS inside SUMO: closed loop over seeds, and FCD output to twin scenarios."""
+
+
+def _fmt(x: float | None, digits: int = 2) -> str:
+    return "—" if x is None or (isinstance(x, float) and math.isnan(x)) else f"{x:.{digits}f}"
+
+
+@sumo.command()
+@click.argument(
+    "net_or_sumocfg",
+    required=False,
+    type=click.Path(exists=True, dir_okay=False, path_type=Path),
+)
+@click.option("--ego", default=None, help="SUMO id of the ego vehicle (default: the run file's).")
+@click.option(
+    "--units",
+    "units_path",
+    type=click.Path(exists=True, dir_okay=False, path_type=Path),
+    default=None,
+    help=f"Run file: units, devices, backend profile, sumo: section (default: {RUN_FILE} "
+    "next to the SUMO file).",
+)
+@click.option("--seeds", default=1, show_default=True, type=click.IntRange(1), help="Seeds to run.")
+@click.option("--first-seed", default=0, show_default=True, type=int, help="First seed.")
+@click.option(
+    "--controller",
+    type=click.Choice(["rfsas", "ignore", "off"]),
+    default="rfsas",
+    show_default=True,
+    help="rfsas: advisories steer the ego; ignore: RF-SAS runs, the ego ignores it; "
+    "off: no RF-SAS.",
+)
+@click.option(
+    "--api",
+    type=click.Choice(["libsumo", "traci"]),
+    default=None,
+    help="libsumo (in-process, default) or traci (default with --gui).",
+)
+@click.option("--gui", is_flag=True, help="Watch in sumo-gui (TraCI).")
+@click.option(
+    "--out",
+    type=click.Path(dir_okay=False, path_type=Path),
+    default=None,
+    help="JSON lines: every step (hashed ids only) and every seed's result.",
+)
+@click.option(
+    "--truth",
+    type=click.Path(dir_okay=False, path_type=Path),
+    default=None,
+    help="Truth file (entity, device, MAC, emitter id); one per seed with -seedN in its name.",
+)
+@click.option(
+    "--fcd",
+    type=click.Path(dir_okay=False, path_type=Path),
+    default=None,
+    help="SUMO FCD output of the first seed (for 'rfsas sumo fcd').",
+)
+def run(
+    net_or_sumocfg: Path | None,
+    ego: str | None,
+    units_path: Path | None,
+    seeds: int,
+    first_seed: int,
+    controller: str,
+    api: str | None,
+    gui: bool,
+    out: Path | None,
+    truth: Path | None,
+    fcd: Path | None,
+) -> None:
+    """Run NET_OR_SUMOCFG closed loop with RF-SAS (default: the bundled crossing)."""
+    from rfsas_hw.bridges.sumo_run import Controller, load_run_file, run_seed
+
+    cfg_path = net_or_sumocfg or EXAMPLE_DIR / "crossing.sumocfg"
+    if not cfg_path.exists():
+        raise ConfigError(f"{cfg_path}: no such SUMO file (give NET_OR_SUMOCFG)")
+    units_file = units_path or cfg_path.parent / RUN_FILE
+    if not units_file.exists():
+        raise ConfigError(f"{units_file}: no run file; give --units")
+    bridge_cfg, run_cfg = load_run_file(units_file)
+    if ego is not None:
+        run_cfg = dataclasses.replace(run_cfg, ego=ego)
+    chosen_api = api or ("traci" if gui else "libsumo")
+    ctl = cast(Controller, controller)
+    results: list[SeedResult] = []
+    sink: IO[str] | None = None
+    if out is not None:
+        try:
+            sink = out.open("w", encoding="utf-8")
+        except OSError as err:
+            raise ConfigError(f"{out}: cannot write: {err.strerror or err}") from err
+    columns = (
+        TextColumn("seed {task.fields[seed]}"),
+        BarColumn(),
+        TextColumn("{task.completed:.1f}/{task.total:.0f} s"),
+        TimeElapsedColumn(),
+    )
+    try:
+        with Progress(*columns, transient=True) as bar:
+            task = bar.add_task("sumo", total=run_cfg.end_s, seed=first_seed)
+            for k, seed in enumerate(range(first_seed, first_seed + seeds)):
+                bar.update(task, completed=0.0, seed=seed)
+                truth_k = (
+                    None
+                    if truth is None
+                    else truth.with_name(f"{truth.stem}-seed{seed}{truth.suffix}")
+                )
+                r = run_seed(
+                    cfg_path,
+                    bridge_cfg,
+                    run_cfg,
+                    seed,
+                    controller=ctl,
+                    api=chosen_api,  # type: ignore[arg-type]
+                    gui=gui,
+                    out=sink,
+                    truth_path=truth_k,
+                    fcd_path=fcd if k == 0 else None,
+                    on_step=lambda t: bar.update(task, completed=min(t, run_cfg.end_s)),
+                )
+                if sink is not None:
+                    sink.write(json.dumps({"record": "seed", **r.as_dict()}) + "\n")
+                results.append(r)
+    finally:
+        if sink is not None:
+            sink.close()
+    _summary(cfg_path, ctl, results)
+
+
+def _summary(cfg_path: Path, controller: str, results: list[SeedResult]) -> None:
+    from rfsas_hw.bridges.sumo_run import RunSummary
+
+    summary = RunSummary(cast("Controller", controller), results)
+    table = Table(title=f"{cfg_path.name}: controller {controller}")
+    for col in (
+        "seed",
+        "collision",
+        "impact m/s",
+        "min gap m",
+        "first caution s",
+        "first brake s",
+        "fixes ok",
+        "fix error m",
+        "SUMO ms/step",
+        "bridge ms/step",
+    ):
+        table.add_column(col, justify="right")
+    for r in summary.results:
+        table.add_row(
+            str(r.seed),
+            "yes" if r.collision else "no",
+            _fmt(r.impact_speed_mps, 1),
+            _fmt(r.min_gap_m),
+            _fmt(r.first_caution_s, 1),
+            _fmt(r.first_brake_s, 1),
+            str(r.fixes_ok),
+            _fmt(r.median_fix_error_m),
+            _fmt(r.sumo_ms, 3),
+            _fmt(r.bridge_ms),
+        )
+    console = Console()
+    console.print(table)
+    row = summary.row()
+    console.print(
+        f"{row['seeds']} seeds: {row['collisions']} collisions "
+        f"(mean impact {row['mean_impact_mps']:.1f} m/s, max {row['max_impact_mps']:.1f}), "
+        f"BRAKE in {row['seeds_with_brake']} seeds (median first at "
+        f"{_fmt(row['median_first_brake_s'], 1)} s), median min gap "
+        f"{_fmt(row['median_min_gap_m'])} m, {row['fixes_ok']} fixes "
+        f"(median error {_fmt(row['median_fix_error_m'])} m); per step SUMO "
+        f"{_fmt(row['sumo_ms'], 3)} ms, RF-SAS {_fmt(row['bridge_ms'])} ms"
+    )
+
+
+@sumo.command(name="fcd")
+@click.argument("fcd_path", type=click.Path(exists=True, dir_okay=False, path_type=Path))
+@click.option(
+    "--units",
+    "units_path",
+    type=click.Path(exists=True, dir_okay=False, path_type=Path),
+    required=True,
+    help="Run file (units, devices, seed, origin).",
+)
+@click.option("--ego", default=None, help="SUMO id of the ego vehicle (default: the run file's).")
+@click.option(
+    "--poly",
+    type=click.Path(exists=True, dir_okay=False, path_type=Path),
+    default=None,
+    help="SUMO polygon file whose 'building' polygons become buildings.",
+)
+@click.option(
+    "-o",
+    "--output",
+    type=click.Path(dir_okay=False, path_type=Path),
+    required=True,
+    help="Scenario YAML to write (then: rfsas sim capture SCENARIO -o DIR).",
+)
+def fcd_command(
+    fcd_path: Path, units_path: Path, ego: str | None, poly: Path | None, output: Path
+) -> None:
+    """Turn SUMO's FCD output into a twin scenario with the run file's units and devices."""
+    from rfsas_hw.bridges.fcd import buildings_from_poly_file, fcd_to_scenario, write_scenario
+    from rfsas_hw.bridges.sumo_run import load_run_file
+
+    bridge_cfg, run_cfg = load_run_file(units_path)
+    buildings = buildings_from_poly_file(poly, bridge_cfg.origin_m) if poly is not None else []
+    data = fcd_to_scenario(
+        fcd_path, bridge_cfg, ego=ego or run_cfg.ego, buildings=buildings, name=fcd_path.stem
+    )
+    write_scenario(data, output)
+    Console().print(
+        f"{output}: {len(data['movers'])} movers, {len(data['emitters'])} emitters, "
+        f"{len(data['sensors'])} units, {data['duration_s']:.1f} s"
+    )

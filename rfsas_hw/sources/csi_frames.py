@@ -180,7 +180,7 @@ def circular_std_deg(z: npt.NDArray[Any]) -> float:
     if not keep.any():
         return math.nan
     r = float(np.abs(np.mean(z[keep] / mag[keep])))
-    return math.degrees(math.sqrt(-2.0 * math.log(max(r, 1e-300))))
+    return math.degrees(math.sqrt(-2.0 * math.log(min(max(r, 1e-300), 1.0))))
 
 
 @dataclass(slots=True)
@@ -224,7 +224,7 @@ class PhaseAccumulator:
         for (a, b), total in sorted(self._sum.items()):
             n = self._count[(a, b)]
             r = abs(total) / n
-            std = math.degrees(math.sqrt(-2.0 * math.log(max(r, 1e-300))))
+            std = math.degrees(math.sqrt(-2.0 * math.log(min(max(r, 1e-300), 1.0))))
             out.append(PhaseStats(a, b, n, math.degrees(math.atan2(total.imag, total.real)), std))
         return out
 

@@ -7,6 +7,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from rfsas_hw.df.interferometer import C_MPS, bearings, effective_snr_db, pair_phase
 from rfsas_hw.errors import SimulationError
@@ -95,3 +97,31 @@ def test_sensor_capture_recovers_true_angles(tmp_path: Path) -> None:
     assert out.valid.all()
     # every error within 5 of its own σ (the file's 16-bit rounding is far below the noise)
     assert np.all(np.abs(err) < 5 * out.sigma_deg)
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    n=st.integers(1, 4),
+    nrx=st.integers(1, 4),
+    ntx=st.integers(1, 2),
+    nsc=st.sampled_from([1, 30, 56, 242]),
+    seed=st.integers(0, 2**32 - 1),
+)
+def test_feitcsi_codec_round_trip(n: int, nrx: int, ntx: int, nsc: int, seed: int) -> None:
+    """Any shape and values: the reader gives back the writer's frames (one scale per frame)."""
+    import tempfile
+
+    rng = np.random.default_rng(seed)
+    h = rng.normal(size=(n, nrx, ntx, nsc)) + 1j * rng.normal(size=(n, nrx, ntx, nsc))
+    macs = rng.integers(1, 2**48, n, dtype=np.uint64)
+    rssi = -rng.integers(20, 100, (n, nrx)).astype(float)
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "x.csi"
+        write_feitcsi(path, np.arange(n) * 1000, macs, rssi, h)
+        obs = capture_frames(path)
+    assert obs.csi is not None and obs.csi.h.shape == h.shape
+    assert obs.mac.tolist() == macs.tolist()
+    np.testing.assert_array_equal(obs.rssi_dbm[:, : min(nrx, 2)], rssi[:, : min(nrx, 2)])
+    got = obs.csi.h.astype(np.complex128)
+    scale = np.abs(got).max(axis=(1, 2, 3)) / np.abs(h).max(axis=(1, 2, 3))
+    np.testing.assert_allclose(got, h * scale[:, None, None, None], atol=1.0)

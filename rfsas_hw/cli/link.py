@@ -15,6 +15,7 @@ from rich.table import Table
 
 from rfsas_hw.cli.linkopts import join_urls, split_urls
 from rfsas_hw.link import Receiver, ReceiverConfig
+from rfsas_hw.link.fallback import FallbackReceiver
 from rfsas_hw.link.keys import KeyStore
 from rfsas_hw.link.latency import LatencyConfig, LinkState
 
@@ -95,6 +96,12 @@ def link() -> None:
 @click.option(
     "--json", "as_json", is_flag=True, help="No live table; one JSON status line at the end."
 )
+@click.option(
+    "--fallback",
+    metavar="URL",
+    help="Also listen on this out-of-band path: each path is watched on its own and a "
+    "message that came both ways is counted once (the table shows the primary).",
+)
 def watch(
     url: str,
     keys_dir: Path,
@@ -103,31 +110,56 @@ def watch(
     no_epoch_check: bool,
     duration: float | None,
     as_json: bool,
+    fallback: str | None,
 ) -> None:
     """Verify safety messages and show, per sender, its state (ok / late / silent),
     message ages against the budget, and losses; rejected datagrams by reason."""
     config = ReceiverConfig(
         check_epoch=not no_epoch_check, latency=LatencyConfig(budget_s=budget_ms / 1e3)
     )
-    rx = Receiver.listen(split_urls(url), KeyStore.open(keys_dir).trust, config=config)
+    trust = KeyStore.open(keys_dir).trust
+    rx = Receiver.listen(split_urls(url), trust, config=config)
     rx.latency.expect(expect, time.time_ns())
+    both: FallbackReceiver | None = None
+    if fallback is not None:
+        try:
+            both = FallbackReceiver(rx, Receiver.listen(split_urls(fallback), trust, config=config))
+        except BaseException:
+            rx.close()
+            raise
     stop = None if duration is None else time.monotonic() + duration
 
     def loop(show: Callable[[], None]) -> None:
         while stop is None or time.monotonic() < stop:
-            rx.receive(timeout=0.2 if stop is None else max(0.0, min(0.2, stop - time.monotonic())))
+            wait = 0.2 if stop is None else max(0.0, min(0.2, stop - time.monotonic()))
+            if both is not None:
+                both.receive(timeout=wait)
+            else:
+                rx.receive(timeout=wait)
             show()
+
+    def table() -> Table:
+        shown = render(rx, time.time_ns())
+        if both is not None:
+            shown.caption = (
+                f"{shown.caption}  fallback: verified {both.secondary.stats.verified:,}, "
+                f"duplicates {both.duplicates:,}"
+            )
+        return shown
 
     try:
         if as_json:
             loop(lambda: None)
         else:
-            with Live(render(rx, time.time_ns()), console=Console(), auto_refresh=False) as live:
-                loop(lambda: live.update(render(rx, time.time_ns()), refresh=True))
+            with Live(table(), console=Console(), auto_refresh=False) as live:
+                loop(lambda: live.update(table(), refresh=True))
     except KeyboardInterrupt:
         pass
     finally:
-        rx.close()
+        if both is not None:
+            both.close()
+        else:
+            rx.close()
     if as_json:
         snap = rx.latency.snapshot(time.time_ns())
         status = {
@@ -143,4 +175,11 @@ def watch(
                 for k, v in snap.items()
             },
         }
+        if both is not None:
+            status["fallback"] = {
+                "stats": both.secondary.stats.as_dict(),
+                "delivered": dict(both.delivered),
+                "duplicates": both.duplicates,
+                "primary_alarm": both.primary_alarm,
+            }
         click.echo(json.dumps(status, sort_keys=True))

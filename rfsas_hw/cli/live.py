@@ -10,6 +10,7 @@ from rich.console import Console
 
 import rfsas_hw.sources
 from rfsas_hw.cli.linkopts import NONCES_HELP, nonce_inbox
+from rfsas_hw.cli.ros2opts import live_options
 from rfsas_hw.cli.sensoropts import (
     build_listeners,
     build_pipeline,
@@ -46,6 +47,7 @@ def parse_channels(text: str) -> list[int]:
 @click.command()
 @click.argument("spec")
 @sensor_options
+@live_options
 @click.option("--nonces", metavar="udp://HOST:PORT", help=NONCES_HELP)
 @click.option("--duration", type=float, help="Stop after this many seconds.")
 @click.option("--channels", help="Hop over these channels (wifi: sources), e.g. 1,6,11.")
@@ -89,6 +91,7 @@ def live(
     dwell: float,
     any_link_type: bool,
     cues: str | None,
+    **ros2: Any,
 ) -> None:
     """Run the sensor on SPEC until Ctrl-C, the end of the input, or --duration.
 
@@ -148,7 +151,15 @@ def live(
     inputs = [target if scheme == "pcap" else "", calibration_path or "", nonce_secret or ""]
     try:
         listeners = build_listeners(
-            out, fmt, send, keys_dir, where, inputs=inputs, force=force, epoch_s=epoch_s
+            out,
+            fmt,
+            send,
+            keys_dir,
+            where,
+            inputs=inputs,
+            force=force,
+            epoch_s=epoch_s,
+            ros2=ros2,
         )
     except BaseException:
         source.close()

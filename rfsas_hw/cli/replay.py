@@ -9,6 +9,7 @@ import click
 from rich.console import Console
 
 import rfsas_hw.sources
+from rfsas_hw.cli.ros2opts import live_options
 from rfsas_hw.cli.sensoropts import (
     PROGRESS_MIN_BYTES,
     build_listeners,
@@ -43,6 +44,7 @@ def capture_paths(capture: str) -> list[str]:
 @click.command()
 @click.argument("capture")
 @sensor_options
+@live_options
 @click.option("--realtime", is_flag=True, help="Replay at the recorded pace instead of at once.")
 @click.option(
     "--speed",
@@ -84,6 +86,7 @@ def replay(
     speed: float | None,
     retime: bool,
     n_antennas: int,
+    **ros2: Any,
 ) -> None:
     """Turn CAPTURE (pcap/pcapng, or A.pcap+B.pcap from two receivers) into bearings.
 
@@ -109,7 +112,15 @@ def replay(
     inputs = [*capture_paths(capture), calibration_path or "", nonce_secret or ""]
     try:
         listeners = build_listeners(
-            out, fmt, send, keys_dir, where, inputs=inputs, force=force, epoch_s=epoch_s
+            out,
+            fmt,
+            send,
+            keys_dir,
+            where,
+            inputs=inputs,
+            force=force,
+            epoch_s=epoch_s,
+            ros2=ros2,
         )
     except BaseException:
         source.close()

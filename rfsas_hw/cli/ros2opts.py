@@ -1,7 +1,9 @@
-"""ROS 2 options of ``rfsas backend``: a bag, a Foxglove live view, DDS publishing.
+"""ROS 2 options of the commands: a bag, a Foxglove live view, DDS publishing.
 
-:func:`ros2_options` adds the options; :func:`attach_scene` builds the
-writers they ask for and hangs one scene sink on the backend service.
+:func:`live_options` (``--foxglove``, ``--ros2``) serves the sensor commands
+and the backend; :func:`ros2_options` adds the backend's ``--rosbag2`` and
+``--odom``. :func:`attach_scene` hangs one scene sink on the backend service;
+:func:`sensor_scene` gives the sensor commands a bearing listener.
 """
 
 from __future__ import annotations
@@ -16,17 +18,10 @@ import click
 F = TypeVar("F", bound=Callable[..., Any])
 
 
-def ros2_options(func: F) -> F:
-    """Add ``--rosbag2``, ``--foxglove``, ``--foxglove-host``, ``--ros2``, ``--ros2-domain``,
-    ``--ros2-interface`` and ``--odom``."""
+def live_options(func: F) -> F:
+    """Add ``--foxglove [PORT]``, ``--foxglove-host``, ``--ros2``, ``--ros2-domain`` and
+    ``--ros2-interface`` (the sensor commands and the backend)."""
     options = [
-        click.option(
-            "--rosbag2",
-            "rosbag2_dir",
-            type=click.Path(file_okay=False, path_type=Path),
-            help="Record the scene into this new rosbag2 directory (sqlite3 storage). "
-            "An --out name ending in .mcap records an MCAP file instead of JSON lines.",
-        ),
         click.option(
             "--foxglove",
             "foxglove_port",
@@ -62,6 +57,23 @@ def ros2_options(func: F) -> F:
             metavar="NAME|ADDRESS",
             help="Network interface DDS uses (default: Cyclone's choice; lo for this host only).",
         ),
+    ]
+    for option in reversed(options):
+        func = option(func)
+    return func
+
+
+def ros2_options(func: F) -> F:
+    """Add :func:`live_options` and the backend's ``--rosbag2`` and ``--odom``."""
+    options = [
+        click.option(
+            "--rosbag2",
+            "rosbag2_dir",
+            type=click.Path(file_okay=False, path_type=Path),
+            help="Record the scene into this new rosbag2 directory (sqlite3 storage). "
+            "An --out name ending in .mcap records an MCAP file instead of JSON lines.",
+        ),
+        live_options,
         click.option(
             "--odom",
             "odom_topic",
@@ -72,6 +84,55 @@ def ros2_options(func: F) -> F:
     for option in reversed(options):
         func = option(func)
     return func
+
+
+def wants_live(opts: dict[str, Any]) -> bool:
+    """Whether the options ask for a live ROS 2 output (Foxglove or DDS)."""
+    return opts.get("foxglove_port") is not None or bool(opts.get("ros2_publish"))
+
+
+def live_writers(opts: dict[str, Any], writers: list[Any], lines: list[str]) -> None:
+    """Append the Foxglove server and the DDS publisher the options ask for to ``writers``,
+    and what to tell the user to ``lines``.
+
+    Raises:
+        ConfigError / MissingDependencyError: a server cannot start.
+    """
+    if opts.get("foxglove_port") is not None:
+        from rfsas_hw.ros2.foxglove_live import LAYOUT_FILE, FoxgloveServer
+
+        server = FoxgloveServer(opts["foxglove_host"], opts["foxglove_port"])
+        writers.append(server)
+        lines.append(f"foxglove: open {server.url} in the Foxglove app")
+        lines.append(f"foxglove: layout {LAYOUT_FILE}")
+    if opts.get("ros2_publish"):
+        from rfsas_hw.ros2.dds import DdsConfig, DdsPublisher
+
+        dds = DdsConfig(domain_id=opts["ros2_domain"], interface=opts.get("ros2_interface"))
+        writers.append(DdsPublisher(dds))
+        lines.append(f"ros2: publishing on domain {dds.domain_id}")
+
+
+def sensor_scene(opts: dict[str, Any], pose_of: Callable[[str], Any]) -> tuple[Any, list[str]]:
+    """A bearing listener publishing to the live outputs the options ask for, or None,
+    and what to tell the user.
+
+    Raises:
+        ConfigError / MissingDependencyError: a server cannot start.
+    """
+    if not wants_live(opts):
+        return None, []
+    writers: list[Any] = []
+    lines: list[str] = []
+    try:
+        live_writers(opts, writers, lines)
+    except Exception:
+        for w in writers:
+            w.close()
+        raise
+    from rfsas_hw.ros2.sink import SceneSink, SensorScene
+
+    return SensorScene(SceneSink(writers), pose_of), lines
 
 
 @dataclass
@@ -107,25 +168,15 @@ def attach_scene(service: Any, out: Path | None, opts: dict[str, Any]) -> Ros2Ou
             from rfsas_hw.ros2.bag import Rosbag2Writer
 
             writers.append(Rosbag2Writer(opts["rosbag2_dir"]))
-        if opts.get("foxglove_port") is not None:
-            from rfsas_hw.ros2.foxglove_live import LAYOUT_FILE, FoxgloveServer
-
-            server = FoxgloveServer(opts["foxglove_host"], opts["foxglove_port"])
-            writers.append(server)
-            result.lines.append(f"foxglove: open {server.url} in the Foxglove app")
-            result.lines.append(f"foxglove: layout {LAYOUT_FILE}")
-        if opts.get("ros2_publish") or opts.get("odom_topic"):
-            from rfsas_hw.ros2.dds import DdsConfig, DdsPublisher, OdometryFeed
+        live_writers(opts, writers, result.lines)
+        if opts.get("odom_topic"):
+            from rfsas_hw.ros2.dds import DdsConfig, OdometryFeed
 
             dds = DdsConfig(domain_id=opts["ros2_domain"], interface=opts.get("ros2_interface"))
-            if opts.get("ros2_publish"):
-                writers.append(DdsPublisher(dds))
-                result.lines.append(f"ros2: publishing on domain {dds.domain_id}")
-            if opts.get("odom_topic"):
-                feed = OdometryFeed(opts["odom_topic"], dds)
-                result.vehicle_feed = feed
-                result.closers.append(feed.close)
-                result.lines.append(f"ros2: vehicle state from {opts['odom_topic']}")
+            feed = OdometryFeed(opts["odom_topic"], dds)
+            result.vehicle_feed = feed
+            result.closers.append(feed.close)
+            result.lines.append(f"ros2: vehicle state from {opts['odom_topic']}")
     except Exception:
         for w in writers:
             w.close()

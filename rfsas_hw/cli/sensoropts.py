@@ -21,6 +21,7 @@ from rich.table import Table
 from rfsas_hw.backend.site import parse_origin, pose_from_mapping
 from rfsas_hw.cli.exitcodes import Interrupted, WorkFailed
 from rfsas_hw.cli.linkopts import make_cue_publisher, make_publisher, send_options
+from rfsas_hw.cli.ros2opts import sensor_scene, wants_live
 from rfsas_hw.df import load_calibration
 from rfsas_hw.errors import ConfigError
 from rfsas_hw.outpaths import STDIO, check_output
@@ -188,8 +189,10 @@ def build_listeners(
     inputs: Iterable[str | Path] = (),
     force: bool = False,
     epoch_s: float = DEFAULT_EPOCH_S,
+    ros2: dict[str, Any] | None = None,
 ) -> Fanout:
-    """Every listener the options ask for.
+    """Every listener the options ask for (``ros2``: the options of
+    :func:`rfsas_hw.cli.ros2opts.live_options`).
 
     Raises:
         ConfigError: no output at all, a bad output name, an output that is one of
@@ -197,7 +200,7 @@ def build_listeners(
         KeyStoreError / LinkError: ``--send`` cannot be set up.
     """
     fanout = Fanout()
-    if out is None and send is None:
+    if out is None and send is None and not wants_live(ros2 or {}):
         raise ConfigError("nothing to do: give --out FILE and/or --send URL")
     if out is not None:
         check_output(out, inputs, force=force, what="--out")
@@ -212,6 +215,15 @@ def build_listeners(
         fanout.add(publisher)
     if cue_publisher is not None:
         fanout.add(cue_publisher)
+    try:
+        scene, lines = sensor_scene(ros2 or {}, lambda _sensor_id: pose)
+    except Exception:
+        fanout.close()
+        raise
+    if scene is not None:
+        fanout.add(scene)
+        for line in lines:
+            click.echo(line, err=True)
     return fanout
 
 

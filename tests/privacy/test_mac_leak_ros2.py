@@ -60,22 +60,25 @@ def dir_blobs(path: Path) -> dict[str, bytes]:
 
 
 def test_replay_to_mcap_and_rosbag2_leaks_no_mac(tmp_path: Path) -> None:
-    """``rfsas -vv replay CAPTURE --out run.mcap`` and ``--format rosbag2``: the files,
-    stdout and the debug log hold no MAC of the capture."""
+    """``rfsas -vv replay CAPTURE --out run.mcap --foxglove 0 --ros2`` and ``--format
+    rosbag2``: the files, stdout and the debug log hold no MAC of the capture."""
     capture = tmp_path / "known_macs.pcap"
     n_frames = write_known_capture(capture, time.time_ns())
     assert all(bytes.fromhex(f"{m:012x}") in capture.read_bytes() for m in KNOWN_MACS)
     blobs: dict[str, bytes] = {}
-    for out, extra in (
-        (tmp_path / "run.mcap", []),
-        (tmp_path / "run_bag", ["--format", "rosbag2"]),
-    ):
+    # the MCAP run also serves Foxglove and publishes on loopback DDS (nobody listening)
+    live = ["--foxglove", "0", "--ros2", "--ros2-interface", "lo", "--ros2-domain", "149"]
+    runs = ((tmp_path / "run.mcap", live), (tmp_path / "run_bag", ["--format", "rosbag2"]))
+    for out, extra in runs:
         cmd = [sys.executable, "-m", "rfsas_hw.cli.main", "-vv", "replay", str(capture)]
         cmd += ["--calibration", str(CALIBRATION), "--out", str(out), "--sensor-id", "rsu-1"]
         cmd += ["--pose", "1,2,90", *extra]
         proc = subprocess.run(cmd, capture_output=True, timeout=120, check=False)
         assert proc.returncode == 0, proc.stderr.decode(errors="replace")
         assert str(n_frames) in proc.stdout.decode()
+        if extra is live:
+            assert b"foxglove: open ws://127.0.0.1:" in proc.stderr
+            assert b"ros2: publishing on domain 149" in proc.stderr
         blobs[f"{out.name} stdout"] = proc.stdout
         blobs[f"{out.name} stderr"] = proc.stderr
     blobs.update(mcap_blobs(tmp_path / "run.mcap"))

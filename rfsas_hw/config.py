@@ -61,6 +61,71 @@ def read_text_input(
         ) from err
 
 
+MAX_YAML_BYTES = 4 * 1024 * 1024
+"""Largest YAML input, bytes: a calibration of every 2.4 and 5 GHz channel at 0.1° steps is
+well under 1 MiB, and the YAML parser takes seconds per MiB."""
+MAX_YAML_DEPTH = 64
+"""Deepest nesting a YAML input may have: the parser's time grows with the square of the
+depth (1,500 brackets take seconds), and no file of ours nests more than a few levels."""
+
+
+def _yaml_depth(text: str) -> int:
+    """An upper estimate of the nesting depth: flow brackets outside quotes and comments,
+    or block indentation (a space or ``- `` per level at most)."""
+    deepest = depth = 0
+    quote = ""
+    comment = False
+    prev = "\n"
+    indent = 0
+    at_line_start = True
+    for ch in text:
+        if ch == "\n":
+            comment, at_line_start, indent = False, True, 0
+            quote = "" if quote == "'" else quote
+        elif comment:
+            pass
+        elif quote:
+            if ch == quote and prev != "\\":
+                quote = ""
+        elif ch in "'\"":
+            quote = ch
+        elif ch == "#" and prev in " \t\n":
+            comment = True
+        elif ch in "[{":
+            depth += 1
+            deepest = max(deepest, depth)
+        elif ch in "]}":
+            depth = max(0, depth - 1)
+        if at_line_start:
+            if ch in " -":
+                indent += 1
+                deepest = max(deepest, indent // 2)
+            elif ch != "\n":
+                at_line_start = False
+        prev = ch
+    return deepest
+
+
+def parse_yaml(text: str, where: str, error: type[RfsasError] = ConfigError) -> Any:
+    """Parse YAML text (safe loader) named ``where`` in errors.
+
+    Raises:
+        ConfigError (or ``error``): not valid YAML (one line, with line/column),
+            or nested deeper than :data:`MAX_YAML_DEPTH`.
+    """
+    if _yaml_depth(text) > MAX_YAML_DEPTH:
+        raise error(f"{where}: invalid YAML: nested deeper than {MAX_YAML_DEPTH} levels")
+    try:
+        return yaml.safe_load(text)
+    except RecursionError as err:
+        raise error(f"{where}: invalid YAML: nested too deeply") from err
+    except yaml.YAMLError as err:
+        mark = getattr(err, "problem_mark", None)
+        at = f" line {mark.line + 1}, column {mark.column + 1}:" if mark is not None else ""
+        problem = " ".join(str(getattr(err, "problem", None) or err).split())
+        raise error(f"{where}:{at} invalid YAML: {problem}") from err
+
+
 def read_yaml(path: str | Path) -> Any:
     """Parse a YAML file.
 
@@ -68,16 +133,7 @@ def read_yaml(path: str | Path) -> Any:
         ConfigError: the file is missing or is not valid YAML (with line/column).
     """
     p = Path(path)
-    text = read_text_input(p, "YAML")
-    try:
-        return yaml.safe_load(text)
-    except RecursionError as err:
-        raise ConfigError(f"{p}: invalid YAML: nested too deeply") from err
-    except yaml.YAMLError as err:
-        mark = getattr(err, "problem_mark", None)
-        where = f" line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
-        problem = getattr(err, "problem", None) or str(err)
-        raise ConfigError(f"{p}:{where}: invalid YAML: {problem}") from err
+    return parse_yaml(read_text_input(p, "YAML", MAX_YAML_BYTES), str(p))
 
 
 def _key_path(where: str, key: str) -> str:

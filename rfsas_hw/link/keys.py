@@ -45,6 +45,7 @@ import yaml
 from cryptography.hazmat.primitives import serialization
 from cryptography.hazmat.primitives.asymmetric import ec, x25519
 
+from rfsas_hw.config import parse_yaml, read_text_input
 from rfsas_hw.errors import KeyStoreError, LinkError
 from rfsas_hw.link.message import check_sender_id
 from rfsas_hw.link.signing import Signer
@@ -58,6 +59,8 @@ SIGN_FILE = "sign.key"
 KX_FILE = "kx.key"
 TRUST_DIR = "trust"
 CARD_VERSION = 1
+CARD_MAX_BYTES = 64 * 1024
+"""Largest key card read, bytes (a card is a few hundred)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -97,10 +100,7 @@ class KeyCard:
         Raises:
             KeyStoreError: not a card, unknown keys, bad id or role, undecodable keys.
         """
-        try:
-            data = yaml.safe_load(text)
-        except yaml.YAMLError as err:
-            raise KeyStoreError(f"{where}: not valid YAML: {err}") from err
+        data = parse_yaml(text, where, KeyStoreError)
         if not isinstance(data, dict) or data.get("rfsas-key-card") != CARD_VERSION:
             raise KeyStoreError(f"{where}: not an rfsas key card (version {CARD_VERSION})")
         unknown = set(data) - {"rfsas-key-card", "id", "role", "sign_p256", "kx_x25519"}
@@ -142,10 +142,7 @@ class KeyCard:
         p = Path(path)
         if p.is_dir():
             p = p / CARD_FILE
-        try:
-            text = p.read_text(encoding="utf-8")
-        except (OSError, UnicodeDecodeError) as err:
-            raise KeyStoreError(f"{p}: cannot read key card: {err}") from err
+        text = read_text_input(p, "key card", CARD_MAX_BYTES, KeyStoreError)
         return cls.from_yaml(text, str(p))
 
 

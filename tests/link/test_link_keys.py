@@ -109,7 +109,7 @@ def test_enrolment_refuses_a_different_key_under_the_same_id(tmp_path: Path) -> 
         ("rfsas-key-card: 1\nid: a\nrole: king\n", "role 'king'"),
         ("rfsas-key-card: 1\nid: a\nrole: backend\nextra: 1\n", "unknown key"),
         ("rfsas-key-card: 1\nid: a\nrole: backend\n", "needs kx_x25519"),
-        ("rfsas-key-card: [\n", "not valid YAML"),
+        ("rfsas-key-card: [\n", "invalid YAML"),
     ],
 )
 def test_bad_cards(tmp_path: Path, text: str, match: str) -> None:

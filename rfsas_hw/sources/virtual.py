@@ -46,8 +46,8 @@ class VirtualSource(Source[ObservationBatch]):
             source keeps only frames on the channel the scheduler was on.
 
     Raises:
-        ConfigError: bad scenario, unknown sensor, or no sensor named while
-            the scenario has several.
+        ConfigError: bad scenario, unknown sensor, no sensor named while the
+            scenario has several, or both ``world`` and ``cues`` given.
     """
 
     scheme = "virtual"
@@ -80,6 +80,11 @@ class VirtualSource(Source[ObservationBatch]):
         if batch_s <= 0:
             raise ConfigError("virtual source: batch_s must be positive")
         self.scheduler: CueScheduler | None = None
+        if cues is not None and world is not None:
+            raise ConfigError(
+                "virtual source: with cues the source builds its own world (every channel "
+                "computed); pass no world"
+            )
         if cues is not None:
             scan = self.sensor.scan
             self.scheduler = CueScheduler(

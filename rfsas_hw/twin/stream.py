@@ -28,6 +28,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Mapping
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -36,6 +37,7 @@ from rfsas_hw.angles import wrap_deg_180
 from rfsas_hw.errors import SimulationError
 from rfsas_hw.records import mac_to_int
 from rfsas_hw.twin.motion import Track
+from rfsas_hw.twin.scan import ScanPlan
 from rfsas_hw.twin.scenario import Detail, EmitterSpec, Scenario, SensorSpec
 from rfsas_hw.twin.traffic import EmitterTraffic, Transmissions, traffic_streams
 from rfsas_hw.twin.world import Listening, ReceiverStreams, Receptions, World
@@ -49,6 +51,26 @@ def _empty_tx() -> Transmissions:
     return Transmissions(
         np.empty(0), np.empty(0, np.int16), np.empty(0, np.uint8), np.empty(0, np.int32)
     )
+
+
+def _concat_window(window: list[Transmissions]) -> dict[str, npt.NDArray[Any]]:
+    """The window's frames of every emitter, concatenated in emitter order."""
+    parts = [(i, tx) for i, tx in enumerate(window) if len(tx)]
+    if not parts:
+        return {
+            "t": np.empty(0),
+            "emitter": np.empty(0, np.intp),
+            "channel": np.empty(0, np.int16),
+            "kind": np.empty(0, np.uint8),
+            "seq": np.empty(0, np.int32),
+        }
+    return {
+        "t": np.concatenate([tx.t_s for _, tx in parts]),
+        "emitter": np.concatenate([np.full(len(tx), i, np.intp) for i, tx in parts]),
+        "channel": np.concatenate([tx.channel for _, tx in parts]),
+        "kind": np.concatenate([tx.kind for _, tx in parts]),
+        "seq": np.concatenate([tx.seq for _, tx in parts]),
+    }
 
 
 class LiveTrack:
@@ -209,6 +231,9 @@ class StreamTwin(World):
         """End of the last window computed for each sensor, seconds."""
         self.generated_s = float(start_s)
         """Frames before this time have been generated for every live emitter, seconds."""
+        self._window_key: tuple[float, float, int] | None = None
+        self._window: dict[str, npt.NDArray[Any]] = {}
+        self._positions: dict[int, tuple[Array, Array]] = {}
 
     # -- entities -------------------------------------------------------------------
 
@@ -277,13 +302,45 @@ class StreamTwin(World):
     def emitter_position(self, index: int, t_s: npt.ArrayLike) -> Array:
         """Position of emitter ``index`` at times ``t_s``, shape (n, 2), metres.
 
+        Within a window every sensor asks for (a subset of) the same frame
+        times, so the positions at the window's frames are computed once.
+
         Raises:
             SimulationError: its carrier has no knot yet.
         """
         track = self._carrier(index)
         if track is None:
             return super().emitter_position(index, t_s)
-        return track.position(t_s)
+        t = np.atleast_1d(np.asarray(t_s, dtype=np.float64))
+        cached = self._positions.get(index)
+        if cached is None and self._window_key is not None and index < len(self.tx):
+            frames = self.tx[index].t_s
+            cached = self._positions[index] = (frames, track.position(frames))
+        if cached is not None and len(cached[0]):
+            at = np.minimum(np.searchsorted(cached[0], t), len(cached[0]) - 1)
+            if np.array_equal(cached[0][at], t):
+                return cached[1][at]
+        return track.position(t)
+
+    def _candidates(self, s: SensorSpec) -> dict[str, Any]:
+        """The window's frames sensor ``s`` could hear by tech and channel.
+
+        The same selection as the offline world's, over all emitters at once
+        (the window's frames are gathered once for every sensor).
+        """
+        w = self._window
+        if not self._window_key or not len(w["t"]):
+            return {k: v[:0] for k, v in w.items()} if w else super()._candidates(s)
+        hears = np.array([s.hears(e.tech) for e in self.emitters], bool)[w["emitter"]]
+        listens = self.listening.get(s.id)
+        if listens is not None:
+            on = np.asarray(listens(w["t"], w["channel"]), bool)
+        else:
+            on = ScanPlan.from_spec(s.scan).channel_at(w["t"]) == w["channel"]
+        sel = hears & on
+        out = {k: v[sel] for k, v in w.items()}
+        order = np.lexsort((out["emitter"], out["t"]))
+        return {k: v[order] for k, v in out.items()}
 
     def sensor_pose(self, sensor: SensorSpec | str, t_s: npt.ArrayLike) -> tuple[Array, Array]:
         """Position (n, 2) in metres and boresight compass heading (n,) of a sensor at ``t_s``.
@@ -356,13 +413,18 @@ class StreamTwin(World):
             raise SimulationError(f"sensor {s.id!r}: window [{t0_s}, {t1_s}) is empty")
         self._generate(t1_s)
         window: list[Transmissions] = []
-        for tx in self._buffer:
+        for tx in self._buffer if self._window_key != (t0_s, t1_s, len(self._buffer)) else ():
             lo = int(np.searchsorted(tx.t_s, t0_s, side="left"))
             hi = int(np.searchsorted(tx.t_s, t1_s, side="left"))
             window.append(
                 Transmissions(tx.t_s[lo:hi], tx.channel[lo:hi], tx.kind[lo:hi], tx.seq[lo:hi])
             )
-        self.tx = window
+        key = (t0_s, t1_s, len(self._buffer))
+        if self._window_key != key:
+            self.tx = window
+            self._window_key = key
+            self._window = _concat_window(window)
+            self._positions = {}
         rec = self._receive(s, self._candidates(s), self._rx[s.id])
         self.cursor_s[s.id] = t1_s
         return rec

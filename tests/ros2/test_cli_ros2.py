@@ -104,3 +104,60 @@ def test_backend_records_mcap_and_rosbag2_and_serves_foxglove(tmp_path: Path) ->
     assert frames == {"rfsas/sensor/rsu-n", "rfsas/sensor/rsu-s", "rfsas/ego"}
     link = [m.message for m in msgs if m.topic == topics.LINK.name]
     assert link and link[-1].verified > 0
+
+
+def test_backend_takes_the_vehicle_from_ros2_odometry(tmp_path: Path) -> None:
+    """``--odom /odom``: the vehicle state comes from nav_msgs/Odometry on loopback DDS."""
+    from rfsas_hw.backend.vehicle import VehicleState
+    from rfsas_hw.ros2.dds import DdsConfig, DdsPublisher
+    from rfsas_hw.ros2.scene import SceneBuilder
+    from rfsas_hw.ros2.topics import Topic
+    from rfsas_hw.ros2.types import serialize
+
+    domain = 212
+    backend_keys = KeyStore.create(tmp_path / "backend", "backend", "obu-1")
+    stores = {sid: KeyStore.create(tmp_path / sid, "sensor", sid) for sid in SENSORS}
+    for store in stores.values():
+        backend_keys.trust.enroll(store.card)
+    url = f"udp://127.0.0.1:{free_port()}"
+    odom_topic = Topic("/odom", "nav_msgs/msg/Odometry", "test odometry")
+    publisher = DdsPublisher(DdsConfig(domain_id=domain, interface="lo"))
+    stop = threading.Event()
+
+    def send_odometry() -> None:
+        while not stop.is_set():
+            now = time.time_ns()
+            state = VehicleState(x_m=-12.0, y_m=22.0, heading_deg=90.0, speed_mps=8.0, t_ns=now)
+            (odom,) = [o for o in SceneBuilder().vehicle(now, state) if o.topic is topics.EGO]
+            publisher.write(odom_topic, now, serialize(odom.message, odom_topic.typename))
+            time.sleep(0.05)
+
+    sender = threading.Thread(target=send_rounds, args=(url, stores))
+    odometry = threading.Thread(target=send_odometry)
+    sender.start()
+    odometry.start()
+    mcap = tmp_path / "run.mcap"
+    try:
+        result = CliRunner().invoke(
+            backend,
+            [
+                "--listen", url, "--keys", str(tmp_path / "backend"), "--out", str(mcap),
+                "--odom", "/odom", "--ros2-interface", "lo", "--ros2-domain", str(domain),
+                "--duration", "2.5", "--no-table",
+            ],
+        )  # fmt: skip
+    finally:
+        stop.set()
+        sender.join()
+        odometry.join()
+        publisher.close()
+    assert result.exit_code == 0, result.output
+    assert "ros2: vehicle state from /odom" in result.output
+    msgs = read_mcap(mcap)
+    ego = [m.message for m in msgs if m.topic == topics.EGO.name]
+    assert ego, "the backend never had a vehicle state"
+    assert ego[0].pose.pose.position.y == pytest.approx(22.0)
+    assessed = [
+        a for m in msgs if m.topic == topics.ASSESSMENTS.name for a in m.message.assessments
+    ]
+    assert any(a.advisory in (2, 3) and a.p_collision > 0.2 for a in assessed)

@@ -1,0 +1,86 @@
+"""The backend's fix cues: an emitter at risk is cued to the vehicles on its channel."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from cryptography.hazmat.primitives.asymmetric import ec
+
+from rfsas_hw.backend.cuer import BackendCuer
+from rfsas_hw.backend.service import BackendService
+from rfsas_hw.backend.vehicle import VehicleState
+from rfsas_hw.errors import LinkError
+from rfsas_hw.link.cue import CueKind, decode_cue
+from rfsas_hw.link.cue_receiver import CueReceiver
+from rfsas_hw.link.signing import Signer, TrustedKeys
+from rfsas_hw.link.transport import Transport
+from rfsas_hw.records import BearingBatch, Pose
+
+NOW_NS = 1_763_800_030_000_000_000
+EMITTER = 0x0123456789ABCDEF
+
+
+class Capture(Transport):
+    def __init__(self) -> None:
+        self.sent: list[bytes] = []
+
+    def send(self, datagram: bytes) -> None:
+        self.sent.append(datagram)
+
+    def recv(self, timeout: float | None = None) -> bytes | None:
+        return None
+
+    def close(self) -> None:
+        pass
+
+
+def bearing_to(sensor: str, xy: tuple[float, float], target: tuple[float, float]) -> BearingBatch:
+    az = math.degrees(math.atan2(target[0] - xy[0], target[1] - xy[1])) % 360.0
+    return BearingBatch(
+        sensor_id=sensor,
+        t_ns=np.array([NOW_NS - 50_000_000], np.int64),
+        azimuth_deg=np.array([az]),
+        sigma_deg=np.array([2.0]),
+        snr_db=np.array([20.0]),
+        channel=np.array([6], np.int16),
+        emitter=np.array([EMITTER], np.uint64),
+    )
+
+
+def test_an_emitter_at_risk_gets_a_fix_cue_the_vehicle_accepts() -> None:
+    signer = Signer("backend-1", ec.derive_private_key(0x4242, ec.SECP256R1()))
+    link = Capture()
+    cuer = BackendCuer(signer, link, min_risk=0.0, clock=lambda: NOW_NS)
+    backend = BackendService(sinks=[cuer], clock=lambda: NOW_NS)
+    target = (1.0, 0.0)
+    for sensor, xy in (("rsu-a", (-20.0, 10.0)), ("rsu-b", (20.0, 10.0))):
+        backend.on_bearings(bearing_to(sensor, xy, target), Pose(xy[0], xy[1], 180.0))
+    backend.set_vehicle(VehicleState(x_m=1.75, y_m=-40.0, heading_deg=0.0, speed_mps=15.0))
+    assessments = backend.step(NOW_NS)
+    assert assessments and link.sent
+    cue = decode_cue(link.sent[0])
+    assert cue.kind is CueKind.FIX and cue.emitter == EMITTER and cue.channel == 6
+    assert cue.x_m == pytest.approx(1.0, abs=0.5) and cue.y_m == pytest.approx(0.0, abs=0.5)
+    assert cue.a > 0 and cue.c > 0 and cue.a * cue.c > cue.b**2
+    assert cue.risk == pytest.approx(assessments[0].risk, rel=1e-6)
+    rx = CueReceiver(TrustedKeys({"backend-1": signer.public_key}))
+    assert rx.feed(link.sent[0], NOW_NS) is not None
+    # the next step within the interval sends nothing new
+    backend.step(NOW_NS)
+    assert len(link.sent) == 1 and cuer.stats.skipped["rate"] >= 1
+
+
+def test_below_the_risk_threshold_nothing_is_cued() -> None:
+    signer = Signer("backend-1", ec.derive_private_key(0x4242, ec.SECP256R1()))
+    link = Capture()
+    cuer = BackendCuer(signer, link, min_risk=1.0, clock=lambda: NOW_NS)
+    backend = BackendService(sinks=[cuer], clock=lambda: NOW_NS)
+    for sensor, xy in (("rsu-a", (-20.0, 10.0)), ("rsu-b", (20.0, 10.0))):
+        backend.on_bearings(bearing_to(sensor, xy, (1.0, 0.0)), Pose(xy[0], xy[1], 180.0))
+    backend.set_vehicle(VehicleState(x_m=1.75, y_m=-400.0, heading_deg=180.0, speed_mps=5.0))
+    backend.step(NOW_NS)
+    assert link.sent == [] and cuer.stats.cues == 0
+    with pytest.raises(LinkError):
+        BackendCuer(signer, link, min_risk=1.5)

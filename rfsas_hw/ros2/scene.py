@@ -16,6 +16,7 @@ by ``yaw = 90° − azimuth``.
 from __future__ import annotations
 
 import math
+import zlib
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from functools import cache
@@ -158,6 +159,11 @@ def marker_id(emitter: str) -> int:
     return int(emitter[:8], 16) & 0x7FFF_FFFF
 
 
+def sensor_marker_id(sensor_id: str) -> int:
+    """A stable non-negative int32 marker id for a sensor id (CRC-32 of its text)."""
+    return zlib.crc32(sensor_id.encode()) & 0x7FFF_FFFF
+
+
 @cache
 def _unit_circle(n: int) -> tuple[tuple[float, float], ...]:
     return tuple(
@@ -262,19 +268,19 @@ class SceneBuilder:
             self._marker(
                 t_ns,
                 "sensors",
-                i,
+                sensor_marker_id(s),
                 "ARROW",
                 pose=pose_msg(stations[s].x_m, stations[s].y_m, stations[s].heading_deg),
                 scale=(3.0, 0.6, 0.6),
                 rgba=(0.2, 0.5, 1.0, 1.0),
                 lifetime_s=self.config.marker_lifetime_s,
             )
-            for i, s in enumerate(ids)
+            for s in ids
         ] + [
             self._marker(
                 t_ns,
                 "sensor_labels",
-                i,
+                sensor_marker_id(s),
                 "TEXT_VIEW_FACING",
                 pose=pose_msg(stations[s].x_m, stations[s].y_m + 2.0, 90.0),
                 scale=(1.0, 1.0, 1.5),
@@ -282,7 +288,7 @@ class SceneBuilder:
                 lifetime_s=self.config.marker_lifetime_s,
                 text=s,
             )
-            for i, s in enumerate(ids)
+            for s in ids
         ]
         return [
             self._tf(t_ns, tfs),

@@ -215,6 +215,14 @@ def check_against_jsonl(msgs: list[Decoded], jsonl: Path, *, live: bool) -> None
     assert {"fix_ellipses", "tracks", "advisories", "sensors"} <= namespaces
     assert {f"bearings/{s}" for s in SENSORS} <= namespaces
     assert all(mk.header.frame_id == "map" for mk in markers)
+    # a sensor's marker keeps its id whichever path drew it (no flicker between sensors)
+    sensor_marks: dict[int, set[tuple[float, float]]] = {}
+    for mk in markers:
+        if mk.ns == "sensors":
+            sensor_marks.setdefault(mk.id, set()).add((mk.pose.position.x, mk.pose.position.y))
+    assert sorted(sensor_marks.values(), key=str) == sorted(
+        ({(p.x_m, p.y_m)} for p in SENSORS.values()), key=str
+    )
 
 
 @pytest.fixture(scope="module")

@@ -37,7 +37,12 @@ def _stop_on_sigterm(event: threading.Event) -> None:
 
 @emulate.command("ublox")
 @click.option("--pty", "use_pty", is_flag=True, default=True, help="Serve on a pseudo-terminal.")
-@click.option("--tcp", type=int, default=None, help="Serve on this TCP port (0: any free port).")
+@click.option(
+    "--tcp",
+    type=click.IntRange(0, 65535),
+    default=None,
+    help="Serve on this TCP port (0: any free port).",
+)
 @click.option(
     "--link",
     type=click.Path(dir_okay=False, path_type=Path),
@@ -121,7 +126,14 @@ def emulate_ublox(
 
 
 @emulate.command("kraken")
-@click.option("--tcp", "port", type=int, default=0, show_default=True, help="HTTP port (0: any).")
+@click.option(
+    "--tcp",
+    "port",
+    type=click.IntRange(0, 65535),
+    default=0,
+    show_default=True,
+    help="HTTP port (0: any).",
+)
 @click.option(
     "--vfo",
     "vfos",

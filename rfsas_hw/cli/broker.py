@@ -29,7 +29,13 @@ def broker() -> None:
     help="Output directory (the CA and certificates already in it are kept).",
 )
 @click.option("--host", default="localhost", show_default=True, help="Broker address.")
-@click.option("--port", type=int, default=DEFAULT_PORT, show_default=True, help="TLS port.")
+@click.option(
+    "--port",
+    type=click.IntRange(0, 65535),
+    default=DEFAULT_PORT,
+    show_default=True,
+    help="TLS port.",
+)
 @click.option(
     "--vehicle", "vehicles", multiple=True, metavar="ID", help="Admit a vehicle (repeatable)."
 )

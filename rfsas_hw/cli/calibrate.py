@@ -139,7 +139,7 @@ def check_record(report: CheckReport, cal_path: Path, samples_path: Path) -> dic
 )
 @click.option(
     "--grid-step",
-    type=float,
+    type=click.FloatRange(0.01, 10.0),
     default=0.5,
     show_default=True,
     help="Angle grid step of ψ_D, degrees.",
@@ -151,7 +151,7 @@ def check_record(report: CheckReport, cal_path: Path, samples_path: Path) -> dic
 )
 @click.option(
     "--step-db",
-    type=float,
+    type=click.FloatRange(0.0, 10.0),
     default=1.0,
     show_default=True,
     help="RSSI reporting step of the receiver, dB.",

@@ -82,7 +82,7 @@ def link() -> None:
 )
 @click.option(
     "--budget-ms",
-    type=float,
+    type=click.FloatRange(min=0, min_open=True),
     default=100.0,
     show_default=True,
     help="Latency budget, milliseconds.",
@@ -92,7 +92,11 @@ def link() -> None:
     is_flag=True,
     help="Accept messages of any nonce epoch (recorded captures sent by replay).",
 )
-@click.option("--duration", type=float, help="Stop after this many seconds (default: Ctrl-C).")
+@click.option(
+    "--duration",
+    type=click.FloatRange(min=0, min_open=True),
+    help="Stop after this many seconds (default: Ctrl-C).",
+)
 @click.option(
     "--json", "as_json", is_flag=True, help="No live table; one JSON status line at the end."
 )

@@ -49,11 +49,15 @@ def parse_channels(text: str) -> list[int]:
 @sensor_options
 @live_options
 @click.option("--nonces", metavar="udp://HOST:PORT", help=NONCES_HELP)
-@click.option("--duration", type=float, help="Stop after this many seconds.")
+@click.option(
+    "--duration",
+    type=click.FloatRange(min=0, min_open=True),
+    help="Stop after this many seconds.",
+)
 @click.option("--channels", help="Hop over these channels (wifi: sources), e.g. 1,6,11.")
 @click.option(
     "--dwell",
-    type=float,
+    type=click.FloatRange(min=0, min_open=True),
     default=0.2,
     show_default=True,
     help="Seconds on each channel when hopping.",

@@ -10,10 +10,12 @@ from __future__ import annotations
 
 import importlib
 import logging
+import math
 import signal
 import sys
 from collections.abc import Sequence
 from types import FrameType
+from typing import SupportsFloat, SupportsIndex
 
 import click
 
@@ -61,10 +63,33 @@ def _load_commands() -> None:
         cli.add_command(command)
 
 
+class FiniteFloat(click.types.FloatParamType):
+    """A float option that refuses ``nan`` and ``inf`` (click's float takes both, and a NaN
+    noise floor or speed silently poisons every result)."""
+
+    def convert(
+        self,
+        value: SupportsFloat | SupportsIndex,
+        param: click.Parameter | None,
+        ctx: click.Context | None,
+    ) -> float:
+        number = super().convert(value, param, ctx)
+        if not math.isfinite(number):
+            self.fail(f"{value!r} is not a finite number", param, ctx)
+        return number
+
+
+FINITE_FLOAT = FiniteFloat()
+
+
 def _add_epilog(command: click.Command) -> None:
-    """Every command's ``--help`` ends with the exit codes."""
+    """Every command's ``--help`` ends with the exit codes; every plain float option is
+    finite."""
     if not command.epilog:
         command.epilog = EPILOG
+    for param in command.params:
+        if param.type is click.FLOAT:
+            param.type = FINITE_FLOAT
     if isinstance(command, click.Group):
         for sub in command.commands.values():
             _add_epilog(sub)

@@ -20,7 +20,7 @@ KEYS_HELP = "Key directory (rfsas keys new); its trust/ holds the enrolled cards
 epoch_option = click.option(
     "--epoch",
     "epoch_s",
-    type=float,
+    type=click.FloatRange(min=1.0),
     default=DEFAULT_EPOCH_S,
     show_default=True,
     help="Epoch length, seconds.",
@@ -59,7 +59,7 @@ def nonces() -> None:
 @click.option(
     "--grace",
     "grace_s",
-    type=float,
+    type=click.FloatRange(min=0.0),
     default=DEFAULT_GRACE_S,
     show_default=True,
     help="Receivers' grace period at a boundary, seconds.",
@@ -67,12 +67,16 @@ def nonces() -> None:
 @click.option(
     "--resend",
     "resend_s",
-    type=float,
+    type=click.FloatRange(min=0, min_open=True),
     default=5.0,
     show_default=True,
     help="Send each envelope again after this many seconds.",
 )
-@click.option("--duration", type=float, help="Stop after this many seconds (default: Ctrl-C).")
+@click.option(
+    "--duration",
+    type=click.FloatRange(min=0, min_open=True),
+    help="Stop after this many seconds (default: Ctrl-C).",
+)
 def serve(
     keys_dir: Path,
     targets: tuple[str, ...],
@@ -136,13 +140,17 @@ def serve(
 @click.option(
     "--grace",
     "grace_s",
-    type=float,
+    type=click.FloatRange(min=0.0),
     default=DEFAULT_GRACE_S,
     show_default=True,
     help="Grace period at a boundary, seconds.",
 )
 @click.option(
-    "--duration", type=float, default=10.0, show_default=True, help="How long to listen, seconds."
+    "--duration",
+    type=click.FloatRange(min=0, min_open=True),
+    default=10.0,
+    show_default=True,
+    help="How long to listen, seconds.",
 )
 def listen(keys_dir: Path, url: str, epoch_s: float, grace_s: float, duration: float) -> None:
     """Check that this sensor or backend receives its nonces (prints epochs, never nonces)."""

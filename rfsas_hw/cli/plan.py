@@ -42,7 +42,7 @@ def _s(value: float) -> str:
 @click.option(
     "--dwell",
     "dwell_ms",
-    type=float,
+    type=click.FloatRange(min=0, min_open=True),
     default=100.0,
     show_default=True,
     help="Time on each channel, ms.",
@@ -50,14 +50,14 @@ def _s(value: float) -> str:
 @click.option(
     "--switch",
     "switch_ms",
-    type=float,
+    type=click.FloatRange(min=0.0),
     default=5.0,
     show_default=True,
     help="Dead time when the radio retunes, ms.",
 )
 @click.option(
     "--receivers",
-    type=int,
+    type=click.IntRange(1, 64),
     default=1,
     show_default=True,
     help="Receivers sharing the channel list.",
@@ -69,11 +69,17 @@ def _s(value: float) -> str:
     show_default=True,
     help="What is being looked for.",
 )
-@click.option("--trials", type=int, default=2000, show_default=True, help="Simulated starts.")
+@click.option(
+    "--trials",
+    type=click.IntRange(1, 10_000_000),
+    default=2000,
+    show_default=True,
+    help="Simulated starts.",
+)
 @click.option(
     "--horizon",
     "horizon_s",
-    type=float,
+    type=click.FloatRange(min=0, min_open=True),
     default=30.0,
     show_default=True,
     help="Give up after this long, s.",

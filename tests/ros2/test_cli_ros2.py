@@ -61,7 +61,60 @@ def send_rounds(url: str, stores: dict[str, KeyStore], rounds: int = 20) -> None
             pub.close()
 
 
+def free_tcp_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def foxglove_client(port: int, frames: list[tuple[str, bytes]], stop: threading.Event) -> None:
+    """Connect (retrying while the command starts), subscribe to every channel, collect
+    (topic, payload) of every message frame until the server goes away or ``stop``."""
+    import json
+    import struct
+
+    import websocket
+
+    deadline = time.monotonic() + 10
+    while True:
+        # probe with a plain socket: a refused websocket attempt leaves its socket unclosed
+        try:
+            with socket.create_connection(("127.0.0.1", port), timeout=0.5):
+                break
+        except OSError:
+            if time.monotonic() > deadline or stop.is_set():
+                return
+            time.sleep(0.05)
+    ws = websocket.create_connection(
+        f"ws://127.0.0.1:{port}", subprotocols=["foxglove.sdk.v1"], timeout=2
+    )
+    try:
+        channels: dict[int, str] = {}
+        while len(channels) < len(topics.ALL):
+            msg = json.loads(ws.recv())
+            if msg["op"] == "advertise":
+                channels.update({c["id"]: c["topic"] for c in msg["channels"]})
+        subs = [{"id": cid, "channelId": cid} for cid in channels]
+        ws.send(json.dumps({"op": "subscribe", "subscriptions": subs}))
+        ws.settimeout(0.2)
+        while not stop.is_set():
+            try:
+                opcode, data = ws.recv_data()
+            except websocket.WebSocketTimeoutException:
+                continue
+            except (websocket.WebSocketConnectionClosedException, OSError):
+                return
+            if opcode == websocket.ABNF.OPCODE_BINARY and data and data[0] == 1:
+                sub = struct.unpack_from("<I", data, 1)[0]
+                frames.append((channels[sub], bytes(data[13:])))
+    finally:
+        ws.close()
+
+
 def test_backend_records_mcap_and_rosbag2_and_serves_foxglove(tmp_path: Path) -> None:
+    """Recorded twice and served live: a Foxglove client connected while the command runs
+    receives the scene the recordings hold."""
+    pytest.importorskip("websocket")
     backend_keys = KeyStore.create(tmp_path / "backend", "backend", "obu-1")
     stores = {sid: KeyStore.create(tmp_path / sid, "sensor", sid) for sid in SENSORS}
     for store in stores.values():
@@ -71,22 +124,36 @@ def test_backend_records_mcap_and_rosbag2_and_serves_foxglove(tmp_path: Path) ->
     url = f"udp://127.0.0.1:{free_port()}"
     sender = threading.Thread(target=send_rounds, args=(url, stores))
     sender.start()
+    port = free_tcp_port()
+    frames: list[tuple[str, bytes]] = []
+    stop = threading.Event()
+    client = threading.Thread(target=foxglove_client, args=(port, frames, stop))
+    client.start()
     mcap, bag = tmp_path / "run.mcap", tmp_path / "run_bag"
-    result = CliRunner().invoke(
-        backend,
-        [
-            "--listen", url, "--keys", str(tmp_path / "backend"), "--vehicle", str(vehicle),
-            "--out", str(mcap), "--rosbag2", str(bag), "--foxglove", "0",
-            "--ros2", "--ros2-interface", "lo", "--ros2-domain", "211",
-            "--duration", "2.5", "--no-table",
-        ],
-    )  # fmt: skip
-    sender.join()
+    try:
+        result = CliRunner().invoke(
+            backend,
+            [
+                "--listen", url, "--keys", str(tmp_path / "backend"), "--vehicle", str(vehicle),
+                "--out", str(mcap), "--rosbag2", str(bag), "--foxglove", str(port),
+                "--ros2", "--ros2-interface", "lo", "--ros2-domain", "211",
+                "--duration", "2.5", "--no-table",
+            ],
+        )  # fmt: skip
+    finally:
+        stop.set()
+        sender.join()
+        client.join(timeout=10)
     assert result.exit_code == 0, result.output
-    assert "foxglove: open ws://127.0.0.1:" in result.output
+    assert f"foxglove: open ws://127.0.0.1:{port}" in result.output
     assert "ros2: publishing on domain 211" in result.output
     msgs = read_mcap(mcap)
     assert [m.data for m in msgs] == [m.data for m in read_rosbag2_sqlite(bag)]
+    # the live client saw the same scene: every frame is a recorded message, and the
+    # frames cover the scene's topics
+    recorded = {(m.topic, m.data) for m in msgs}
+    assert frames and all(frame in recorded for frame in frames)
+    assert {topics.MARKERS.name, topics.TF.name, topics.ASSESSMENTS.name} <= {t for t, _ in frames}
     fixes = [f for m in msgs if m.topic == topics.FIXES.name for f in m.message.fixes]
     assert fixes and all(f.emitter_id == f"{EMITTER:016x}" for f in fixes)
     ok = [f for f in fixes if f.ok]

@@ -198,9 +198,17 @@ def fit_phase_pair(
 
 
 def _number(value: Any, where: str) -> float:
-    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
-        raise CalibrationError(f"{where}: must be a finite number, got {value!r}")
-    return float(value)
+    if isinstance(value, int | float) and not isinstance(value, bool):
+        try:
+            number = float(value)
+        except OverflowError:
+            number = math.inf
+        if math.isfinite(number):
+            return number
+    shown = f"{value!r}"
+    raise CalibrationError(
+        f"{where}: must be a finite number, got {shown[:40]}{'…' if len(shown) > 40 else ''}"
+    )
 
 
 def _keys(data: Mapping[str, Any], allowed: set[str], required: set[str], where: str) -> None:
@@ -237,7 +245,7 @@ def phase_from_mapping(data: Any, where: str) -> PhaseCalibration:
             raise CalibrationError(f"{pw}: expected a mapping")
         _keys(p, {"a", "b", "baseline_m", "offsets"}, {"a", "b", "baseline_m", "offsets"}, pw)
         a, b = p["a"], p["b"]
-        if not (isinstance(a, int) and isinstance(b, int) and 0 <= a < 8 and 0 <= b < 8 and a != b):
+        if not (type(a) is int and type(b) is int and 0 <= a < 8 and 0 <= b < 8 and a != b):
             raise CalibrationError(f"{pw}: a and b must be two different antennas 0–7")
         baseline = _number(p["baseline_m"], f"{pw}.baseline_m")
         if baseline <= 0:
@@ -257,7 +265,7 @@ def phase_from_mapping(data: Any, where: str) -> PhaseCalibration:
                 ow,
             )
             ch = o.get("channel")
-            if ch is not None and not (isinstance(ch, int) and ch > 0):
+            if ch is not None and not (type(ch) is int and 0 < ch < 1000):
                 raise CalibrationError(f"{ow}.channel: expected a channel number or null")
             if ch in seen:
                 raise CalibrationError(f"{ow}.channel: second offset for channel {ch}")
@@ -266,7 +274,7 @@ def phase_from_mapping(data: Any, where: str) -> PhaseCalibration:
             if residual < 0:
                 raise CalibrationError(f"{ow}.residual_deg: must be ≥ 0")
             samples = o.get("samples", 0)
-            if not isinstance(samples, int) or samples < 0:
+            if type(samples) is not int or samples < 0:
                 raise CalibrationError(f"{ow}.samples: expected a count ≥ 0")
             offsets.append(
                 PhaseOffset(

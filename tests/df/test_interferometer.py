@@ -195,6 +195,14 @@ def test_phase_section_round_trips_through_the_calibration_file(tmp_path: Path) 
             r"offsets\[0\]: unknown key",
         ),
         ({"fov_deg": [10, -10], "pairs": []}, "fov_deg"),
+        (
+            {"pairs": [{"a": 0, "b": 1, "baseline_m": 10**400, "offsets": [{"offset_deg": 1}]}]},
+            "baseline_m: must be a finite number",
+        ),
+        (
+            {"pairs": [{"a": 0, "b": 1, "baseline_m": 0.06, "offsets": [{"offset_deg": "x"}]}]},
+            "offset_deg: must be a finite number",
+        ),
     ],
 )
 def test_bad_phase_sections_name_the_key(section: dict[str, object], match: str) -> None:

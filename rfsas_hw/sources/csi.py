@@ -24,6 +24,7 @@ first stream) — the numbers ``rfsas replay`` prints.
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import Any
 from urllib.parse import parse_qs
@@ -157,6 +158,10 @@ class CsiSource(Source[ObservationBatch]):
             raise SourceError("csi source needs a path: csi:FILE[?freq=MHz&format=NAME]")
         if format is not None and format not in FORMATS:
             raise SourceError(f"csi:{path}: unknown format {format!r}; known: {', '.join(FORMATS)}")
+        if not 0 <= freq_mhz <= 100_000:
+            raise SourceError(f"csi:{path}: freq {freq_mhz} MHz is not a channel frequency")
+        if not math.isfinite(rssi_offset_db) or abs(rssi_offset_db) > 200:
+            raise SourceError(f"csi:{path}: rssi_offset {rssi_offset_db} dB is not plausible")
         self.path = path
         self.capture = read_capture(path, format, freq_mhz, chip)
         if rssi_offset_db:

@@ -235,6 +235,12 @@ def test_spec_errors(tmp_path: Path) -> None:
         open_source(f"csi:{DATA / 'los_5.dat'}?band=5")
     with pytest.raises(SourceError, match="unknown format"):
         CsiSource(str(DATA / "los_5.dat"), format="esp")
+    with pytest.raises(SourceError, match="not a channel frequency"):
+        open_source(f"csi:{DATA / 'los_5.dat'}?freq={10**30}")
+    with pytest.raises(SourceError, match="freq must be MHz"):
+        open_source(f"csi:{DATA / 'los_5.dat'}?freq=2.4GHz")
+    with pytest.raises(SourceError, match="not plausible"):
+        open_source(f"csi:{DATA / 'los_5.dat'}?rssi_offset=nan")
 
 
 def test_missing_csiread_names_the_extra(monkeypatch: pytest.MonkeyPatch) -> None:

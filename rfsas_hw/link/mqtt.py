@@ -289,6 +289,8 @@ class MqttTransport(Transport):
         self._wake_r.setblocking(False)
         self._wake_w.setblocking(False)
         self._connected = threading.Event()
+        self._pending: list[Any] = []
+        """QoS-1 publishes not yet acknowledged (close waits for them)."""
         self._last_error = "no answer"
         client_id = endpoint.client_id or f"rfsas-{secrets.token_hex(6)}"
         client: paho.Client = mqtt.Client(
@@ -417,6 +419,8 @@ class MqttTransport(Transport):
         info = self._client.publish(
             route.topic, datagram, qos=route.qos, retain=route.retain, properties=props
         )
+        if route.qos > 0:
+            self._pending = [m for m in self._pending if not m.is_published()] + [info]
         if info.rc != 0:
             self.stats.send_errors += 1
             why = "not connected" if info.rc == self._no_conn else f"error {info.rc}"
@@ -458,10 +462,18 @@ class MqttTransport(Transport):
         self._wake_r.close()
         self._wake_w.close()
 
-    def close(self) -> None:
-        """Disconnect and stop the network thread; idempotent."""
+    def close(self, flush_s: float = 2.0) -> None:
+        """Wait up to ``flush_s`` seconds for QoS-1 publishes (retained nonce envelopes)
+        to be acknowledged, then disconnect and stop the network thread; idempotent."""
         if self._closed:
             return
+        deadline = time.monotonic() + flush_s
+        for info in self._pending:
+            left = deadline - time.monotonic()
+            if left <= 0 or not self._connected.is_set():
+                break
+            with contextlib.suppress(RuntimeError, ValueError):
+                info.wait_for_publish(left)
         self._closed = True
         try:
             self._client.disconnect()

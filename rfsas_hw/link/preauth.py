@@ -30,7 +30,6 @@ from rfsas_hw.link.message import (
     VERSION_PREAUTH,
     SafetyMessage,
     encode_body,
-    preauth_part,
 )
 from rfsas_hw.link.signing import Signer
 from rfsas_hw.privacy.hashing import NonceUnavailableError
@@ -63,8 +62,8 @@ def make_tag(key: bytes, data: bytes) -> bytes:
 
 def tag_ok(key: bytes, datagram: bytes) -> bool:
     """True when the version-2 ``datagram`` ends with the right tag under ``key``."""
-    data, tag = preauth_part(datagram)
-    return hmac.compare_digest(make_tag(key, data), tag)
+    mac = hmac.digest(key, datagram[:-PREAUTH_BYTES], "sha256")
+    return hmac.compare_digest(mac[:PREAUTH_BYTES], datagram[-PREAUTH_BYTES:])
 
 
 class PreauthKeys:

@@ -270,6 +270,8 @@ class Receiver:
         if preauth is None and isinstance(nonces, NonceSource):
             preauth = PreauthKeys(nonces)
         self.preauth = preauth
+        self._epochs_ms = -1
+        self._epochs_ok: tuple[int, ...] = ()
         self.limiter = RateLimiter(
             self.config.sender_rate_hz, self.config.sender_burst, time.monotonic
         )
@@ -386,7 +388,7 @@ class Receiver:
         copies of verified messages, the sender's budget of signature checks."""
         t_gen_us, seq, epoch = header_epoch(datagram, head)
         if head.preauth:
-            if self.config.check_epoch and not self.schedule.accepts(epoch, now_ns):
+            if self.config.check_epoch and epoch not in self._accepted_epochs(now_ns):
                 raise _RejectError("wrong_epoch", f"{head.sender_id} epoch {epoch}")
             key = None if self.preauth is None else self.preauth.key_for(head.sender_id, epoch)
             if key is None:
@@ -404,6 +406,14 @@ class Receiver:
             raise _RejectError("replay", f"{head.sender_id} seq {seq} (copy)")
         if not self.limiter.allow(head.sender_id):
             raise _RejectError("rate_limited", head.sender_id)
+
+    def _accepted_epochs(self, now_ns: int) -> tuple[int, ...]:
+        # a flood asks this for every datagram: answer from the last millisecond's result
+        ms = now_ns // 1_000_000
+        if ms != self._epochs_ms:
+            self._epochs_ms = ms
+            self._epochs_ok = self.schedule.accepted_epochs(now_ns)
+        return self._epochs_ok
 
     def _check_range(self, msg: SafetyMessage) -> None:
         if self.position is None:

@@ -10,7 +10,7 @@ import time
 from pathlib import Path
 
 import numpy as np
-from conftest import Broker, Deployment
+from brokerhelp import Broker, Deployment
 from cryptography.hazmat.primitives.asymmetric import ec
 from fleethelp import ORIGIN
 

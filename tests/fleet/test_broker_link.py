@@ -12,7 +12,7 @@ import os
 import socket
 import time
 
-from conftest import Broker, Deployment
+from brokerhelp import Broker, Deployment
 from fleethelp import ORIGIN, SCHEDULE, bearings_now, drain, well_inside_an_epoch
 
 from rfsas_hw.link import Publisher, Receiver, ReceiverConfig, SafetyMessage
@@ -22,6 +22,8 @@ from rfsas_hw.link.topics import ZOOM, Route, bearing_topic, nonce_topic, topic_
 from rfsas_hw.records import Pose
 
 POSE = Pose(12.0, -30.0, 90.0)
+EXPIRY_S = 4
+"""Message expiry of the retained envelope in the expiry test, seconds."""
 
 
 def _free_udp() -> str:
@@ -207,7 +209,8 @@ def test_retained_nonce_envelope_is_delivered_late_and_then_expires(
         assert routed.topic == nonce_topic("rsu-2", epoch)
         assert routed.retain and routed.qos == 1
         assert routed.expiry_s is not None and 0 < routed.expiry_s <= 65
-        tx.publish(Route(routed.topic, 1, True, 1), envelope)  # expires after 1 s
+        tx.publish(Route(routed.topic, 1, True, EXPIRY_S), envelope)
+        published = time.monotonic()
     finally:
         tx.close()
     late = open_mqtt(broker.url("rsu-2", nonces="rsu-2"), "recv")
@@ -216,7 +219,7 @@ def test_retained_nonce_envelope_is_delivered_late_and_then_expires(
     finally:
         late.close()
     assert got == (envelope, nonce_topic("rsu-2", epoch))
-    time.sleep(2.2)
+    time.sleep(max(0.0, published + EXPIRY_S + 1.0 - time.monotonic()))
     later = open_mqtt(broker.url("rsu-2", nonces="rsu-2"), "recv")
     try:
         assert later.recv_from(0.7) is None

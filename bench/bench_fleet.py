@@ -1,0 +1,560 @@
+"""City scale on a real broker: latency, throughput, scale-out and a forged flood.
+
+    python bench/bench_fleet.py [--quick]
+
+Needs ``mosquitto`` (Debian package) and the ``mqtt`` extra. Everything runs on
+127.0.0.1; the broker is started here with mutual TLS and the ACL that
+``rfsas broker config`` writes, ``set_tcp_nodelay true``.
+
+1. Frame → advisory latency, lockstep like ``bench_latency.py``: two sensors
+   turn one frame each into bearings (DF, hashing), sign version-2
+   (pre-authenticated) messages and send them; the backend verifies them,
+   associates, triangulates and judges; it signs its assessment as an
+   advisory and sends it; the vehicle verifies the advisory. Side by side:
+   every hop over direct UDP, and every hop through mosquitto with TLS.
+   Goal: p99 ≤ 10 ms through the broker.
+2. Sustained signed bearings through the broker into 1 and into 2 backend
+   processes (the two own disjoint tile sets, as a tile plan assigns them):
+   8 sensor ids in 4 processes publish pre-signed version-2 messages at a
+   fixed total rate; each backend verifies what its tiles bring. Goal:
+   ≥ 10,000 messages/s verified with 0 lost, and 2 backends ≥ 1.7 × 1 when
+   one backend cannot keep up alone.
+3. The receiver's time per forged datagram, in process: version 1 (an
+   ECDSA verify each) against version 2 (one HMAC each).
+4. A forged flood at 50,000 datagrams/s on the backend's UDP port while a
+   sensor sends at 50 Hz: with version-1 messages (each forgery costs an
+   ECDSA verify) and with version 2 required (each forgery costs one HMAC).
+   Goal: ≥ 99 % of valid messages verified and the link state ok.
+
+Numbers are from one run on a shared 2-core machine; ratios from the same run.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import getpass
+import logging
+import multiprocessing as mp
+import os
+import random
+import shutil
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+from multiprocessing.queues import Queue as MpQueue
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from cryptography.hazmat.primitives.asymmetric import ec
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from bench_latency import SENSORS, calibrations, frame_for, vehicle
+
+from rfsas_hw.backend.service import BackendService
+from rfsas_hw.fleet.advisory import AdvisoryReceiver, AdvisorySink
+from rfsas_hw.fleet.broker import BrokerFiles, write_broker_config
+from rfsas_hw.fleet.tiles import assign_tiles
+from rfsas_hw.geo import SiteOrigin
+from rfsas_hw.link import Publisher, Receiver, ReceiverConfig, Signer, TrustedKeys
+from rfsas_hw.link.keys import KeyStore
+from rfsas_hw.link.latency import LinkState
+from rfsas_hw.link.message import SafetyMessage
+from rfsas_hw.link.mqtt import open_mqtt
+from rfsas_hw.link.preauth import PreauthKeys, derive_key, seal
+from rfsas_hw.link.topics import Route, TopicRouter
+from rfsas_hw.link.transport import Transport, open_transport
+from rfsas_hw.pipeline import SensorPipeline
+from rfsas_hw.privacy.hashing import FixedNonce, MacHasher
+from rfsas_hw.records import BearingBatch, Pose
+
+# state changes of the latency watch are expected here (pre-signed messages age)
+logging.disable(logging.WARNING)
+
+ORIGIN = SiteOrigin(48.137, 11.575)
+ORIGIN_Q = "48.137,11.575"
+NONCE = bytes(range(32))
+"""The epoch nonce every party of the bench holds (as the authority would hand it out)."""
+N_SENSORS = 8
+SENDER_PROCS = 4
+
+
+class UdpPublishing:
+    """Advisories over plain UDP: the route is ignored."""
+
+    def __init__(self, transport: Transport) -> None:
+        self.transport = transport
+
+    def publish(self, route: Route, datagram: bytes) -> None:
+        self.transport.send(datagram)
+
+
+class BackendCards:
+    def __init__(self, keys: dict[str, ec.EllipticCurvePublicKey]) -> None:
+        self.keys = keys
+
+    def backend_key(self, backend_id: str) -> ec.EllipticCurvePublicKey | None:
+        return self.keys.get(backend_id)
+
+
+# --- the broker ---
+
+
+def setup(root: Path) -> tuple[BrokerFiles, dict[str, KeyStore]]:
+    stores: dict[str, KeyStore] = {"auth-0": KeyStore.create(root / "keys/auth-0", "authority")}
+    ids = [*SENSORS, *(f"s-{i}" for i in range(N_SENSORS)), "be-0", "be-1"]
+    for ident in ids:
+        role = "backend" if ident.startswith("be-") else "sensor"
+        stores[ident] = KeyStore.create(root / "keys" / ident, role)
+        stores["auth-0"].trust.enroll(stores[ident].card)
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    files = write_broker_config(
+        stores["auth-0"].path,
+        root / "broker",
+        host="127.0.0.1",
+        port=port,
+        vehicles=["car-7"],
+        run_as=getpass.getuser() if os.geteuid() == 0 else None,
+    )
+    return files, stores
+
+
+def start_broker(files: BrokerFiles, log: Path) -> subprocess.Popen[bytes]:
+    exe = shutil.which("mosquitto") or "/usr/sbin/mosquitto"
+    with log.open("ab") as fh:
+        proc = subprocess.Popen([exe, "-c", str(files.conf)], stdout=fh, stderr=fh)
+    for _ in range(200):
+        with contextlib.suppress(OSError), socket.create_connection(("127.0.0.1", files.port)):
+            return proc
+        time.sleep(0.05)
+    proc.kill()
+    raise RuntimeError(f"mosquitto did not start: {log.read_text()}")
+
+
+# --- 1. latency ---
+
+
+def latency(n: int, carrier: str, files: BrokerFiles, stores: dict[str, KeyStore]) -> np.ndarray:
+    cals = calibrations()
+    nonces = FixedNonce(NONCE)
+    signers = {sid: stores[sid].signer() for sid in SENSORS}
+    trust = TrustedKeys({sid: s.public_key for sid, s in signers.items()})
+    be_signer = stores["be-0"].signer()
+    cfg = ReceiverConfig(accept_v1=False)
+    if carrier == "udp":
+        rx = Receiver.listen("udp://127.0.0.1:0", trust, config=cfg, preauth=PreauthKeys(nonces))
+        host, port = rx.transport.address  # type: ignore[union-attr]
+        pubs = {
+            sid: Publisher(
+                s, open_transport(f"udp://{host}:{port}", "send"), SENSORS[sid], preauth=nonces
+            )
+            for sid, s in signers.items()
+        }
+        car_rx_t = open_transport("udp://127.0.0.1:0", "recv")
+        chost, cport = car_rx_t.address  # type: ignore[attr-defined]
+        adv_tx: Any = UdpPublishing(open_transport(f"udp://{chost}:{cport}", "send"))
+    else:
+        rx = Receiver.listen(files.url("be-0"), trust, config=cfg, preauth=PreauthKeys(nonces))
+        pubs = {
+            sid: Publisher.to_url(files.url(sid, origin=ORIGIN_Q), s, SENSORS[sid], preauth=nonces)
+            for sid, s in signers.items()
+        }
+        car_rx_t = open_mqtt(files.url("car-7", sub="rfsas/v1/vehicle/car-7/advisory"), "recv")
+        adv_tx = open_mqtt(files.url("be-0"), "send")
+    router = TopicRouter(ORIGIN)
+    sink = AdvisorySink(be_signer, adv_tx, router, router.tile_of(0, 0), vehicle_id="car-7")
+    car = AdvisoryReceiver(
+        BackendCards({"be-0": be_signer.public_key}), car_rx_t, vehicle_id="car-7"
+    )
+    hasher = MacHasher(nonces)
+    pipes = {sid: SensorPipeline(cals[sid], hasher, sid, SENSORS[sid]) for sid in SENSORS}  # type: ignore[arg-type]
+    backend = BackendService(sinks=[sink])
+    rng = np.random.default_rng(0)
+    out = np.empty(n)
+    time.sleep(0.3)  # subscriptions settle
+    for i in range(n + 30):
+        now = time.time_ns()
+        t0 = time.perf_counter()
+        for sid in SENSORS:
+            pubs[sid].on_bearings(pipes[sid].process(frame_for(sid, now, rng)))
+        got: list[Any] = []
+        while len(got) < len(SENSORS):
+            got.extend(rx.receive(timeout=2.0))
+        for msg in got:
+            backend.on_verified(msg)
+        backend.set_vehicle(vehicle(time.time_ns()))
+        backend.step()
+        advisories: list[Any] = []
+        while not advisories:
+            advisories = car.receive(timeout=2.0)
+        if i >= 30:
+            out[i - 30] = time.perf_counter() - t0
+    for p in pubs.values():
+        p.close()
+    rx.close()
+    car_rx_t.close()
+    if carrier != "udp":
+        adv_tx.close()
+    assert rx.stats.verified == (n + 30) * len(SENSORS), rx.stats.as_dict()
+    return out * 1e3
+
+
+# --- 2. throughput ---
+
+
+def sensor_pose(i: int) -> Pose:
+    # sensors 3 km apart along a line: each in its own zoom-16 tile
+    return Pose(3000.0 * i, 0.0, 0.0)
+
+
+def _sender(
+    files_root: str,
+    host: str,
+    port: int,
+    ids: list[str],
+    rate: float,
+    seconds: float,
+    start_at: float,
+    q: MpQueue[int],
+) -> None:
+    files = BrokerFiles(Path(files_root), host, port, ())
+    router = TopicRouter(ORIGIN)
+    batches = []
+    for ident in ids:
+        i = int(ident.split("-")[1])
+        signer = KeyStore.open(Path(files_root).parent / "keys" / ident).signer()
+        key = derive_key(NONCE, ident)
+        count = int(rate * seconds)
+        now = time.time_ns()
+        epoch = now // 60_000_000_000
+        t_ns = np.full(1, epoch * 60_000_000_000 + 1, np.int64)
+        b = BearingBatch(
+            ident,
+            t_ns,
+            np.array([10.0]),
+            np.array([2.0]),
+            np.array([20.0]),
+            np.array([6], np.int16),
+            np.array([5], np.uint64),
+        )
+        msgs = [
+            seal(signer, SafetyMessage(ident, sensor_pose(i), now // 1000, k, epoch, b), key)
+            for k in range(count)
+        ]
+        topic = router.route(msgs[0], now).topic
+        batches.append((open_mqtt(files.url(ident), "send"), topic, msgs))
+    while time.time() < start_at:
+        time.sleep(0.001)
+    sent = 0
+    t0 = time.perf_counter()
+    total = len(batches[0][2])
+    k = 0
+    while k < total:
+        due = min(total, int((time.perf_counter() - t0) * rate) + 1)
+        if due <= k:
+            time.sleep(0.0005)
+            continue
+        for j in range(k, due):
+            for tx, topic, msgs in batches:
+                with contextlib.suppress(Exception):
+                    tx.publish(Route(topic), msgs[j])
+                    sent += 1
+        k = due
+    time.sleep(0.5)
+    for tx, _, _ in batches:
+        tx.close()
+    q.put(sent)
+
+
+def _backend(
+    files_root: str,
+    host: str,
+    port: int,
+    ident: str,
+    tiles: list[str],
+    seconds: float,
+    q: MpQueue[tuple[int, int, float]],
+) -> None:
+    files = BrokerFiles(Path(files_root), host, port, ())
+    trust = TrustedKeys()
+    for i in range(N_SENSORS):
+        sid = f"s-{i}"
+        trust.enroll(sid, KeyStore.open(Path(files_root).parent / "keys" / sid).card.sign_public)  # type: ignore[arg-type]
+    cfg = ReceiverConfig(max_age_s=120.0, check_epoch=False, backlog=1 << 30)
+    rx = Receiver.listen(
+        files.url(ident, tiles=",".join(tiles), queue="1000000"),
+        trust,
+        config=cfg,
+        preauth=PreauthKeys(FixedNonce(NONCE)),
+    )
+    first = last = 0.0
+    idle_since = time.monotonic()
+    deadline = time.monotonic() + seconds + 60
+    while time.monotonic() < deadline:
+        got = rx.receive(timeout=0.1, max_datagrams=2048)
+        if got:
+            last = time.monotonic()
+            first = first or last
+            idle_since = last
+        elif first and time.monotonic() - idle_since > 2.0:
+            break
+    rx.close()
+    q.put((rx.stats.verified, rx.stats.rejected_total, last - first))
+
+
+def throughput(
+    files: BrokerFiles, n_backends: int, rate_total: float, seconds: float
+) -> dict[str, Any]:
+    ids = [f"s-{i}" for i in range(N_SENSORS)]
+    router = TopicRouter(ORIGIN)
+    tiles = {sid: router.tile_of(sensor_pose(i).x_m, 0.0) for i, sid in enumerate(ids)}
+    groups = [f"be-{k}" for k in range(n_backends)]
+    plan = assign_tiles(sorted(set(tiles.values())), groups)
+    ctx = mp.get_context("spawn")
+    q_s: MpQueue[int] = ctx.Queue()
+    q_b: MpQueue[tuple[int, int, float]] = ctx.Queue()
+    root = str(files.root)
+    backends = [
+        ctx.Process(target=_backend, args=(root, files.host, files.port, g, plan[g], seconds, q_b))
+        for g in groups
+    ]
+    for p in backends:
+        p.start()
+    time.sleep(2.0)  # backends subscribed
+    per_sensor = rate_total / N_SENSORS
+    chunks = [ids[k::SENDER_PROCS] for k in range(SENDER_PROCS)]
+    start_at = time.time() + 8.0  # every sender has pre-signed its messages
+    senders = [
+        ctx.Process(
+            target=_sender,
+            args=(root, files.host, files.port, c, per_sensor, seconds, start_at, q_s),
+        )
+        for c in chunks
+    ]
+    for p in senders:
+        p.start()
+    sent = sum(q_s.get(timeout=seconds + 120) for _ in senders)
+    results = [q_b.get(timeout=seconds + 120) for _ in backends]
+    for p in senders + backends:
+        p.join(10)
+    verified = sum(r[0] for r in results)
+    span = max(r[2] for r in results) or float("nan")
+    return {
+        "backends": n_backends,
+        "offered": rate_total,
+        "sent": sent,
+        "verified": verified,
+        "lost": sent - verified,
+        "rate": verified / span,
+        "rejected": sum(r[1] for r in results),
+    }
+
+
+# --- 3. flood ---
+
+SENSOR_KEY = 0x5EED_CAFE
+
+
+def _valid_sensor(port: int, hz: float, seconds: float, q: MpQueue[int]) -> None:
+    signer = Signer("rsu-1", ec.derive_private_key(SENSOR_KEY, ec.SECP256R1()))
+    pub = Publisher(
+        signer,
+        open_transport(f"udp://127.0.0.1:{port}", "send"),
+        Pose(0, 0, 0),
+        preauth=FixedNonce(NONCE),
+    )
+    rng = np.random.default_rng(1)
+    n = int(hz * seconds)
+    t0 = time.perf_counter()
+    for k in range(n):
+        while time.perf_counter() < t0 + k / hz:
+            time.sleep(0.0005)
+        b = BearingBatch(
+            "rsu-1",
+            np.array([time.time_ns()]),
+            rng.uniform(0, 360, 1),
+            np.array([2.0]),
+            np.array([20.0]),
+            np.array([6], np.int16),
+            np.array([9], np.uint64),
+        )
+        pub.on_bearings(b)
+    pub.close()
+    q.put(pub.stats.messages)
+
+
+def _forger(port: int, rate: int, seconds: float, version: int, q: MpQueue[int]) -> None:
+    rng = random.Random(7)
+    signer = Signer("rsu-1", ec.derive_private_key(SENSOR_KEY, ec.SECP256R1()))
+    now = time.time_ns()
+    b = BearingBatch(
+        "rsu-1",
+        np.array([now]),
+        np.array([1.0]),
+        np.array([2.0]),
+        np.array([20.0]),
+        np.array([6], np.int16),
+        np.array([9], np.uint64),
+    )
+    msg = SafetyMessage("rsu-1", Pose(0, 0, 0), now // 1000, 1, now // 60_000_000_000, b)
+    if version == 1:
+        good = signer.encode(msg)
+        payloads = [good[:-64] + rng.randbytes(64) for _ in range(512)]
+    else:  # the outsider has no nonce: a random key, so a wrong tag
+        good = seal(signer, msg, rng.randbytes(32))
+        payloads = [good[:-72] + rng.randbytes(72) for _ in range(512)]
+    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    total = int(rate * seconds)
+    sent = 0
+    t0 = time.perf_counter()
+    while sent < total:
+        due = min(total, int((time.perf_counter() - t0) * rate))
+        if due <= sent:
+            time.sleep(0.0005)
+            continue
+        for _ in range(due - sent):
+            with contextlib.suppress(OSError):
+                sock.sendto(payloads[sent % 512], ("127.0.0.1", port))
+            sent += 1
+    q.put(round(sent / (time.perf_counter() - t0)))
+    sock.close()
+
+
+def flood(version: int, rate: int, seconds: float) -> dict[str, Any]:
+    key = ec.derive_private_key(SENSOR_KEY, ec.SECP256R1())
+    cfg = ReceiverConfig(accept_v1=version == 1)
+    rx = Receiver.listen(
+        "udp://127.0.0.1:0",
+        TrustedKeys({"rsu-1": key.public_key()}),
+        config=cfg,
+        preauth=PreauthKeys(FixedNonce(NONCE)),
+    )
+    port = rx.transport.address[1]  # type: ignore[union-attr]
+    ctx = mp.get_context("spawn")
+    q_s: MpQueue[int] = ctx.Queue()
+    q_f: MpQueue[int] = ctx.Queue()
+    procs = [ctx.Process(target=_valid_sensor, args=(port, 50.0, seconds, q_s))]
+    if rate:
+        procs.append(ctx.Process(target=_forger, args=(port, rate, seconds, version, q_f)))
+    states: list[str] = []
+    for p in procs:
+        p.start()
+    while procs[0].is_alive():
+        rx.receive(timeout=0.05)
+        snap = rx.latency.snapshot(time.time_ns()).get("rsu-1")
+        if snap is not None:
+            states.append(snap.state.value)
+    for _ in range(5):
+        rx.receive(timeout=0.05)
+    for p in procs:
+        p.join(10)
+    rx.close()
+    sent = q_s.get(timeout=10)
+    worst = "ok" if all(s == LinkState.OK.value for s in states) else ",".join(sorted(set(states)))
+    return {
+        "version": version,
+        "junk_rate": q_f.get(timeout=10) if rate else 0,
+        "valid_sent": sent,
+        "verified": rx.stats.verified,
+        "share": rx.stats.verified / sent,
+        "state": worst,
+        "rejected": dict(rx.stats.rejected),
+    }
+
+
+def reject_cost(n: int = 2000) -> dict[str, float]:
+    """µs a receiver spends on one forged datagram from an enrolled sender id, in process."""
+    signer = Signer("rsu-1", ec.derive_private_key(SENSOR_KEY, ec.SECP256R1()))
+    trust = TrustedKeys({"rsu-1": signer.public_key})
+    now = time.time_ns()
+    b = BearingBatch(
+        "rsu-1",
+        np.array([now]),
+        np.array([1.0]),
+        np.array([2.0]),
+        np.array([20.0]),
+        np.array([6], np.int16),
+        np.array([9], np.uint64),
+    )
+    out = {}
+    for version in (1, 2):
+        cfg = ReceiverConfig(accept_v1=version == 1, sender_rate_hz=1e9, sender_burst=1e9)
+        rx = Receiver(trust, config=cfg, preauth=PreauthKeys(FixedNonce(NONCE)))
+        forged = []
+        for k in range(n if version == 2 else n // 10):
+            msg = SafetyMessage("rsu-1", Pose(0, 0, 0), now // 1000, k, now // 60_000_000_000, b)
+            raw = signer.encode(msg) if version == 1 else seal(signer, msg, os.urandom(32))
+            forged.append(raw[:-8] + os.urandom(8))
+        t0 = time.perf_counter()
+        for d in forged:
+            rx.feed(d, now)
+        out[f"v{version}"] = (time.perf_counter() - t0) / len(forged) * 1e6
+        assert rx.stats.verified == 0
+    return out
+
+
+def main() -> None:
+    quick = "--quick" in sys.argv
+    if shutil.which("mosquitto") is None and not Path("/usr/sbin/mosquitto").exists():
+        sys.exit("mosquitto is not installed (Debian package mosquitto)")
+    root = Path(tempfile.mkdtemp(prefix="rfsas-fleet-"))
+    files, stores = setup(root)
+    broker = start_broker(files, root / "mosquitto.log")
+    try:
+        n = 300 if quick else 1000
+        print(f"1. Frame → advisory, {n} frames × 2 sensors, lockstep, version-2 messages")
+        print(f"{'carrier':<32} {'p50 ms':>8} {'p99 ms':>8} {'max ms':>8}")
+        for carrier, label in (("udp", "direct UDP"), ("mqtts", "mosquitto, mutual TLS, QoS 0")):
+            t = latency(n, carrier, files, stores)
+            p50, p99 = np.percentile(t, [50, 99])
+            print(f"{label:<32} {p50:8.2f} {p99:8.2f} {t.max():8.1f}")
+        print()
+        seconds = 3.0 if quick else 5.0
+        print(f"2. Signed bearings through mosquitto (TLS) into backend processes, {seconds:g} s")
+        print(
+            f"{'backends':>8} {'offered/s':>10} {'sent':>8} {'verified':>9} {'lost':>6} "
+            f"{'verified/s':>11}"
+        )
+        runs = {}
+        for rate in (4_000, 10_000):
+            for k in (1, 2):
+                r = throughput(files, k, rate, seconds)
+                runs[(rate, k)] = r
+                print(
+                    f"{k:>8} {rate:>10,} {r['sent']:>8,} {r['verified']:>9,} {r['lost']:>6,} "
+                    f"{r['rate']:>11,.0f}"
+                )
+        ratio = runs[(10_000, 2)]["rate"] / runs[(10_000, 1)]["rate"]
+        print(f"2 backends / 1 backend at 10,000/s offered: {ratio:.2f}×")
+        print()
+    finally:
+        broker.terminate()
+        broker.wait(5)
+    seconds = 2.0 if quick else 3.0
+    cost = reject_cost()
+    print("3. Receiver time per forged datagram (in process, no socket)")
+    for v, label in (("v1", "version 1: ECDSA verify"), ("v2", "version 2: HMAC tag first")):
+        print(f"{label:<34} {cost[v]:8.1f} µs  → {1e6 / cost[v]:>9,.0f} forgeries/s per core")
+    print(f"version 1 / version 2: {cost['v1'] / cost['v2']:.1f}×")
+    print()
+    print(f"4. Forged flood at 50,000/s on UDP, sensor at 50 Hz, {seconds:g} s")
+    print(f"{'messages':<34} {'junk/s':>8} {'valid':>6} {'verified':>9} {'share':>7} {'state':>8}")
+    for version, label in (
+        (1, "version 1 (ECDSA per forgery)"),
+        (2, "version 2 required (HMAC first)"),
+    ):
+        r = flood(version, 50_000, seconds)
+        print(
+            f"{label:<34} {r['junk_rate']:>8,} {r['valid_sent']:>6} {r['verified']:>9} "
+            f"{100 * r['share']:>6.1f}% {r['state']:>8}"
+        )
+    shutil.rmtree(root, ignore_errors=True)
+
+
+if __name__ == "__main__":
+    main()

@@ -3,8 +3,9 @@
 A result sink of :class:`~rfsas_hw.backend.service.BackendService`: it
 remembers the channel each emitter was last heard on (from the bearings the
 backend takes) and, after each step, sends a signed *fix* cue
-(:mod:`rfsas_hw.link.cue`) for every emitter whose risk is at least
-``min_risk`` and whose latest fix can be trusted: the fix and its covariance,
+(:mod:`rfsas_hw.link.cue`) for every emitter the backend advises ``brake`` or
+``caution`` about (or whose risk is at least ``min_risk``) and whose latest fix
+can be trusted: the fix and its covariance,
 the channel, the risk (the vehicles' schedulers serve the highest first), at
 most one per emitter every ``every_s`` seconds, valid for ``valid_s`` after
 the fix. Usage::
@@ -57,7 +58,8 @@ class BackendCuer:
     Args:
         signer: the backend's signing identity.
         transport: where cues go (to the vehicles); closed with the cuer.
-        min_risk: the least risk that earns a cue, 0–1.
+        advisories: the advisories that earn a cue.
+        min_risk: a risk that earns a cue whatever the advisory, 0–1 (None: advisories only).
         every_s: most one cue per emitter this often, seconds.
         valid_s: validity after the fix, seconds.
         epoch_s: nonce epoch length, seconds.
@@ -72,14 +74,16 @@ class BackendCuer:
         signer: Signer,
         transport: Transport,
         *,
-        min_risk: float = 0.1,
+        advisories: tuple[str, ...] = ("brake", "caution"),
+        min_risk: float | None = None,
         every_s: float = 0.5,
         valid_s: float = 2.0,
         epoch_s: float = DEFAULT_EPOCH_S,
         clock: Callable[[], int] = time.time_ns,
     ) -> None:
-        if not 0.0 <= min_risk <= 1.0 or every_s <= 0 or valid_s <= 0:
+        if (min_risk is not None and not 0.0 <= min_risk <= 1.0) or every_s <= 0 or valid_s <= 0:
             raise LinkError("backend cues: min_risk in [0, 1], every_s and valid_s > 0")
+        self.advisories = frozenset(advisories)
         self.signer = signer
         self.transport = transport
         self.min_risk = min_risk
@@ -111,7 +115,8 @@ class BackendCuer:
                 self._fix[int(f.emitter, 16)] = f
         now = self.clock()
         for a in assessments:
-            if not a.risk >= self.min_risk:
+            at_risk = self.min_risk is not None and a.risk >= self.min_risk
+            if a.advisory not in self.advisories and not at_risk:
                 continue
             emitter = int(a.emitter, 16)
             last = self._sent.get(emitter)

@@ -28,7 +28,7 @@ from rfsas_hw.backend.vehicle import VehicleFeed, load_vehicle
 from rfsas_hw.cli.linkopts import join_urls, split_urls
 from rfsas_hw.cli.ros2opts import attach_scene, ros2_options
 from rfsas_hw.errors import ConfigError
-from rfsas_hw.link import Receiver, ReceiverConfig
+from rfsas_hw.link import Receiver, ReceiverConfig, open_transport
 from rfsas_hw.link.keys import KeyStore
 from rfsas_hw.outpaths import check_output
 from rfsas_hw.privacy.epochs import DEFAULT_EPOCH_S, EpochSchedule
@@ -182,6 +182,12 @@ def render_table(service: BackendService, alarm: bool) -> Table:
     "the emitters and the vehicle's topic (needs the site origin).",
 )
 @click.option(
+    "--send-cues",
+    metavar="URL",
+    help="Send signed fix cues for emitters at risk (risk >= 0.1) to the vehicles here, "
+    "so that their sensors listen on the emitter's channel (docs/cueing.md).",
+)
+@click.option(
     "--vehicle-id",
     default="",
     metavar="ID",
@@ -207,6 +213,7 @@ def backend(
     web_token: str | None,
     cot: str | None,
     advise: str | None,
+    send_cues: str | None,
     vehicle_id: str,
     no_table: bool,
     **ros2: Any,
@@ -284,6 +291,12 @@ def backend(
                     vehicle_id=vehicle_id,
                     epoch_s=epoch,
                 )
+            )
+        if send_cues is not None:
+            from rfsas_hw.backend.cuer import BackendCuer
+
+            sinks.append(
+                BackendCuer(store.signer(), open_transport(send_cues, "send"), epoch_s=epoch)
             )
     except Exception:
         for sink in sinks:

@@ -3,20 +3,31 @@
 from __future__ import annotations
 
 import math
+import sys
+import threading
+from pathlib import Path
 
 import numpy as np
 import pytest
+from click.testing import CliRunner
 from cryptography.hazmat.primitives.asymmetric import ec
 
 from rfsas_hw.backend.cuer import BackendCuer
 from rfsas_hw.backend.service import BackendService
 from rfsas_hw.backend.vehicle import VehicleState
+from rfsas_hw.cli.backend import backend
 from rfsas_hw.errors import LinkError
 from rfsas_hw.link.cue import CueKind, decode_cue
 from rfsas_hw.link.cue_receiver import CueReceiver
+from rfsas_hw.link.keys import KeyStore
 from rfsas_hw.link.signing import Signer, TrustedKeys
-from rfsas_hw.link.transport import Transport
+from rfsas_hw.link.transport import Transport, open_transport
 from rfsas_hw.records import BearingBatch, Pose
+
+# the command test's scenario: two sensors, a pedestrian ahead of the car
+sys.path.insert(0, str(Path(__file__).parent))
+from test_cli_backend import EMITTER as CLI_EMITTER
+from test_cli_backend import SENSORS, TARGET, VEHICLE_JSON, free_port, send_rounds
 
 NOW_NS = 1_763_800_030_000_000_000
 EMITTER = 0x0123456789ABCDEF
@@ -52,14 +63,14 @@ def bearing_to(sensor: str, xy: tuple[float, float], target: tuple[float, float]
 def test_an_emitter_at_risk_gets_a_fix_cue_the_vehicle_accepts() -> None:
     signer = Signer("backend-1", ec.derive_private_key(0x4242, ec.SECP256R1()))
     link = Capture()
-    cuer = BackendCuer(signer, link, min_risk=0.0, clock=lambda: NOW_NS)
+    cuer = BackendCuer(signer, link, clock=lambda: NOW_NS)
     backend = BackendService(sinks=[cuer], clock=lambda: NOW_NS)
     target = (1.0, 0.0)
     for sensor, xy in (("rsu-a", (-20.0, 10.0)), ("rsu-b", (20.0, 10.0))):
         backend.on_bearings(bearing_to(sensor, xy, target), Pose(xy[0], xy[1], 180.0))
     backend.set_vehicle(VehicleState(x_m=1.75, y_m=-40.0, heading_deg=0.0, speed_mps=15.0))
     assessments = backend.step(NOW_NS)
-    assert assessments and link.sent
+    assert assessments and assessments[0].advisory in ("brake", "caution") and link.sent
     cue = decode_cue(link.sent[0])
     assert cue.kind is CueKind.FIX and cue.emitter == EMITTER and cue.channel == 6
     assert cue.x_m == pytest.approx(1.0, abs=0.5) and cue.y_m == pytest.approx(0.0, abs=0.5)
@@ -72,15 +83,53 @@ def test_an_emitter_at_risk_gets_a_fix_cue_the_vehicle_accepts() -> None:
     assert len(link.sent) == 1 and cuer.stats.skipped["rate"] >= 1
 
 
-def test_below_the_risk_threshold_nothing_is_cued() -> None:
+def test_an_emitter_judged_clear_is_not_cued() -> None:
     signer = Signer("backend-1", ec.derive_private_key(0x4242, ec.SECP256R1()))
     link = Capture()
-    cuer = BackendCuer(signer, link, min_risk=1.0, clock=lambda: NOW_NS)
+    cuer = BackendCuer(signer, link, clock=lambda: NOW_NS)
     backend = BackendService(sinks=[cuer], clock=lambda: NOW_NS)
     for sensor, xy in (("rsu-a", (-20.0, 10.0)), ("rsu-b", (20.0, 10.0))):
         backend.on_bearings(bearing_to(sensor, xy, (1.0, 0.0)), Pose(xy[0], xy[1], 180.0))
     backend.set_vehicle(VehicleState(x_m=1.75, y_m=-400.0, heading_deg=180.0, speed_mps=5.0))
-    backend.step(NOW_NS)
+    assert all(a.advisory == "clear" for a in backend.step(NOW_NS))
     assert link.sent == [] and cuer.stats.cues == 0
     with pytest.raises(LinkError):
         BackendCuer(signer, link, min_risk=1.5)
+
+
+def test_backend_command_sends_fix_cues_the_vehicle_accepts(tmp_path: Path) -> None:
+    """``rfsas backend --send-cues URL``: the pedestrian ahead of the car is cued."""
+    backend_keys = KeyStore.create(tmp_path / "backend", "backend", "obu-1")
+    stores = {sid: KeyStore.create(tmp_path / sid, "sensor", sid) for sid in SENSORS}
+    for store in stores.values():
+        backend_keys.trust.enroll(store.card)
+    vehicle = tmp_path / "vehicle.json"
+    vehicle.write_bytes(VEHICLE_JSON)
+    cues_in = open_transport("udp://127.0.0.1:0", "recv")
+    host, port = cues_in.address  # type: ignore[attr-defined]
+    url = f"udp://127.0.0.1:{free_port()}"
+    sender = threading.Thread(target=send_rounds, args=(url, stores, 0.2))
+    sender.start()
+    try:
+        result = CliRunner().invoke(
+            backend,
+            ["--listen", url, "--keys", str(tmp_path / "backend"), "--vehicle", str(vehicle),
+             "--send-cues", f"udp://{host}:{port}", "--duration", "2.0", "--no-table"],
+        )  # fmt: skip
+        sender.join()
+        assert result.exit_code == 0, result.output
+        got = []
+        datagram = cues_in.recv(0.5)
+        while datagram is not None:
+            got.append(datagram)
+            datagram = cues_in.recv(0)
+    finally:
+        cues_in.close()
+    assert got
+    trust = TrustedKeys({"obu-1": KeyStore.open(tmp_path / "backend").signer().public_key})
+    rx = CueReceiver(trust)
+    cues = [rx.feed(d, decode_cue(d).t_gen_us * 1000) for d in got]
+    assert all(c is not None for c in cues)
+    c = cues[0]
+    assert c is not None and c.kind is CueKind.FIX and c.emitter == CLI_EMITTER
+    assert c.channel == 11 and c.x_m == pytest.approx(TARGET[0], abs=0.01)

@@ -9,6 +9,7 @@
 from __future__ import annotations
 
 import dataclasses
+import math
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any, TypeVar
@@ -25,14 +26,13 @@ F = TypeVar("F", bound=Callable[..., Any])
 
 
 def _numbers(text: str, count: int, option: str) -> list[float]:
+    message = f"{option} {text!r}: expected {count} comma-separated numbers"
     try:
         values = [float(v) for v in text.split(",")]
     except ValueError as err:
-        raise ConfigError(
-            f"{option} {text!r}: expected {count} numbers separated by commas"
-        ) from err
-    if len(values) != count:
-        raise ConfigError(f"{option} {text!r}: expected {count} comma-separated numbers")
+        raise ConfigError(message) from err
+    if len(values) != count or not all(math.isfinite(v) for v in values):
+        raise ConfigError(message)
     return values
 
 
@@ -101,11 +101,14 @@ def run_phase(
 
     if len(inputs) != 1 or output is None:
         raise click.UsageError("--phase takes the amplitude CAL.yaml as INPUT and -o OUT.yaml")
-    if baseline_m is None or not baseline_m > 0:
+    if baseline_m is None or not 0 < baseline_m < 100:
         raise click.UsageError("--phase needs --baseline METRES (> 0)")
     if (angles_path is None) == (known_position is None):
         raise click.UsageError("--phase needs --angles LOG.csv or --known-position X,Y (one)")
-    a, b = (int(v) for v in _numbers(pair, 2, "--pair"))
+    a_f, b_f = _numbers(pair, 2, "--pair")
+    if not (a_f.is_integer() and b_f.is_integer() and 0 <= a_f < 8 and 0 <= b_f < 8 and a_f != b_f):
+        raise ConfigError(f"--pair {pair!r}: two different antenna numbers 0–7, e.g. 0,1")
+    a, b = int(a_f), int(b_f)
     lo, hi = _numbers(phase_fov, 2, "--phase-fov")
     amplitude = load_calibration(inputs[0])
     known = None

@@ -119,7 +119,7 @@ def test_known_position(tmp_path: Path) -> None:
         (["--baseline", "0.06", "--known-position", "1"], "expected 2 comma-separated"),
         (["--baseline", "0.06", "--known-position", "1,nan"], "expected 2 comma-separated"),
         (["--baseline", "0.06", "--known-position", "1,1", "--pair", "0.5,1"], "two different"),
-        (["--baseline", "inf", "--known-position", "1,1"], "needs --baseline"),
+        (["--baseline", "inf", "--known-position", "1,1"], "not a finite number"),
     ],
 )
 def test_errors_name_the_problem(tmp_path: Path, extra: list[str], match: str) -> None:

@@ -188,6 +188,12 @@ def render_table(service: BackendService, alarm: bool) -> Table:
     "so that their sensors listen on the emitter's channel (docs/cueing.md).",
 )
 @click.option(
+    "--cues-fallback",
+    metavar="URL",
+    help="Out-of-band path for --send-cues: cues move there while the latency watch of "
+    "what this backend receives is in alarm, and back 2 s after it clears.",
+)
+@click.option(
     "--vehicle-id",
     default="",
     metavar="ID",
@@ -214,6 +220,7 @@ def backend(
     cot: str | None,
     advise: str | None,
     send_cues: str | None,
+    cues_fallback: str | None,
     vehicle_id: str,
     no_table: bool,
     **ros2: Any,
@@ -292,12 +299,24 @@ def backend(
                     epoch_s=epoch,
                 )
             )
+        if cues_fallback is not None and send_cues is None:
+            raise ConfigError("--cues-fallback is the out-of-band path of --send-cues")
         if send_cues is not None:
             from rfsas_hw.backend.cuer import BackendCuer
+            from rfsas_hw.link.fallback import FallbackSender
+            from rfsas_hw.link.transport import Transport
 
-            sinks.append(
-                BackendCuer(store.signer(), open_transport(send_cues, "send"), epoch_s=epoch)
-            )
+            cue_link: Transport = open_transport(send_cues, "send")
+            if cues_fallback is not None:
+                try:
+                    secondary = open_transport(cues_fallback, "send")
+                except BaseException:
+                    cue_link.close()
+                    raise
+                # a jammed channel is jammed both ways: what arrives late here says
+                # what we send on the same channel arrives late too
+                cue_link = FallbackSender(cue_link, secondary, alarm=lambda: receiver.latency.alarm)
+            sinks.append(BackendCuer(store.signer(), cue_link, epoch_s=epoch))
     except Exception:
         for sink in sinks:
             sink.close()

@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 import sys
 import threading
+import time
 from pathlib import Path
 
 import numpy as np
@@ -20,6 +21,7 @@ from rfsas_hw.errors import LinkError
 from rfsas_hw.link.cue import CueKind, decode_cue
 from rfsas_hw.link.cue_receiver import CueReceiver
 from rfsas_hw.link.keys import KeyStore
+from rfsas_hw.link.publisher import Publisher
 from rfsas_hw.link.signing import Signer, TrustedKeys
 from rfsas_hw.link.transport import Transport, open_transport
 from rfsas_hw.records import BearingBatch, Pose
@@ -133,3 +135,69 @@ def test_backend_command_sends_fix_cues_the_vehicle_accepts(tmp_path: Path) -> N
     c = cues[0]
     assert c is not None and c.kind is CueKind.FIX and c.emitter == CLI_EMITTER
     assert c.channel == 11 and c.x_m == pytest.approx(TARGET[0], abs=0.01)
+
+
+def _late_rounds(url: str, stores: dict[str, KeyStore], age_s: float) -> None:
+    """The command test's rounds, but every message already ``age_s`` old when sent."""
+    time.sleep(0.2)
+    shift = int(age_s * 1e9)
+    pubs = {
+        sid: Publisher(
+            stores[sid].signer(),
+            open_transport(url, "send"),
+            pose,
+            clock=lambda: time.time_ns() - shift,
+        )
+        for sid, pose in SENSORS.items()
+    }
+    try:
+        for _ in range(20):
+            now = time.time_ns() - shift
+            for sid, pose in SENSORS.items():
+                d = TARGET - np.array([pose.x_m, pose.y_m])
+                az = math.degrees(math.atan2(d[0], d[1])) % 360.0
+                pubs[sid].on_bearings(
+                    BearingBatch(
+                        sid,
+                        np.array([now], np.int64),
+                        np.array([az]),
+                        np.array([1.0]),
+                        np.array([20.0]),
+                        np.array([11], np.int16),
+                        np.array([CLI_EMITTER], np.uint64),
+                    )
+                )
+            time.sleep(0.1)
+    finally:
+        for pub in pubs.values():
+            pub.close()
+
+
+def test_cues_move_to_the_fallback_while_the_link_is_late(tmp_path: Path) -> None:
+    """``--send-cues A --cues-fallback B``: with every message arriving 300 ms old (over
+    the 100 ms budget) the latency alarm rises and the cues go out on B."""
+    backend_keys = KeyStore.create(tmp_path / "backend", "backend", "obu-1")
+    stores = {sid: KeyStore.create(tmp_path / sid, "sensor", sid) for sid in SENSORS}
+    for store in stores.values():
+        backend_keys.trust.enroll(store.card)
+    vehicle = tmp_path / "vehicle.json"
+    vehicle.write_bytes(VEHICLE_JSON)
+    primary = open_transport("udp://127.0.0.1:0", "recv")
+    secondary = open_transport("udp://127.0.0.1:0", "recv")
+    urls = [f"udp://{t.address[0]}:{t.address[1]}" for t in (primary, secondary)]  # type: ignore[attr-defined]
+    url = f"udp://127.0.0.1:{free_port()}"
+    sender = threading.Thread(target=_late_rounds, args=(url, stores, 0.3))
+    sender.start()
+    try:
+        result = CliRunner().invoke(
+            backend,
+            ["--listen", url, "--keys", str(tmp_path / "backend"), "--vehicle", str(vehicle),
+             "--send-cues", urls[0], "--cues-fallback", urls[1], "--duration", "2.5",
+             "--no-table"],
+        )  # fmt: skip
+        sender.join()
+        assert result.exit_code == 0, result.output
+        assert secondary.recv(0.5) is not None, "no cue went out of band"
+    finally:
+        primary.close()
+        secondary.close()

@@ -10,6 +10,7 @@ authentication, so exposing it on a network is the operator's decision.
 from __future__ import annotations
 
 import logging
+import time
 from pathlib import Path
 from typing import Any
 
@@ -86,11 +87,18 @@ class FoxgloveServer:
         self._channels[topic.name].log(data, log_time=int(log_time_ns))
         self.messages += 1
 
-    def close(self) -> None:
-        """Stop the server and close the channels; idempotent."""
+    def close(self, drain_s: float = 0.25) -> None:
+        """Stop the server and close the channels; idempotent.
+
+        Args:
+            drain_s: seconds to wait first, so that messages still queued for the
+                clients (the last step of a run) reach them before the sockets close.
+        """
         if self._closed:
             return
         self._closed = True
+        if drain_s > 0:
+            time.sleep(drain_s)
         try:
             self._server.stop()
         finally:

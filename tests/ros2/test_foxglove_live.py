@@ -41,6 +41,7 @@ class Client:
         self.frames: list[tuple[int, int, bytes]] = []
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
+        self.ended = ""
 
     def handshake(self, n_channels: int) -> dict[str, Any]:
         info = json.loads(self.ws.recv())
@@ -62,7 +63,9 @@ class Client:
                     opcode, data = self.ws.recv_data()
                 except websocket.WebSocketTimeoutException:
                     continue
-                except websocket.WebSocketConnectionClosedException:
+                except (websocket.WebSocketConnectionClosedException, OSError) as err:
+                    # the server went away: the test's count check says whether that was early
+                    self.ended = f"{type(err).__name__} after {len(self.frames)} frames"
                     return
                 if opcode == websocket.ABNF.OPCODE_BINARY and data[0] == 1:
                     sub, log_time = struct.unpack_from("<IQ", data, 1)
@@ -76,6 +79,19 @@ class Client:
         if self._thread is not None:
             self._thread.join(timeout=5)
         self.ws.close()
+
+
+class KeepOpen:
+    """Hands messages to a writer; closing it is left to the test."""
+
+    def __init__(self, writer: FoxgloveServer) -> None:
+        self.writer = writer
+
+    def write(self, topic: topics.Topic, log_time_ns: int, data: bytes) -> None:
+        self.writer.write(topic, log_time_ns, data)
+
+    def close(self) -> None:
+        pass
 
 
 def test_foxglove_client_receives_the_scene(tmp_path: Path) -> None:
@@ -96,7 +112,9 @@ def test_foxglove_client_receives_the_scene(tmp_path: Path) -> None:
         while not all(ch.has_sinks() for ch in server._channels.values()):
             assert time.monotonic() < deadline, "subscriptions never registered"
             time.sleep(0.02)
-        run = run_backend(tmp_path, [McapFileWriter(tmp_path / "run.mcap"), server])
+        # the run closes its writers at its end; the server must outlive it until the
+        # client has everything, so the run gets a writer that does not close it
+        run = run_backend(tmp_path, [McapFileWriter(tmp_path / "run.mcap"), KeepOpen(server)])
         expected = sum(run.sink.counts.values())
         deadline = time.monotonic() + DEADLINE_S
         while len(client.frames) < expected and time.monotonic() < deadline:
@@ -105,7 +123,7 @@ def test_foxglove_client_receives_the_scene(tmp_path: Path) -> None:
         client.close()
         server.close()
 
-    assert len(client.frames) == expected
+    assert len(client.frames) == expected, client.ended
     recorded = read_mcap(tmp_path / "run.mcap")
     got = sorted((client.channels[sub]["topic"], t, data) for sub, t, data in client.frames)
     assert got == sorted((m.topic, m.log_time_ns, m.data) for m in recorded)

@@ -18,6 +18,9 @@ Observation (``float32``, shape (6,), every entry in [0, 1]):
 3. ``(log10(max(risk, 1e-4)) + 4) / 4``: the risk on a log scale
 4. estimated collision probability
 5. 1 once the warning has arrived, else 0
+6. (only with ``prior.observe``) the RF activity prior ahead:
+   ``1 − exp(−density/scale)`` of the expected RF-detected road users per hour
+   along the next ``prior.horizon_m`` of the lane (:mod:`rfsas_hw.envs.history`)
 
 Actions (``Discrete(3)``): 0 coast (a = 0), 1 brake (−4.7 m/s²),
 2 accelerate (+2 m/s²); the speed is clamped to [0, ``max_speed_mps``] and
@@ -35,6 +38,13 @@ warning: it arrives when a car holding its initial speed would be ``d``
 metres from the centre. Without it, ``reset`` places the warning from the
 time to first intercept of the phone plus the reaction delay, and never later
 than the moment the buildings stop hiding the cyclist plus the reaction delay.
+
+With ``scenario.kind: corners`` each episode is at a quiet or a busy blind
+corner (:class:`~rfsas_hw.envs.envconfig.ScenarioConfig`): busy corners have
+a history of crossings and produce more late crossers and fewer empty
+episodes. Further ``reset`` options fix the draw: ``corner`` (``quiet`` or
+``busy``), ``crosser`` (False: nobody crosses, no warning) and ``heard``
+(False: the crosser is there but never heard, no warning).
 """
 
 from __future__ import annotations
@@ -51,7 +61,7 @@ from gymnasium import spaces
 
 from rfsas_hw.backend.collision import THREAT_SIZES
 from rfsas_hw.backend.risk import fatality_risk
-from rfsas_hw.envs.envconfig import EnvConfig, env_config_from_mapping
+from rfsas_hw.envs.envconfig import CORNERS, EnvConfig, env_config_from_mapping
 from rfsas_hw.envs.threat import (
     NO_RISK,
     Assessment,
@@ -72,6 +82,10 @@ COAST, BRAKE, ACCELERATE = 0, 1, 2
 ACTION_NAMES = ("coast", "brake", "accelerate")
 """Names of the actions, by index."""
 OBS_SIZE = 6
+"""Observation entries without the prior (one more with ``prior.observe``)."""
+_OPTIONS = ("reaction_distance_m", "corner", "crosser", "heard")
+_ABSENT_ARRIVAL_S = 1e6
+"""Arrival time of a crosser that is not there: far beyond any episode."""
 _RISK_LOG_FLOOR = 1e-4
 _SUBSTEPS = 4
 """Collision checks per step (the car moves at most 2 m per 0.1 s step)."""
@@ -93,6 +107,14 @@ class Episode:
     """Distance from the centre at which a car holding its initial speed gets the warning."""
     los_s: float
     """Time the buildings stop hiding the obstacle from a car holding its initial speed."""
+    corner: str = "busy"
+    """``quiet`` or ``busy`` (``single`` scenarios are at a busy corner)."""
+    crosser: bool = True
+    """Whether anybody crosses."""
+    heard: bool = True
+    """Whether the crosser's phone is heard (a warning comes)."""
+    late: bool = True
+    """Whether the crosser was drawn as late (``corners``; ``single``: always True)."""
 
 
 class IntersectionEnv(gym.Env[ObsArray, np.int64]):
@@ -126,7 +148,14 @@ class IntersectionEnv(gym.Env[ObsArray, np.int64]):
         self.render_mode = render_mode
         self.metadata = {**self.metadata, "render_fps": max(1, round(1.0 / config.dt_s))}
         self.action_space = spaces.Discrete(3)
-        self.observation_space = spaces.Box(0.0, 1.0, shape=(OBS_SIZE,), dtype=np.float32)
+        size = OBS_SIZE + int(config.prior.observe)
+        self.observation_space = spaces.Box(0.0, 1.0, shape=(size,), dtype=np.float32)
+        self._profiles: dict[str, Any] = {}
+        if config.prior.observe:
+            from rfsas_hw.envs.history import prior_profile
+
+            corners = CORNERS if config.scenario.kind == "corners" else ("busy",)
+            self._profiles = {c: prior_profile(config, c) for c in corners}
         self._locator = make_locator(config)
         self._rects = building_array(config.buildings)
         self._renderer: Any = None
@@ -203,22 +232,48 @@ class IntersectionEnv(gym.Env[ObsArray, np.int64]):
         clear = np.flatnonzero(~blocked)
         return float(t[clear[0]]) if len(clear) else float(t[-1])
 
+    def _draw_corner(
+        self, options: Mapping[str, Any], arrival: float
+    ) -> tuple[str, bool, bool, float]:
+        """Corner, crosser present, late, and the arrival time (``corners`` scenario)."""
+        sc = self.config.scenario
+        if sc.kind == "single":
+            return "busy", True, True, arrival
+        rng = self.np_random
+        # always the same draws, so that an option changes nothing else in the episode
+        busy = bool(rng.uniform() < sc.busy_fraction)
+        u_empty, u_late = float(rng.uniform()), float(rng.uniform())
+        u_arrival = float(rng.uniform())
+        corner = str(options.get("corner", "busy" if busy else "quiet"))
+        if corner not in CORNERS:
+            raise ConfigError(f"reset options: corner must be quiet or busy, got {corner!r}")
+        i = CORNERS.index(corner)
+        present = u_empty >= sc.empty_fraction[i]
+        late = u_late < sc.late_fraction[i]
+        lo, hi = sc.late_arrival_s if late else sc.early_arrival_s
+        return corner, present, late, lo + (hi - lo) * u_arrival
+
     def _draw_episode(self, options: Mapping[str, Any]) -> Episode:
         c = self.config
         rng = self.np_random
         o = c.obstacle
+        unknown = set(options) - set(_OPTIONS)
+        if unknown:
+            raise ConfigError(
+                f"reset options: unknown key {sorted(unknown)[0]!r} (known: {', '.join(_OPTIONS)})"
+            )
         u0 = float(rng.uniform(*c.vehicle.initial_speed_mps))
         speed = float(rng.uniform(*o.speed_mps))
         arrival = float(rng.uniform(*o.lane_arrival_s))
         intercept = float(rng.uniform(*c.sensing.intercept_s))
         d0 = c.vehicle.start_distance_m
+        corner, present, late, arrival = self._draw_corner(options, arrival)
+        present = bool(options.get("crosser", present))
+        heard = bool(options.get("heard", True)) and present
+        if not present:
+            arrival = _ABSENT_ARRIVAL_S
         los = self._los_s(u0, speed, arrival)
         delay = c.sensing.reaction_delay_s
-        unknown = set(options) - {"reaction_distance_m"}
-        if unknown:
-            raise ConfigError(
-                f"reset options: unknown key {sorted(unknown)[0]!r} (known: reaction_distance_m)"
-            )
         if "reaction_distance_m" in options:
             try:
                 d_r = float(options["reaction_distance_m"])
@@ -233,15 +288,20 @@ class IntersectionEnv(gym.Env[ObsArray, np.int64]):
         else:
             warning = min(intercept, los) + delay
         reaction = min(max(d0 - u0 * warning, 0.0), d0)
-        return Episode(u0, speed, arrival, warning, reaction, los)
+        if not heard:
+            warning, reaction = math.inf, math.nan
+        return Episode(u0, speed, arrival, warning, reaction, los, corner, present, heard, late)
 
     def reset(
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
     ) -> tuple[ObsArray, dict[str, Any]]:
         """Start an episode; ``options={"reaction_distance_m": d}`` fixes the warning.
 
+        Other options: ``corner`` (``quiet``/``busy``, ``corners`` scenario only),
+        ``crosser`` (False: nobody crosses), ``heard`` (False: no warning).
+
         Raises:
-            ConfigError: unknown option or a negative distance.
+            ConfigError: unknown option, a negative distance or an unknown corner.
         """
         super().reset(seed=seed)
         self._reset_state()
@@ -368,7 +428,19 @@ class IntersectionEnv(gym.Env[ObsArray, np.int64]):
             ],
             dtype=np.float32,
         )
+        if self._profiles:
+            assert self.episode is not None
+            prior = self._profiles.get(self.episode.corner, self._profiles.get("busy"))
+            obs = np.append(obs, np.float32(prior(self.front_y_m) if prior else 0.0))
         return np.clip(obs, 0.0, 1.0)
+
+    @property
+    def prior_ahead(self) -> float:
+        """The prior entry of the observation now (0 without ``prior.observe``)."""
+        if not self._profiles or self.episode is None:
+            return 0.0
+        prior = self._profiles.get(self.episode.corner, self._profiles.get("busy"))
+        return prior(self.front_y_m) if prior else 0.0
 
     def _info(self) -> dict[str, Any]:
         assert self.episode is not None
@@ -384,6 +456,9 @@ class IntersectionEnv(gym.Env[ObsArray, np.int64]):
             "realised_risk": self.realised_risk,
             "reaction_distance_m": self.episode.reaction_distance_m,
             "warning_s": self.episode.warning_s,
+            "corner": self.episode.corner,
+            "crosser": self.episode.crosser,
+            "heard": self.episode.heard,
         }
 
     # -- rendering -----------------------------------------------------------------------

@@ -173,6 +173,93 @@ class RewardConfig:
     """``risk-progress``: penalty per unit of realised fatality risk."""
 
 
+ScenarioKind = Literal["single", "corners"]
+CornerKind = Literal["quiet", "busy"]
+CORNERS: tuple[CornerKind, CornerKind] = ("quiet", "busy")
+"""Corner kinds of the ``corners`` scenario, in the order of the per-corner pairs."""
+
+
+@dataclass(frozen=True)
+class ScenarioConfig:
+    """Which episodes ``reset`` draws.
+
+    ``single`` (default): every episode has the one crosser of
+    :class:`ObstacleConfig`. ``corners``: each episode is at a *quiet* or a
+    *busy* blind corner (``busy_fraction``). The two kinds differ in their
+    history (``history_rate_per_h`` crossings per hour, from which the RF
+    activity prior is built) and, as that history says, in the traffic they
+    produce: at a busy corner fewer episodes are empty (``empty_fraction``,
+    no crosser and so no warning) and more crossers are *late*
+    (``late_fraction``: arriving at the car's lane in ``late_arrival_s``,
+    when a car holding its speed is there); the others pass early
+    (``early_arrival_s``). Pairs are (quiet, busy).
+    """
+
+    kind: ScenarioKind = "single"
+    """``single`` or ``corners``."""
+    busy_fraction: float = 0.5
+    """``corners``: probability that an episode is at a busy corner."""
+    history_rate_per_h: tuple[float, float] = (2.0, 40.0)
+    """Crossings per hour in each corner's history (quiet, busy)."""
+    history_h: float = 24.0
+    """Length of the simulated history the prior is built from, hours."""
+    history_seed: int = 0
+    """Seed of the simulated history."""
+    empty_fraction: tuple[float, float] = (0.4, 0.1)
+    """``corners``: probability of an episode without a crosser (quiet, busy)."""
+    late_fraction: tuple[float, float] = (0.15, 0.75)
+    """``corners``: probability that a crosser is late (quiet, busy)."""
+    late_arrival_s: tuple[float, float] = (4.4, 5.4)
+    """Arrival time range of a late crosser at the car's lane, seconds after reset."""
+    early_arrival_s: tuple[float, float] = (1.5, 3.5)
+    """Arrival time range of an early crosser, seconds after reset."""
+
+    def __post_init__(self) -> None:
+        if not 0 <= self.busy_fraction <= 1:
+            raise ValueError("busy_fraction must be in [0, 1]")
+        for name in ("empty_fraction", "late_fraction"):
+            if not all(0 <= p <= 1 for p in getattr(self, name)):
+                raise ValueError(f"{name} must be probabilities in [0, 1]")
+        for name in ("late_arrival_s", "early_arrival_s"):
+            lo, hi = getattr(self, name)
+            if lo > hi:
+                raise ValueError(f"{name} must be (low, high) with low <= high")
+        if self.history_h <= 0 or min(self.history_rate_per_h) < 0:
+            raise ValueError("history_h must be > 0 and history_rate_per_h >= 0")
+
+
+@dataclass(frozen=True)
+class PriorObsConfig:
+    """The RF activity prior in the observation (:mod:`rfsas_hw.backend.prior`).
+
+    With ``observe`` the observation grows by one entry: the expected number
+    of RF-detected road users per hour in a ``corridor_m`` corridor along the
+    next ``horizon_m`` of the car's lane, as ``1 − exp(−density/scale_per_h)``.
+    The prior comes from ``path`` (a file written by the backend) or, without
+    one, from a simulated history of the episode's corner
+    (:class:`ScenarioConfig`).
+    """
+
+    observe: bool = False
+    """Add the prior ahead of the car to the observation."""
+    path: str | None = None
+    """A prior file (``ActivityPrior.save``) used for every corner instead of the history."""
+    horizon_m: float = 60.0
+    """How far ahead along the lane the prior is summed, metres."""
+    corridor_m: float = 2.0
+    """Half-width of the corridor around the lane, metres."""
+    scale_per_h: float = 20.0
+    """Density (road users per hour) at which the observation reaches 1 − 1/e."""
+    tile_m: float = 5.0
+    """Tile size of the prior built from the simulated history, metres."""
+
+    def __post_init__(self) -> None:
+        if self.horizon_m <= 0 or self.corridor_m < 0 or self.scale_per_h <= 0:
+            raise ValueError("horizon_m and scale_per_h must be > 0, corridor_m >= 0")
+        if self.tile_m <= 0:
+            raise ValueError("tile_m must be > 0")
+
+
 @dataclass(frozen=True)
 class EnvConfig:
     """Everything :class:`rfsas_hw.envs.env.IntersectionEnv` needs."""
@@ -198,6 +285,10 @@ class EnvConfig:
     """How the obstacle is located."""
     reward: RewardConfig = field(default_factory=RewardConfig)
     """The reward."""
+    scenario: ScenarioConfig = field(default_factory=ScenarioConfig)
+    """Which episodes are drawn (one crosser, or quiet and busy corners)."""
+    prior: PriorObsConfig = field(default_factory=PriorObsConfig)
+    """The RF activity prior in the observation."""
 
     def __post_init__(self) -> None:
         if self.dt_s <= 0 or self.max_steps < 1:

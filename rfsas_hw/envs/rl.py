@@ -256,15 +256,20 @@ class EvalRow:
 
 
 def run_episode(
-    env: IntersectionEnv, policy: Policy, seed: int, distance_m: float | None = None
+    env: IntersectionEnv,
+    policy: Policy,
+    seed: int,
+    distance_m: float | None = None,
+    options: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
     """Run one episode; return the final ``info`` with the number of steps.
 
-    Raises:
-        SimulationError: the episode was truncated without ending.
+    ``options`` are further ``reset`` options (``corner``, ``crosser``, ``heard``).
     """
-    options = None if distance_m is None else {"reaction_distance_m": distance_m}
-    obs, info = env.reset(seed=seed, options=options)
+    opts = dict(options or {})
+    if distance_m is not None:
+        opts["reaction_distance_m"] = distance_m
+    obs, info = env.reset(seed=seed, options=opts or None)
     steps = 0
     while True:
         obs, _, term, trunc, info = env.step(policy.act(obs))

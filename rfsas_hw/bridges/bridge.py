@@ -39,7 +39,7 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import IO, Literal
+from typing import IO, Any, Literal
 
 import numpy as np
 
@@ -54,7 +54,7 @@ from rfsas_hw.bridges.config import (
 )
 from rfsas_hw.df.calfile import load_calibration
 from rfsas_hw.df.calibration import Calibration
-from rfsas_hw.errors import SimulationError
+from rfsas_hw.errors import ConfigError, SimulationError
 from rfsas_hw.pipeline import SensorPipeline
 from rfsas_hw.privacy.hashing import DerivedNonces, FixedNonce, MacHasher
 from rfsas_hw.records import Assessment, BearingBatch, Fix, Pose, emitter_hex, int_to_mac
@@ -302,6 +302,8 @@ class Bridge:
         self.twin: StreamTwin | None = None
         self._sources: dict[str, StreamTwinSource] = {}
         self._pipelines: dict[str, SensorPipeline] = {}
+        self._publishers: dict[str, Any] = {}
+        """Per unit, the publisher of signed messages (with :meth:`publish_to`)."""
         self._devices: dict[str, _Device] = {}
         """Live devices by entity id."""
         self._retired: list[_Device] = []
@@ -319,6 +321,39 @@ class Bridge:
 
     def _clock(self) -> int:
         return self._now_ns
+
+    def publish_to(self, url: str, keys_dir: str | Path) -> None:
+        """Also sign every unit's bearings and send them to ``url`` (a separate backend).
+
+        ``keys_dir`` holds one sensor key directory per unit, named by the unit
+        id (``rfsas keys new --role sensor --id UNIT -o DIR/UNIT``). Message
+        times are simulation times (UTC from ``start_utc``): a backend on the
+        wall clock accepts them when the simulation runs in real time from
+        ``start_utc`` = now.
+
+        Raises:
+            KeyStoreError: a unit's key directory is missing or invalid.
+            ConfigError: a key directory belongs to another identity.
+            LinkError: the URL is bad or the transport cannot be opened.
+        """
+        from rfsas_hw.link.keys import KeyStore
+        from rfsas_hw.link.publisher import Publisher
+
+        for uid in self.unit_ids:
+            store = KeyStore.open(Path(keys_dir) / uid)
+            if store.id != uid:
+                raise ConfigError(f"{Path(keys_dir) / uid}: keys of {store.id!r}, not of {uid!r}")
+            self._publishers[uid] = Publisher.to_url(
+                url,
+                store.signer(),
+                (lambda u=uid: self._pose_of(u)),  # type: ignore[misc]
+                clock=self._clock,
+                epoch_s=self.hasher.epoch_s,
+            )
+
+    def _pose_of(self, unit_id: str) -> Pose:
+        pipe = self._pipelines.get(unit_id)
+        return pipe.pose if pipe is not None else Pose(0.0, 0.0, 0.0)
 
     def _calibration(self, sensor_id: str, unit: UnitSpec | EgoUnitSpec) -> Calibration:
         if unit.calibration != "turntable":
@@ -461,6 +496,9 @@ class Bridge:
                 self.stats.bearings[sid] = self.stats.bearings.get(sid, 0) + len(batch)
                 if len(batch):
                     self.backend.on_bearings(batch, pipe.pose)
+                    publisher = self._publishers.get(sid)
+                    if publisher is not None:
+                        publisher.on_bearings(batch)
         self.backend.set_vehicle(
             VehicleState(
                 x_m=ego.x_m,
@@ -506,6 +544,9 @@ class Bridge:
         """Close the sources, the backend's sinks and the truth file; idempotent."""
         for src in self._sources.values():
             src.close()
+        for pub in self._publishers.values():
+            pub.close()
+        self._publishers.clear()
         self.backend.close()
         if self._truth is not None:
             self._write_truth({"record": "stats", **self.stats.as_dict()})

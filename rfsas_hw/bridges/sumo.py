@@ -10,8 +10,9 @@ Each step :meth:`SumoAdapter.read` converts every person and vehicle to an
 vehicle's front bumper; :mod:`rfsas_hw.bridges.coords` moves it to the box
 centre), and :meth:`SumoAdapter.act` turns the advisory into speed commands:
 BRAKE stops the ego through ``vehicle.setSpeed(ego, 0)`` (SUMO applies the
-type's deceleration) and holds it for ``hold_s``; CAUTION caps its speed
-when a cap is configured; otherwise SUMO drives it again.
+type's deceleration) and holds it for ``hold_s``; CAUTION after a BRAKE keeps
+the speed the ego came down to, and caps it when a cap is configured; CLEAR
+(or nothing tracked) hands the ego back to SUMO.
 
 Buildings come from SUMO polygons of type ``building`` (:func:`read_buildings`),
 each taken as its bounding rectangle (the twin's buildings are axis-aligned).
@@ -197,8 +198,12 @@ class SumoAdapter:
         if t_s < self._braking_until:
             return "hold"
         cap = self.control.caution_speed_mps
-        if advisory == "caution" and cap is not None:
-            v.setSpeed(self.ego_id, min(float(v.getSpeed(self.ego_id)), cap))
+        braked = self._braking_until > -math.inf
+        if advisory == "caution" and (cap is not None or braked):
+            # after a BRAKE, CAUTION keeps the speed the ego came down to: no speeding up
+            # towards a threat that is still there, only CLEAR releases it
+            speed = float(v.getSpeed(self.ego_id))
+            v.setSpeed(self.ego_id, speed if cap is None else min(speed, cap))
             self._capped = True
             return "cap"
         if self._capped or self._braking_until > -math.inf:

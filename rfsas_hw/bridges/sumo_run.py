@@ -19,6 +19,7 @@ time of SUMO's steps and the bridge's.
 
 from __future__ import annotations
 
+import datetime as dt
 import json
 import math
 import time
@@ -170,9 +171,15 @@ class RunSummary:
             "median_first_brake_s": float(np.median(brakes)) if brakes else math.nan,
             "fixes_ok": sum(r.fixes_ok for r in self.results),
             "median_fix_error_m": float(np.median(errors)) if errors else math.nan,
-            "sumo_ms": float(np.nanmean([r.sumo_ms for r in self.results])),
-            "bridge_ms": float(np.nanmean([r.bridge_ms for r in self.results])),
+            "sumo_ms": _mean([r.sumo_ms for r in self.results]),
+            "bridge_ms": _mean([r.bridge_ms for r in self.results]),
         }
+
+
+def _mean(values: list[float]) -> float:
+    """Mean of the finite values (NaN when there is none)."""
+    finite = [v for v in values if math.isfinite(v)]
+    return float(np.mean(finite)) if finite else math.nan
 
 
 def _gap(ego: Entity, other: Entity) -> float:
@@ -226,6 +233,8 @@ def run_seed(
     truth_path: str | Path | None = None,
     fcd_path: str | Path | None = None,
     on_step: Callable[[float], None] | None = None,
+    send: str | None = None,
+    keys_dir: str | Path | None = None,
 ) -> SeedResult:
     """Run one seed of a SUMO scenario closed loop and score it.
 
@@ -241,6 +250,10 @@ def run_seed(
         truth_path: the bridge's truth file.
         fcd_path: SUMO's FCD output (for the offline path).
         on_step: called with the simulation time after every step (a progress bar).
+        send: also send every unit's signed bearings to this URL (a separate
+            ``rfsas backend``); the run is then paced to the wall clock and
+            simulation time 0 is the moment it starts.
+        keys_dir: one sensor key directory per unit id (needed with ``send``).
 
     Raises:
         MissingDependencyError: the SUMO API is missing.
@@ -275,8 +288,16 @@ def run_seed(
         )
         if controller != "off":
             buildings = read_buildings(sumo, config.origin_m)
-            bridge = Bridge(replace(config, seed=seed), buildings=buildings, truth_path=truth_path)
-        _loop(sumo, adapter, bridge, run, result, controller, out, on_step)
+            cfg = replace(config, seed=seed)
+            if send is not None:
+                now = dt.datetime.now(dt.UTC).isoformat().replace("+00:00", "Z")
+                cfg = replace(cfg, start_utc=now)
+            bridge = Bridge(cfg, buildings=buildings, truth_path=truth_path)
+            if send is not None:
+                if keys_dir is None:
+                    raise ConfigError("sending needs the units' key directories (--keys)")
+                bridge.publish_to(send, keys_dir)
+        _loop(sumo, adapter, bridge, run, result, controller, out, on_step, send is not None)
     finally:
         if bridge is not None:
             bridge.close()
@@ -295,8 +316,10 @@ def _loop(
     controller: Controller,
     out: IO[str] | None,
     on_step: Callable[[float], None] | None,
+    realtime: bool = False,
 ) -> None:
     speeds_set: set[str] = set()
+    wall0 = time.monotonic()
     sumo_s: list[float] = []
     bridge_s: list[float] = []
     errors: list[float] = []
@@ -305,6 +328,10 @@ def _loop(
         sumo.simulationStep()
         sumo_s.append(time.perf_counter() - w0)
         t = float(sumo.simulation.getTime())
+        if realtime:
+            ahead = t - (time.monotonic() - wall0)
+            if ahead > 0:
+                time.sleep(ahead)
         if run.person_speed_mps is not None:
             for pid in sumo.person.getIDList():
                 if pid not in speeds_set:

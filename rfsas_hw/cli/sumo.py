@@ -83,6 +83,20 @@ def _fmt(x: float | None, digits: int = 2) -> str:
     default=None,
     help="SUMO FCD output of the first seed (for 'rfsas sumo fcd').",
 )
+@click.option(
+    "--send",
+    metavar="URL",
+    default=None,
+    help="Also send every unit's signed bearings to a separate 'rfsas backend' (e.g. "
+    "udp://127.0.0.1:47000); paces the run to the wall clock (needs --keys).",
+)
+@click.option(
+    "--keys",
+    "keys_dir",
+    type=click.Path(file_okay=False, path_type=Path),
+    default=None,
+    help="One sensor key directory per unit id (rfsas keys new --role sensor), for --send.",
+)
 def run(
     net_or_sumocfg: Path | None,
     ego: str | None,
@@ -95,6 +109,8 @@ def run(
     out: Path | None,
     truth: Path | None,
     fcd: Path | None,
+    send: str | None,
+    keys_dir: Path | None,
 ) -> None:
     """Run NET_OR_SUMOCFG closed loop with RF-SAS (default: the bundled crossing)."""
     from rfsas_hw.bridges.sumo_run import Controller, load_run_file, run_seed
@@ -145,6 +161,8 @@ def run(
                     truth_path=truth_k,
                     fcd_path=fcd if k == 0 else None,
                     on_step=lambda t: bar.update(task, completed=min(t, run_cfg.end_s)),
+                    send=send,
+                    keys_dir=keys_dir,
                 )
                 if sink is not None:
                     sink.write(json.dumps({"record": "seed", **r.as_dict()}) + "\n")

@@ -31,7 +31,6 @@ Coordinates go through :data:`rfsas_hw.bridges.coords.FRAMES` ``["highway-env"]`
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -42,9 +41,15 @@ from rfsas_hw.bridges.adapter import Array, Snapshot
 from rfsas_hw.bridges.bridge import Entity
 from rfsas_hw.bridges.config import EntityKind, UnitSpec
 from rfsas_hw.bridges.coords import FRAMES
+from rfsas_hw.bridges.crossing import (
+    CROSSER_SIZES_M,
+    Crosser,
+    CrossingConfig,
+    plan_crossing,
+)
 from rfsas_hw.errors import ConfigError, MissingDependencyError, SimulationError
 from rfsas_hw.twin.rfworld import building_array, segment_crossings
-from rfsas_hw.twin.scenario import BuildingSpec, PoseSpec
+from rfsas_hw.twin.scenario import BuildingSpec
 
 __all__ = [
     "Crosser",
@@ -56,8 +61,6 @@ __all__ = [
 ]
 
 FRAME = FRAMES["highway-env"]
-_SIZES: dict[str, tuple[float, float]] = {"pedestrian": (0.5, 0.5), "cyclist": (1.8, 0.6)}
-"""Box length and width of a crosser, metres."""
 
 
 def _rfsas_xy(xy: Array) -> tuple[float, float]:
@@ -121,80 +124,33 @@ def idle_action(env: Any) -> Any:
     return np.zeros(at.space().shape, np.float32)
 
 
-@dataclass(frozen=True)
-class CrossingConfig:
-    """Where and how people cross the ego's path (see the module docstring)."""
-
-    count: int = 1
-    """Crossers per episode; the first one is timed to meet the ego, the others follow."""
-    follow_gap_s: float = 1.5
-    """Time between successive crossers reaching the ego's lane, seconds."""
-    cyclist_share: float = 0.5
-    """Probability that a crosser is a cyclist rather than a pedestrian."""
-    pedestrian_speed_mps: tuple[float, float] = (1.2, 1.7)
-    """Range of a pedestrian's walking speed, m/s (uniform)."""
-    cyclist_speed_mps: tuple[float, float] = (3.5, 5.5)
-    """Range of a cyclist's speed, m/s (uniform)."""
-    jitter_s: float = 0.3
-    """Half-width of the uniform spread of the meeting time, seconds."""
-    before_end_m: float = 2.0
-    """Distance of the crossing before the end of the ego's lane, metres."""
-    ahead_m: float = 60.0
-    """Longest distance of the crossing ahead of the ego, metres (for long lanes)."""
-    sidewalk_m: float = 1.5
-    """Gap between the lane's right edge and the building, metres."""
-    building_gap_m: float = 1.0
-    """Gap between the crossing's row and the building's near face, metres."""
-    building_size_m: tuple[float, float] = (40.0, 30.0)
-    """Building depth along the lane and width across it, metres."""
-    building_loss_db: float = 20.0
-    """Radio loss of a path through the building, dB."""
-    exit_m: float = 8.0
-    """A crosser is removed this far past the ego lane's left edge, metres."""
-
-    def __post_init__(self) -> None:
-        if self.count < 1:
-            raise ValueError("count must be at least 1")
-        if not 0.0 <= self.cyclist_share <= 1.0:
-            raise ValueError("cyclist_share must be in [0, 1]")
-        for name in ("pedestrian_speed_mps", "cyclist_speed_mps"):
-            lo, hi = getattr(self, name)
-            if not 0 < lo <= hi:
-                raise ValueError(f"{name} must be an increasing pair of positive speeds")
-        if self.jitter_s < 0 or self.follow_gap_s < 0:
-            raise ValueError("jitter_s and follow_gap_s must be >= 0")
-
-
 @dataclass
-class Crosser:
-    """One person crossing, in highway-env coordinates."""
+class HighwayCrosser:
+    """A planned crosser and the highway-env ``Obstacle`` standing for it."""
 
-    id: str
-    """Entity id (``crosser-0``, …)."""
-    kind: EntityKind
-    """``pedestrian`` or ``cyclist``."""
-    start_xy: Array
-    """Position at episode time 0, highway-env metres."""
-    velocity_xy: Array
-    """Velocity, highway-env metres per second."""
-    exit_s: float
-    """Episode time at which the crosser has left, seconds."""
+    plan: Crosser
+    """Where it walks (highway-env coordinates)."""
     obstacle: Any = None
-    """The highway-env ``Obstacle`` standing for it."""
+    """The ``Obstacle``."""
+
+    @property
+    def id(self) -> str:
+        """Entity id."""
+        return self.plan.id
+
+    @property
+    def kind(self) -> EntityKind:
+        """``pedestrian`` or ``cyclist``."""
+        return self.plan.kind
+
+    @property
+    def exit_s(self) -> float:
+        """Episode time at which it has left, seconds."""
+        return self.plan.exit_s
 
     def position(self, t_s: float) -> Array:
-        """Highway-env position at episode time ``t_s``."""
-        return np.asarray(self.start_xy + self.velocity_xy * t_s, np.float64)
-
-    @property
-    def speed_mps(self) -> float:
-        """Speed, m/s."""
-        return float(np.hypot(*self.velocity_xy))
-
-    @property
-    def heading_rad(self) -> float:
-        """highway-env heading (radians from ``x`` towards ``y``)."""
-        return float(math.atan2(self.velocity_xy[1], self.velocity_xy[0]))
+        """Position at episode time ``t_s``."""
+        return self.plan.position(t_s)
 
 
 class HighwayAdapter:
@@ -208,7 +164,7 @@ class HighwayAdapter:
 
     def __init__(self, crossing: CrossingConfig | None = None) -> None:
         self.crossing = crossing or CrossingConfig()
-        self.crossers: list[Crosser] = []
+        self.crossers: list[HighwayCrosser] = []
         self._building: BuildingSpec | None = None
         self._units: list[UnitSpec] = []
         self._ids: dict[int, tuple[Any, str]] = {}
@@ -227,71 +183,21 @@ class HighwayAdapter:
         road = getattr(base, "road", None)
         if ego is None or road is None or getattr(ego, "lane", None) is None:
             raise SimulationError("highway-env: the env has no road network or no ego vehicle")
-        c = self.crossing
-        rng = np.random.default_rng([seed, 0x68776179])
-        lane = ego.lane
-        s_ego = float(lane.local_coordinates(ego.position)[0])
-        end = float(lane.length) - c.before_end_m
-        s_c = min(end, s_ego + c.ahead_m) if math.isfinite(end) else s_ego + c.ahead_m
-        half = float(lane.width_at(s_c)) / 2.0
-
-        def at(s: float, lat: float) -> Array:
-            return np.asarray(lane.position(s, lat), np.float64)
-
-        right = c.sidewalk_m + half
-        depth, width = c.building_size_m
-        corners = [
-            at(s, lat)
-            for s in (s_c - c.building_gap_m - depth, s_c - c.building_gap_m)
-            for lat in (right, right + width)
-        ]
-        e, n, _ = FRAME.to_rfsas(
-            np.array([p[0] for p in corners]), np.array([p[1] for p in corners]), 0.0
-        )
-        self._building = BuildingSpec(
-            x_min_m=float(e.min()),
-            x_max_m=float(e.max()),
-            y_min_m=float(n.min()),
-            y_max_m=float(n.max()),
-            name="occluder",
-            loss_db=c.building_loss_db,
-        )
-        aim = at(s_c, right)
-        self._units = [
-            self._unit("rsu-before", at(s_c - 8.0, -(3.0 * half + 3.0)), aim),
-            self._unit("rsu-after", at(s_c + 10.0, -(3.0 * half + 3.0)), aim),
-        ]
-        speed = max(float(ego.speed), 1.0)
-        meet_s = (s_c - s_ego) / speed
-        across = at(s_c, -1.0) - at(s_c, 0.0)
-        across /= np.linalg.norm(across)
-        self.crossers = []
-        for k in range(c.count):
-            cyclist = bool(rng.random() < c.cyclist_share)
-            kind: EntityKind = "cyclist" if cyclist else "pedestrian"
-            lo, hi = c.cyclist_speed_mps if cyclist else c.pedestrian_speed_mps
-            v = float(rng.uniform(lo, hi))
-            t_meet = meet_s + k * c.follow_gap_s + float(rng.uniform(-c.jitter_s, c.jitter_s))
-            start = at(s_c, 0.0) - across * v * t_meet
-            travel = v * t_meet + half + c.exit_m
-            self.crossers.append(Crosser(f"crosser-{k}", kind, start, across * v, travel / v))
+        plan = plan_crossing(ego.lane, ego.position, float(ego.speed), FRAME, self.crossing, seed)
+        self._building = plan.building
+        self._units = list(plan.units)
+        self.crossers = [HighwayCrosser(c) for c in plan.crossers]
         self._ids = {}
         self._visible = {}
         for cr in self.crossers:
             cr.obstacle = self._obstacle(road, cr)
         self._sync(base)
 
-    def _unit(self, uid: str, xy: Array, aim: Array) -> UnitSpec:
-        e, n, _ = FRAME.to_rfsas(xy[0], xy[1], 0.0)
-        ae, an, _ = FRAME.to_rfsas(aim[0], aim[1], 0.0)
-        heading = math.degrees(math.atan2(float(ae - e), float(an - n))) % 360.0
-        return UnitSpec(id=uid, pose=PoseSpec(x_m=float(e), y_m=float(n), heading_deg=heading))
-
-    def _obstacle(self, road: Any, cr: Crosser) -> Any:
+    def _obstacle(self, road: Any, cr: HighwayCrosser) -> Any:
         from highway_env.vehicle.objects import Obstacle
 
-        ob = Obstacle(road, cr.position(0.0), heading=cr.heading_rad, speed=cr.speed_mps)
-        ob.LENGTH, ob.WIDTH = _SIZES[cr.kind]
+        ob = Obstacle(road, cr.position(0.0), heading=cr.plan.heading_rad, speed=cr.plan.speed_mps)
+        ob.LENGTH, ob.WIDTH = CROSSER_SIZES_M[cr.kind]
         ob.diagonal = float(np.hypot(ob.LENGTH, ob.WIDTH))
         return ob
 
@@ -368,22 +274,30 @@ class HighwayAdapter:
         return list(self._units)
 
     def brake_action(self, env: Any, action: Any) -> Any:
-        """``SLOWER`` for discrete meta-actions; full deceleration for continuous ones.
+        """An emergency stop: for discrete meta-actions the ego's target speed is set to its
+        lowest (0 m/s in ``intersection-v0``) and ``IDLE`` is returned, so it brakes at once
+        (``SLOWER`` steps the target down one rung per decision, measured from the current
+        speed: from 9 m/s it keeps asking for 4.5 m/s until the ego is below 6.75 m/s);
+        for continuous actions, full deceleration.
 
         Raises:
             SimulationError: an action type this adapter cannot brake with.
         """
-        at = env.unwrapped.action_type
+        base = env.unwrapped
+        at = base.action_type
         indexes = getattr(at, "actions_indexes", None)
-        if indexes is not None and "SLOWER" in indexes:
-            return np.int64(indexes["SLOWER"])
+        ego = base.vehicle
+        if indexes is not None and "IDLE" in indexes and hasattr(ego, "target_speeds"):
+            ego.speed_index = 0
+            ego.target_speed = float(np.min(ego.target_speeds))
+            return np.int64(indexes["IDLE"])
         if getattr(at, "longitudinal", False) and hasattr(at, "space"):
             out = np.array(action, dtype=np.float32, copy=True).reshape(-1)
             out[0] = -1.0
             return out
         raise SimulationError(
             f"highway-env: cannot brake with action type {type(at).__name__} "
-            "(needs DiscreteMetaAction with SLOWER, or a longitudinal ContinuousAction)"
+            "(needs DiscreteMetaAction with IDLE, or a longitudinal ContinuousAction)"
         )
 
     def bounded_space(self, env: Any) -> Any:

@@ -10,6 +10,7 @@ pedestrian walking away from the road never draws a BRAKE.
 from __future__ import annotations
 
 import json
+import shutil
 from pathlib import Path
 
 import pytest
@@ -96,3 +97,14 @@ def test_bad_inputs(run_file: tuple[object, object], tmp_path: Path) -> None:
         run_seed(EXAMPLE / "crossing.sumocfg", cfg, replace(run, ego="nobody", end_s=2.0), 0)  # type: ignore[arg-type, type-var]
     with pytest.raises(SimulationError, match="did not start"):
         run_seed(tmp_path / "missing.sumocfg", cfg, run, 0)  # type: ignore[arg-type]
+
+
+@pytest.mark.skipif(shutil.which("sumo") is None, reason="TraCI needs a sumo binary on PATH")
+def test_traci_gives_what_libsumo_gives(run_file: tuple[object, object]) -> None:
+    cfg, run = run_file
+    crossing = EXAMPLE / "crossing.sumocfg"
+    a = run_seed(crossing, cfg, run, 3, api="libsumo")  # type: ignore[arg-type]
+    b = run_seed(crossing, cfg, run, 3, api="traci")  # type: ignore[arg-type]
+    for name in ("collision", "first_brake_s", "first_caution_s", "fixes_ok", "steps"):
+        assert getattr(a, name) == getattr(b, name), name
+    assert a.min_gap_m == pytest.approx(b.min_gap_m, abs=1e-6)

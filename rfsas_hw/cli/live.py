@@ -14,6 +14,7 @@ from rfsas_hw.cli.ros2opts import live_options
 from rfsas_hw.cli.sensoropts import (
     build_listeners,
     build_pipeline,
+    deployment_nonces,
     epoch_schedule,
     finish_run,
     parse_pose,
@@ -164,6 +165,7 @@ def live(
             force=force,
             epoch_s=epoch_s,
             ros2=ros2,
+            preauth=deployment_nonces(pipeline),
         )
     except BaseException:
         source.close()

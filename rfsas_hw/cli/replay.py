@@ -14,6 +14,7 @@ from rfsas_hw.cli.sensoropts import (
     PROGRESS_MIN_BYTES,
     build_listeners,
     build_pipeline,
+    deployment_nonces,
     epoch_schedule,
     finish_run,
     parse_pose,
@@ -121,6 +122,7 @@ def replay(
             force=force,
             epoch_s=epoch_s,
             ros2=ros2,
+            preauth=deployment_nonces(pipeline),
         )
     except BaseException:
         source.close()

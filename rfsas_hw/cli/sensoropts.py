@@ -179,6 +179,15 @@ def build_pipeline(
     return SensorPipeline(calibration, hasher, sensor_id, pose, min_snr_db=min_snr_db)
 
 
+def deployment_nonces(pipeline: SensorPipeline | None) -> NonceProvider | None:
+    """The deployment's epoch nonces the pipeline hashes with (from the authority or a
+    shared secret), which also pre-authenticate what ``--send`` sends (version-2
+    messages); None for a per-run random key, which no receiver holds."""
+    if pipeline is None or isinstance(pipeline.hasher.nonces, FixedNonce):
+        return None
+    return pipeline.hasher.nonces
+
+
 def build_listeners(
     out: Path | None,
     fmt: str | None,
@@ -190,6 +199,7 @@ def build_listeners(
     force: bool = False,
     epoch_s: float = DEFAULT_EPOCH_S,
     ros2: dict[str, Any] | None = None,
+    preauth: NonceProvider | None = None,
 ) -> Fanout:
     """Every listener the options ask for (``ros2``: the options of
     :func:`rfsas_hw.cli.ros2opts.live_options`).
@@ -204,7 +214,7 @@ def build_listeners(
         raise ConfigError("nothing to do: give --out FILE and/or --send URL")
     if out is not None:
         check_output(out, inputs, force=force, what="--out")
-    publisher = make_publisher(send, keys_dir, pose, epoch_s)
+    publisher = make_publisher(send, keys_dir, pose, epoch_s, preauth)
     cue_publisher = make_cue_publisher(keys_dir, pose, epoch_s)
     if out is not None:
         from rfsas_hw.ros2.outputs import sensor_recording

@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from rfsas_hw.angles import wrap_deg_360
-from rfsas_hw.errors import LinkError
+from rfsas_hw.errors import KeyStoreError, LinkError
 from rfsas_hw.link.keys import KeyStore
 from rfsas_hw.link.message import (
     DEFAULT_DATAGRAM,
@@ -162,7 +162,13 @@ class Publisher:
             KeyStoreError: not a sensor key directory, or its signing key is unusable.
             LinkError: bad URL or socket failure.
         """
-        signer = KeyStore.open(keys_dir).signer()
+        store = KeyStore.open(keys_dir)
+        if store.role != "sensor":
+            raise KeyStoreError(
+                f"{store.path}: a {store.role} identity does not sign bearings; "
+                "give a sensor key directory"
+            )
+        signer = store.signer()
         return cls.to_url(
             url, signer, pose, epoch_s=epoch_s, max_datagram=max_datagram, preauth=preauth
         )

@@ -30,6 +30,7 @@ def run_file() -> tuple[object, object]:
     return load_run_file(EXAMPLE / "units.yaml")
 
 
+@pytest.mark.slow
 def test_closed_loop_over_20_seeds(run_file: tuple[object, object], tmp_path: Path) -> None:
     cfg, run = run_file
     crossing = EXAMPLE / "crossing.sumocfg"
@@ -50,6 +51,7 @@ def test_closed_loop_over_20_seeds(run_file: tuple[object, object], tmp_path: Pa
     assert any(x["record"] == "step" and x["action"] == "brake" for x in lines)
 
 
+@pytest.mark.slow
 def test_pedestrian_walking_away_draws_no_brake(run_file: tuple[object, object]) -> None:
     cfg, run = run_file
     away = run_seeds(EXAMPLE / "walk-away.sumocfg", cfg, run, SEEDS, controller="rfsas")  # type: ignore[arg-type]

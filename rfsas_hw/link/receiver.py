@@ -23,8 +23,9 @@ reason a datagram is counted under:
    topic that names another sender than the message); then ``unknown_sender``;
 2. pre-authentication (version 2, one HMAC; :mod:`rfsas_hw.link.preauth`):
    ``v1_refused`` (a version-1 message, untagged, at a receiver that requires
-   tags), ``wrong_epoch``, ``no_preauth_key`` (the receiver does not hold the
-   epoch's nonce), ``bad_preauth``; then ``replay`` (an exact copy of a message
+   tags), ``wrong_epoch``, ``no_preauth_key`` (a receiver that requires tags
+   does not hold the epoch's nonce; one that reads version 1 goes on to the
+   signature), ``bad_preauth``; then ``replay`` (an exact copy of a message
    already verified) and ``rate_limited`` (the sender's budget of signature
    checks per second is spent);
 3. signature with the sender's enrolled key: ``bad_signature``;
@@ -392,8 +393,12 @@ class Receiver:
                 raise _RejectError("wrong_epoch", f"{head.sender_id} epoch {epoch}")
             key = None if self.preauth is None else self.preauth.key_for(head.sender_id, epoch)
             if key is None:
-                raise _RejectError("no_preauth_key", f"{head.sender_id} epoch {epoch}")
-            if not tag_ok(key, datagram):
+                # without the epoch's nonce the tag cannot be checked: a receiver that
+                # requires pre-authentication refuses, one that reads version 1 treats
+                # the message like version 1 (the signature still decides)
+                if not self.config.accept_v1:
+                    raise _RejectError("no_preauth_key", f"{head.sender_id} epoch {epoch}")
+            elif not tag_ok(key, datagram):
                 raise _RejectError("bad_preauth", head.sender_id)
         elif not self.config.accept_v1:
             raise _RejectError(

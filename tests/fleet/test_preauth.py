@@ -86,12 +86,17 @@ def test_version_1_is_read_or_refused_with_a_reason(signer: Signer, trust: Trust
     assert strict.stats.rejected == {"v1_refused": 1}
 
 
-def test_without_the_epoch_nonce_version_2_cannot_be_checked(
+def test_without_the_epoch_nonce_the_tag_cannot_be_checked(
     signer: Signer, trust: TrustedKeys
 ) -> None:
-    r = receiver(trust, nonce=None)
-    assert r.feed(v2(signer), NOW_NS) is None
-    assert r.stats.rejected == {"no_preauth_key": 1}
+    strict = receiver(trust, nonce=None, accept_v1=False)
+    assert strict.feed(v2(signer), NOW_NS) is None
+    assert strict.stats.rejected == {"no_preauth_key": 1}
+    # a receiver that reads version 1 lets the signature decide, as for version 1
+    lenient = receiver(trust, nonce=None)
+    assert lenient.feed(v2(signer), NOW_NS) is not None
+    assert lenient.feed(v2(signer, seq=9)[:-72] + bytes(72), NOW_NS) is None
+    assert lenient.stats.rejected == {"bad_signature": 1}
 
 
 def test_exact_copy_is_dropped_before_the_signature(signer: Signer, trust: TrustedKeys) -> None:

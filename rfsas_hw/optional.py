@@ -15,6 +15,7 @@ EXTRAS = {
     "PIL": "plot",
     "csiread": "csi",
     "aiohttp": "web",
+    "paho": "mqtt",
 }
 
 

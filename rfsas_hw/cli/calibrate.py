@@ -22,6 +22,8 @@ from rfsas_hw.df.check import (
     with_environment_floor,
 )
 from rfsas_hw.df.plot import plot_calibration
+from rfsas_hw.df.validate import Finding, check_samples, raise_on_errors
+from rfsas_hw.df.validate import check_calibration as validate_calibration
 from rfsas_hw.outpaths import check_output
 
 
@@ -80,6 +82,13 @@ def _sigma_rows(table: Table, report: CheckReport) -> None:
         table.add_row(f"measured environment floor, {name}", _fmt(floor, "°"))
     if report.measured_floor_deg:
         table.add_row("error / σ with measured floor", _fmt(report.ratio_with_floor, "", 3))
+
+
+def _warn(findings: list[Finding]) -> None:
+    """Warnings of the credibility checks, loudly, on stderr."""
+    console = Console(stderr=True)
+    for finding in findings:
+        console.print(f"[bold yellow]warning:[/bold yellow] {finding}", highlight=False)
 
 
 def _num(value: float) -> float | None:
@@ -224,6 +233,7 @@ def calibrate(
             raise click.UsageError("--check takes CAL.yaml SAMPLES.csv")
         cal = load_calibration(inputs[0])
         samples = read_samples_csv(inputs[1])
+        _warn(raise_on_errors(check_samples(samples, str(inputs[1])), "check data"))
         report = check_calibration(cal, samples)
         if as_json:
             click.echo(json.dumps(check_record(report, inputs[0], inputs[1])))
@@ -260,6 +270,8 @@ def calibrate(
         source_name = inputs[0].name
     if output is None:
         raise click.UsageError("-o/--output CAL.yaml is required")
+    source = str(capture) if capture is not None else str(inputs[0])
+    _warn(raise_on_errors(check_samples(samples, source, noise_floor), "sweep"))
     cal = fit_calibration(
         samples,
         mode,  # type: ignore[arg-type]
@@ -271,6 +283,7 @@ def calibrate(
         if antenna
         else {"source": source_name},
     )
+    _warn(raise_on_errors(validate_calibration(cal, f"fit of {source}"), "calibration"))
     save_calibration(cal, output)
     console.print(_summary(cal, output))
     if plot_path is not None:

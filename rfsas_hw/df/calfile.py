@@ -10,6 +10,7 @@ Every problem names the file and the key, e.g.
 
 from __future__ import annotations
 
+import logging
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
@@ -28,8 +29,11 @@ from rfsas_hw.df.calibration import (
 )
 from rfsas_hw.df.monopulse import Mode
 from rfsas_hw.df.phasecal import phase_from_mapping, phase_to_mapping
+from rfsas_hw.df.validate import check_calibration, raise_on_errors
 from rfsas_hw.errors import CalibrationError, ConfigError
 from rfsas_hw.outpaths import write_text_atomic
+
+log = logging.getLogger(__name__)
 
 
 @dataclass
@@ -152,16 +156,22 @@ def calibration_from_mapping(data: Any, where: str = "calibration") -> Calibrati
 
 
 def load_calibration(path: str | Path) -> Calibration:
-    """Read and validate a calibration YAML file.
+    """Read and validate a calibration YAML file: its format, then its physics and
+    procedure (:mod:`rfsas_hw.df.validate`); warnings are logged.
 
     Raises:
-        CalibrationError: unreadable file, invalid YAML, or invalid content (file and key named).
+        CalibrationError: unreadable file, invalid YAML, invalid content, or a table
+            that is not credible (|ψ| ≥ 1, a ±900° grid, a 2° field of view, K_D far
+            from 1); the file and key are named.
     """
     try:
         data = read_yaml(path)
     except ConfigError as err:
         raise CalibrationError(str(err)) from err
-    return calibration_from_mapping(data, str(path))
+    cal = calibration_from_mapping(data, str(path))
+    for finding in raise_on_errors(check_calibration(cal, str(path)), "calibration"):
+        log.warning("%s", finding)
+    return cal
 
 
 class _FlowList(list[float]):

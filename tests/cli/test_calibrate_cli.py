@@ -76,8 +76,9 @@ def test_bad_csv_gives_one_line_and_exit_2(
 
 def test_flat_curve_has_no_fov(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     path = tmp_path / "flat.csv"
+    # two readings per angle: enough samples for a fit, but no slope to fit
     rows = ["angle_deg,rssi1_dbm,rssi2_dbm"] + [
-        f"{a},{-50 - (a % 2)},{-50 + (a % 2)}" for a in range(-30, 31)
+        f"{a},{-50 - (a % 2)},{-50 + (a % 2)}" for a in range(-30, 31) for _ in range(2)
     ]
     path.write_text("\n".join(rows) + "\n")
     code, _, err = run(["calibrate", str(path), "-o", str(tmp_path / "c.yaml")], capsys)

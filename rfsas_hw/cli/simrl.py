@@ -35,12 +35,56 @@ _detail_option = click.option(
 )
 
 
+_prior_option = click.option(
+    "--prior",
+    type=click.Choice(["on", "off"]),
+    default=None,
+    help="RF activity prior ahead of the car in the observation (default: the config's, off).",
+)
+_scenario_option = click.option(
+    "--scenario",
+    type=click.Choice(["single", "corners"]),
+    default=None,
+    help="Episodes: one crosser, or quiet and busy corners (default: the config's, single).",
+)
+_seeds_option = click.option(
+    "--seeds",
+    default=None,
+    help="Comma list of seeds (e.g. 0,1,2,3,4): one model per seed, MODEL-seed-<s>.zip.",
+)
+
+
+def _parse_seeds(text: str | None) -> list[int] | None:
+    if text is None:
+        return None
+    try:
+        seeds = [int(p) for p in text.split(",") if p.strip()]
+    except ValueError as err:
+        raise click.BadParameter(f"{text!r}: expected a comma list of integers") from err
+    if not seeds or len(set(seeds)) != len(seeds):
+        raise click.BadParameter(f"{text!r}: expected distinct integers", param_hint="--seeds")
+    return seeds
+
+
 def _env_config(
-    config_path: Path | None, detail: str | None, reward: str | None = None
+    config_path: Path | None,
+    detail: str | None,
+    reward: str | None = None,
+    prior: str | None = None,
+    scenario: str | None = None,
 ) -> EnvConfig:
     from rfsas_hw.envs.envconfig import EnvConfig, load_env_config
 
     config = load_env_config(config_path) if config_path is not None else EnvConfig()
+    if prior is not None:
+        config = dataclasses.replace(
+            config, prior=dataclasses.replace(config.prior, observe=prior == "on")
+        )
+    if scenario is not None:
+        config = dataclasses.replace(
+            config,
+            scenario=dataclasses.replace(config.scenario, kind=scenario),  # type: ignore[arg-type]
+        )
     if detail is not None:
         config = dataclasses.replace(
             config,
@@ -84,6 +128,17 @@ def _env_config(
     default=None,
     help="Reward (default: the config's, method).",
 )
+@click.option(
+    "--envs",
+    "n_envs",
+    type=click.IntRange(min=1),
+    default=1,
+    show_default=True,
+    help="Environments stepped side by side (vectorised, one process).",
+)
+@_seeds_option
+@_prior_option
+@_scenario_option
 @_config_option
 @_detail_option
 def train(
@@ -92,13 +147,21 @@ def train(
     log_dir: Path | None,
     seed: int,
     reward: str | None,
+    n_envs: int,
+    seeds: str | None,
+    prior: str | None,
+    scenario: str | None,
     config_path: Path | None,
     detail: str | None,
 ) -> None:
     """Train a PPO agent (MlpPolicy, seed 0, batch 64, n_steps 64, lr 3e-4) to brake."""
     from rfsas_hw.envs import rl
 
-    config = _env_config(config_path, detail, reward)
+    config = _env_config(config_path, detail, reward, prior, scenario)
+    seed_list = _parse_seeds(seeds)
+    if seed_list is not None:
+        _train_seeds(seed_list, steps, model_path, config, n_envs)
+        return
     logs = log_dir if log_dir is not None else model_path.with_name(model_path.stem + "-logs")
     columns = (
         TextColumn("training"),
@@ -114,7 +177,13 @@ def train(
             bar.update(task, completed=done)
 
         result = rl.train(
-            steps, model_path, config=config, seed=seed, log_dir=logs, progress=progress
+            steps,
+            model_path,
+            config=config,
+            seed=seed,
+            log_dir=logs,
+            progress=progress,
+            n_envs=n_envs,
         )
     console = Console()
     console.print(
@@ -124,6 +193,42 @@ def train(
     )
     console.print(f"model: {result.model_path}")
     console.print(f"logs:  {logs / 'progress.csv'}, {logs / 'monitor.csv'}")
+
+
+def _train_seeds(
+    seeds: list[int], steps: int, model_path: Path, config: EnvConfig, n_envs: int
+) -> None:
+    from rfsas_hw.envs import protocol
+
+    columns = (
+        TextColumn("seed {task.fields[seed]}"),
+        BarColumn(),
+        TextColumn("{task.completed}/{task.total} steps"),
+        TimeElapsedColumn(),
+        TimeRemainingColumn(),
+    )
+    console = Console()
+    with Progress(*columns, console=console) as bar:
+        tasks = {s: bar.add_task("train", total=steps, seed=s) for s in seeds}
+
+        def progress(s: int) -> Any:
+            def update(done: int, total: int) -> None:
+                bar.update(tasks[s], completed=done)
+
+            return update
+
+        results = protocol.train_seeds(
+            seeds, steps, model_path, config=config, n_envs=n_envs, progress=progress
+        )
+    for s, result in zip(seeds, results, strict=True):
+        console.print(
+            f"seed {s}: trained {result.steps} steps ({result.episodes} episodes) in "
+            f"{result.seconds:.1f} s; model {result.model_path}"
+        )
+    console.print(
+        f"detail {config.sensing.detail}, reward {config.reward.kind}, "
+        f"prior {'on' if config.prior.observe else 'off'}, scenario {config.scenario.kind}"
+    )
 
 
 def _fmt(x: float, digits: int = 3) -> str:
@@ -201,6 +306,9 @@ def _table(rows: list[EvalRow], per: dict[float, float], pooled: float, names: l
     default=None,
     help="Draw the three measures against distance (PNG).",
 )
+@_seeds_option
+@_prior_option
+@_scenario_option
 @_config_option
 @_detail_option
 def evaluate(
@@ -211,14 +319,21 @@ def evaluate(
     threshold: float | None,
     csv_path: Path | None,
     plot_path: Path | None,
+    seeds: str | None,
+    prior: str | None,
+    scenario: str | None,
     config_path: Path | None,
     detail: str | None,
 ) -> None:
     """Compare the learned policy with the rule (brake above the risk threshold, else hold)."""
     from rfsas_hw.envs import rl
 
-    config = _env_config(config_path, detail)
+    config = _env_config(config_path, detail, prior=prior, scenario=scenario)
     dists = rl.parse_distances(distances)
+    seed_list = _parse_seeds(seeds)
+    if seed_list is not None:
+        _evaluate_seeds(model_path, seed_list, dists, episodes, seed, threshold, config)
+        return
     learned = rl.LearnedPolicy.load(model_path)
     rule = rl.RulePolicy(config.risk_threshold if threshold is None else threshold)
     rows = rl.evaluate([learned, rule], dists, episodes, config=config, seed=seed)
@@ -230,6 +345,93 @@ def evaluate(
     if plot_path is not None:
         rl.plot(rows, plot_path)
         click.echo(f"wrote {plot_path}")
+
+
+def _evaluate_seeds(
+    model_path: Path,
+    seeds: list[int],
+    dists: list[float],
+    episodes: int,
+    first: int,
+    threshold: float | None,
+    config: EnvConfig,
+) -> None:
+    from rfsas_hw.envs import protocol, rl
+    from rfsas_hw.envs.env import IntersectionEnv
+    from rfsas_hw.errors import ConfigError
+
+    env = IntersectionEnv(config)
+    rule = rl.RulePolicy(config.risk_threshold if threshold is None else threshold)
+    learned = []
+    columns = (
+        TextColumn("{task.description}"),
+        BarColumn(),
+        TextColumn("{task.completed}/{task.total} distances"),
+        TimeElapsedColumn(),
+    )
+    with Progress(*columns, transient=True) as bar:
+        for s in seeds:
+            policy = rl.LearnedPolicy.load(protocol.seed_model_path(model_path, s))
+            shape = policy.model.observation_space.shape
+            if shape != env.observation_space.shape:
+                raise ConfigError(
+                    f"model of seed {s} observes {shape}, the environment gives "
+                    f"{env.observation_space.shape}: pass the --prior it was trained with"
+                )
+            task = bar.add_task(f"seed {s}", total=len(dists))
+            runs = []
+            for d in dists:
+                runs.append(protocol.outcomes(policy, [d], episodes, seed=first, env=env))
+                bar.update(task, advance=1)
+            learned.append(_join(runs))
+        base = protocol.outcomes(rule, dists, episodes, seed=first, env=env)
+    rows = protocol.compare(learned, base)
+    start = config.vehicle.start_distance_m
+    table = Table(title=f"learned ({len(seeds)} seeds) vs rule, same {episodes} episodes")
+    for col in (
+        "from centre\n(m)",
+        "from start\n(m)",
+        "learned\nrisk",
+        "± SE\nseeds",
+        "rule\nrisk",
+        "± SE",
+        "paired\np",
+        "seeds\n≤ rule",
+    ):
+        table.add_column(col, justify="right")
+    for r in rows:
+        table.add_row(
+            f"{r.distance_m:g}",
+            f"{start - r.distance_m:g}",
+            f"{r.risk:.4f}",
+            _fmt(r.risk_se_seeds, 4),
+            f"{r.baseline_risk:.4f}",
+            _fmt(r.baseline_se, 4),
+            f"{r.p_value:.3g}",
+            f"{r.seeds_at_or_below}/{r.seeds}",
+        )
+    stop = [d for d in dists if protocol.cannot_stop(config, d)]
+    ratio = protocol.pooled_ratio(rows, stop)
+    table.caption = (
+        f"rule/learned pooled risk where the rule cannot stop ({', '.join(f'{d:g}' for d in stop)}"
+        f" m): {ratio:.2f}"
+        if stop
+        else "the rule can stop at every distance"
+    )
+    Console().print(table)
+
+
+def _join(runs: list[Any]) -> Any:
+    import numpy as np
+
+    from rfsas_hw.envs.protocol import Outcomes
+
+    return Outcomes(
+        tuple(d for r in runs for d in r.distances_m),
+        np.concatenate([r.risk for r in runs]),
+        np.concatenate([r.collision for r in runs]),
+        np.concatenate([r.time_s for r in runs]),
+    )
 
 
 @click.command()

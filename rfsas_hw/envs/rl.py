@@ -182,6 +182,7 @@ def train(
     log_dir: str | Path | None = None,
     progress: Progress | None = None,
     max_seconds: float | None = None,
+    n_envs: int = 1,
     **ppo: Any,
 ) -> TrainResult:
     """Train PPO on the environment for ``steps`` steps and save the model.
@@ -189,14 +190,19 @@ def train(
     ``ppo`` overrides entries of :data:`PPO_DEFAULTS` (or adds other PPO
     arguments). Training runs on the CPU with one torch thread. With
     ``max_seconds`` training stops early once that much wall time has passed
-    (the result says how many steps were done).
+    (the result says how many steps were done). With ``n_envs`` > 1 the
+    environments run side by side in one process (a ``DummyVecEnv``: on a
+    shared 2-core machine processes would only compete); each writes its own
+    ``env-<i>.monitor.csv``, and ``n_steps`` is per environment.
 
     Raises:
         MissingDependencyError: stable-baselines3 is not installed.
-        ConfigError: ``steps`` < 1.
+        ConfigError: ``steps`` < 1 or ``n_envs`` < 1.
     """
     if steps < 1:
         raise ConfigError(f"training needs at least one step, got {steps}")
+    if n_envs < 1:
+        raise ConfigError(f"training needs at least one environment, got n_envs={n_envs}")
     require("stable_baselines3")
     import torch
     from stable_baselines3 import PPO
@@ -209,11 +215,16 @@ def train(
     logs = Path(log_dir) if log_dir is not None else None
     if logs is not None:
         logs.mkdir(parents=True, exist_ok=True)
-    env = Monitor(
-        IntersectionEnv(config),
-        filename=str(logs / "monitor.csv") if logs is not None else None,
-        info_keywords=("collision", "impact_speed_mps", "reaction_distance_m"),
-    )
+    from stable_baselines3.common.vec_env import DummyVecEnv
+
+    keys = ("collision", "impact_speed_mps", "reaction_distance_m")
+
+    def monitored(i: int) -> Callable[[], Any]:
+        name = "monitor.csv" if n_envs == 1 else f"env-{i}.monitor.csv"
+        filename = str(logs / name) if logs is not None else None
+        return lambda: Monitor(IntersectionEnv(config), filename=filename, info_keywords=keys)
+
+    env: Any = monitored(0)() if n_envs == 1 else DummyVecEnv([monitored(i) for i in range(n_envs)])
     params = {**PPO_DEFAULTS, **ppo}
     model = PPO("MlpPolicy", env, seed=seed, device="cpu", verbose=0, **params)
     if logs is not None:

@@ -1,0 +1,309 @@
+"""The learned-vs-rule protocol: several seeds, paired episodes, standard errors, tests.
+
+- :func:`train_seeds`: one PPO run per seed (vectorised environments), each
+  saved as ``<stem>-seed-<s>.zip`` with its logs in ``<stem>-seed-<s>-logs``.
+- :func:`outcomes`: one policy over the same episodes at each reaction
+  distance (episode ``k`` has seed ``seed + k`` for every policy): the
+  realised risk, collision and duration of every episode.
+- :func:`compare`: the seeds of the learned policy against a baseline, per
+  distance: mean risk, its standard error over the seeds and over the
+  episodes, the baseline's, and a paired t-test over the episodes of the
+  seed-averaged learned risk against the baseline's (the same episodes).
+- :func:`pooled_ratio`: the baseline's summed risk over the learned one's
+  over chosen distances (e.g. where the rule cannot stop in time).
+- :func:`speed_profiles` and :func:`plot_speed_profiles`: the mean speed
+  along the approach, with and without a warning.
+
+Reaction distances are measured from the intersection centre; the method
+(method.md §10) measures them from the start line, ``start_distance_m − d``.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from rfsas_hw.envs.env import IntersectionEnv
+from rfsas_hw.envs.envconfig import EnvConfig
+from rfsas_hw.envs.rl import Policy, Progress, TrainResult, train
+from rfsas_hw.errors import ConfigError
+from rfsas_hw.optional import pyplot
+
+__all__ = [
+    "Outcomes",
+    "PairedRow",
+    "cannot_stop",
+    "compare",
+    "outcomes",
+    "plot_speed_profiles",
+    "pooled_ratio",
+    "seed_model_path",
+    "speed_profiles",
+    "train_seeds",
+]
+
+Array = npt.NDArray[np.float64]
+
+
+def seed_model_path(model_path: str | Path, seed: int) -> Path:
+    """Where the model of ``seed`` goes for ``model_path``: ``<stem>-seed-<s>.zip``."""
+    p = Path(model_path)
+    stem = p.stem if p.suffix == ".zip" else p.name
+    return p.with_name(f"{stem}-seed-{seed}.zip")
+
+
+def train_seeds(
+    seeds: Sequence[int],
+    steps: int,
+    model_path: str | Path,
+    *,
+    config: EnvConfig | None = None,
+    n_envs: int = 4,
+    progress: Callable[[int], Progress | None] | None = None,
+    max_seconds: float | None = None,
+    **ppo: Any,
+) -> list[TrainResult]:
+    """Train one PPO model per seed; ``progress(seed)`` gives that seed's progress callback.
+
+    Seed ``s`` is saved as :func:`seed_model_path` (``<stem>-seed-<s>.zip``) with its
+    logs in ``<stem>-seed-<s>-logs``.
+
+    Raises:
+        ConfigError: no seeds, repeated seeds, or ``steps`` < 1.
+        MissingDependencyError: stable-baselines3 is not installed.
+    """
+    if not seeds or len(set(seeds)) != len(seeds):
+        raise ConfigError(f"seeds must be one or more distinct integers, got {list(seeds)}")
+    results = []
+    for s in seeds:
+        path = seed_model_path(model_path, s)
+        results.append(
+            train(
+                steps,
+                path,
+                config=config,
+                seed=s,
+                log_dir=path.with_name(path.stem + "-logs"),
+                progress=progress(s) if progress is not None else None,
+                max_seconds=max_seconds,
+                n_envs=n_envs,
+                **ppo,
+            )
+        )
+    return results
+
+
+@dataclass(frozen=True)
+class Outcomes:
+    """Every episode of one policy: arrays of shape (distances, episodes)."""
+
+    distances_m: tuple[float, ...]
+    """Reaction distances from the centre, metres."""
+    risk: Array
+    """Realised fatality risk of each episode (0 without a collision)."""
+    collision: npt.NDArray[np.bool_]
+    """Whether each episode ended in a collision."""
+    time_s: Array
+    """Duration of each episode, seconds."""
+
+
+def outcomes(
+    policy: Policy,
+    distances_m: Sequence[float | None],
+    episodes: int,
+    *,
+    config: EnvConfig | None = None,
+    seed: int = 10_000,
+    options: Mapping[str, Any] | None = None,
+    env: IntersectionEnv | None = None,
+) -> Outcomes:
+    """Run ``policy`` for ``episodes`` episodes at each reaction distance.
+
+    A distance of None lets ``reset`` place the warning as in training.
+
+    Raises:
+        ConfigError: ``episodes`` < 1.
+    """
+    from rfsas_hw.envs.rl import run_episode
+
+    if episodes < 1:
+        raise ConfigError(f"evaluation needs at least one episode, got {episodes}")
+    own = env is None
+    env = IntersectionEnv(config) if env is None else env
+    shape = (len(distances_m), episodes)
+    risk, hit, times = np.zeros(shape), np.zeros(shape, bool), np.zeros(shape)
+    for i, d in enumerate(distances_m):
+        for k in range(episodes):
+            info = run_episode(env, policy, seed + k, d, dict(options or {}))
+            risk[i, k] = info["realised_risk"]
+            hit[i, k] = info["collision"]
+            times[i, k] = info["t_s"]
+    if own:
+        env.close()
+    dists = tuple(math.nan if d is None else float(d) for d in distances_m)
+    return Outcomes(dists, risk, hit, times)
+
+
+@dataclass(frozen=True)
+class PairedRow:
+    """The learned policy's seeds against the baseline at one reaction distance."""
+
+    distance_m: float
+    """Reaction distance from the centre, metres."""
+    seeds: int
+    """Learned models (training seeds)."""
+    episodes: int
+    """Episodes per policy (the same for all)."""
+    risk: float
+    """Mean realised risk of the learned policy over seeds and episodes."""
+    risk_se_seeds: float
+    """Standard error of the per-seed mean risks (NaN with one seed)."""
+    risk_se_episodes: float
+    """Standard error over the episodes of the seed-averaged risk."""
+    p_collision: float
+    """Fraction of the learned policy's episodes with a collision (all seeds)."""
+    seeds_at_or_below: int
+    """Seeds whose mean risk is at or below the baseline's."""
+    baseline_risk: float
+    """Mean realised risk of the baseline."""
+    baseline_se: float
+    """Its standard error over the episodes."""
+    baseline_p_collision: float
+    """Fraction of the baseline's episodes with a collision."""
+    p_value: float
+    """Two-sided paired t-test over the episodes: seed-averaged learned risk against the
+    baseline's (1 where every difference is 0)."""
+    time_s: float
+    """Mean episode duration of the learned policy, seconds."""
+    baseline_time_s: float
+    """Mean episode duration of the baseline, seconds."""
+
+
+def _se(x: Array) -> float:
+    return float(np.std(x, ddof=1) / math.sqrt(len(x))) if len(x) > 1 else math.nan
+
+
+def compare(learned: Sequence[Outcomes], baseline: Outcomes) -> list[PairedRow]:
+    """Per-distance statistics of the learned seeds against the baseline (same episodes).
+
+    Raises:
+        ConfigError: no learned outcomes, or outcomes of other distances or episodes.
+    """
+    from scipy.stats import ttest_rel
+
+    if not learned:
+        raise ConfigError("compare needs the outcomes of at least one learned model")
+    for o in learned:
+        if o.distances_m != baseline.distances_m or o.risk.shape != baseline.risk.shape:
+            raise ConfigError("compare: every policy must run the same distances and episodes")
+    stack = np.stack([o.risk for o in learned])  # (seeds, distances, episodes)
+    hits = np.stack([o.collision for o in learned])
+    times = np.stack([o.time_s for o in learned])
+    rows = []
+    for i, d in enumerate(baseline.distances_m):
+        per_seed = stack[:, i, :].mean(axis=1)
+        averaged = stack[:, i, :].mean(axis=0)
+        base = baseline.risk[i]
+        diff = averaged - base
+        p = 1.0 if np.allclose(diff, 0.0) else float(ttest_rel(averaged, base).pvalue)
+        rows.append(
+            PairedRow(
+                distance_m=d,
+                seeds=len(learned),
+                episodes=base.size,
+                risk=float(averaged.mean()),
+                risk_se_seeds=_se(per_seed),
+                risk_se_episodes=_se(averaged),
+                p_collision=float(hits[:, i, :].mean()),
+                seeds_at_or_below=int(np.sum(per_seed <= base.mean() + 1e-12)),
+                baseline_risk=float(base.mean()),
+                baseline_se=_se(base),
+                baseline_p_collision=float(baseline.collision[i].mean()),
+                p_value=p,
+                time_s=float(times[:, i, :].mean()),
+                baseline_time_s=float(baseline.time_s[i].mean()),
+            )
+        )
+    return rows
+
+
+def cannot_stop(config: EnvConfig, distance_m: float) -> bool:
+    """Whether a car at its top initial speed, braking one step after a warning at
+    ``distance_m`` from the centre, cannot stop before the crosser's path."""
+    v = config.vehicle
+    u = v.initial_speed_mps[1]
+    room = distance_m - abs(config.obstacle.crossing_y_m) - 0.5
+    return room < u * u / (2 * v.brake_mps2) + u * config.dt_s
+
+
+def pooled_ratio(rows: Sequence[PairedRow], distances_m: Sequence[float]) -> float:
+    """Baseline's summed risk over the learned policy's, over ``distances_m``
+    (inf when the learned risk is 0 and the baseline's is not; NaN when both are)."""
+    chosen = [r for r in rows if r.distance_m in set(distances_m)]
+    num = sum(r.baseline_risk for r in chosen)
+    den = sum(r.risk for r in chosen)
+    if den == 0:
+        return math.inf if num > 0 else math.nan
+    return num / den
+
+
+def speed_profiles(
+    policy: Policy,
+    episodes: int,
+    *,
+    config: EnvConfig | None = None,
+    seed: int = 20_000,
+    options: Mapping[str, Any] | None = None,
+    grid_m: Array | None = None,
+) -> tuple[Array, Array]:
+    """Mean speed (m/s) of ``policy`` against the distance to the centre (``grid_m``, metres,
+    default 100 → 0 m every 2 m); an episode that ended before a grid point (a collision
+    or a stop) counts with its last speed there.
+
+    Raises:
+        ConfigError: ``episodes`` < 1.
+    """
+    if episodes < 1:
+        raise ConfigError(f"speed profiles need at least one episode, got {episodes}")
+    env = IntersectionEnv(config)
+    grid = np.arange(env.config.vehicle.start_distance_m, -0.5, -2.0) if grid_m is None else grid_m
+    speeds = np.zeros((episodes, len(grid)))
+    for k in range(episodes):
+        obs, _ = env.reset(seed=seed + k, options=dict(options or {}) or None)
+        dist, speed = [env.distance_m], [env.speed_mps]
+        done = False
+        while not done:
+            obs, _, term, trunc, _ = env.step(policy.act(obs))
+            dist.append(env.distance_m)
+            speed.append(env.speed_mps)
+            done = term or trunc
+        d, v = np.array(dist[::-1]), np.array(speed[::-1])
+        speeds[k] = np.interp(grid, d, v, left=v[0], right=v[-1])
+    env.close()
+    return grid, speeds.mean(axis=0)
+
+
+def plot_speed_profiles(curves: Mapping[str, tuple[Array, Array]], path: str | Path) -> None:
+    """Draw speed against distance to the centre for each named curve (PNG).
+
+    Raises:
+        MissingDependencyError: matplotlib is not installed.
+    """
+    plt = pyplot()
+    fig, ax = plt.subplots(figsize=(7, 4), constrained_layout=True)
+    for name, (grid, speed) in curves.items():
+        style = "--" if "rule" in name else "-"
+        ax.plot(grid, speed * 3.6, style, label=name)
+    ax.invert_xaxis()
+    ax.set_xlabel("distance of the front bumper to the centre (m)")
+    ax.set_ylabel("mean speed (km/h)")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.savefig(str(path), dpi=110)
+    plt.close(fig)

@@ -6,6 +6,7 @@ import contextlib
 import io
 import math
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -93,7 +94,7 @@ def test_training_is_reproducible_per_seed(tmp_path: Path) -> None:
     from rfsas_hw.envs.protocol import train_seeds
 
     config = env_config_from_mapping({**CORNERS, "reward": {"kind": "risk-progress"}})
-    kw = {"config": config, "n_envs": 2, "n_steps": 32, "batch_size": 32}
+    kw: dict[str, Any] = {"config": config, "n_envs": 2, "n_steps": 32, "batch_size": 32}
     a = train_seeds([5], 128, tmp_path / "a.zip", **kw)[0]
     b = train_seeds([5], 128, tmp_path / "b.zip", **kw)[0]
     c = train_seeds([6], 128, tmp_path / "c.zip", **kw)[0]

@@ -233,7 +233,7 @@ class StreamTwin(World):
         """Frames before this time have been generated for every live emitter, seconds."""
         self._window_key: tuple[float, float, int] | None = None
         self._window: dict[str, npt.NDArray[Any]] = {}
-        self._positions: dict[int, tuple[Array, Array]] = {}
+        self._window_xy: Array | None = None
 
     # -- entities -------------------------------------------------------------------
 
@@ -302,25 +302,13 @@ class StreamTwin(World):
     def emitter_position(self, index: int, t_s: npt.ArrayLike) -> Array:
         """Position of emitter ``index`` at times ``t_s``, shape (n, 2), metres.
 
-        Within a window every sensor asks for (a subset of) the same frame
-        times, so the positions at the window's frames are computed once.
-
         Raises:
             SimulationError: its carrier has no knot yet.
         """
         track = self._carrier(index)
         if track is None:
             return super().emitter_position(index, t_s)
-        t = np.atleast_1d(np.asarray(t_s, dtype=np.float64))
-        cached = self._positions.get(index)
-        if cached is None and self._window_key is not None and index < len(self.tx):
-            frames = self.tx[index].t_s
-            cached = self._positions[index] = (frames, track.position(frames))
-        if cached is not None and len(cached[0]):
-            at = np.minimum(np.searchsorted(cached[0], t), len(cached[0]) - 1)
-            if np.array_equal(cached[0][at], t):
-                return cached[1][at]
-        return track.position(t)
+        return track.position(t_s)
 
     def _candidates(self, s: SensorSpec) -> dict[str, Any]:
         """The window's frames sensor ``s`` could hear by tech and channel.
@@ -339,8 +327,27 @@ class StreamTwin(World):
             on = ScanPlan.from_spec(s.scan).channel_at(w["t"]) == w["channel"]
         sel = hears & on
         out = {k: v[sel] for k, v in w.items()}
+        out["row"] = np.flatnonzero(sel)
         order = np.lexsort((out["emitter"], out["t"]))
         return {k: v[order] for k, v in out.items()}
+
+    def _frame_positions(self, c: dict[str, Any]) -> Array:
+        """Positions of the candidate frames, from the window's positions.
+
+        Every sensor of a window asks for a subset of the same frames, so the
+        positions are computed once per window (one track lookup per emitter).
+        """
+        rows = c.get("row")
+        if rows is None:
+            return super()._frame_positions(c)
+        if self._window_xy is None:
+            w = self._window
+            xy = np.empty((len(w["t"]), 2))
+            for i in np.unique(w["emitter"]):
+                sel = w["emitter"] == i
+                xy[sel] = self.emitter_position(int(i), w["t"][sel])
+            self._window_xy = xy
+        return np.asarray(self._window_xy[rows], np.float64)
 
     def sensor_pose(self, sensor: SensorSpec | str, t_s: npt.ArrayLike) -> tuple[Array, Array]:
         """Position (n, 2) in metres and boresight compass heading (n,) of a sensor at ``t_s``.
@@ -424,7 +431,7 @@ class StreamTwin(World):
             self.tx = window
             self._window_key = key
             self._window = _concat_window(window)
-            self._positions = {}
+            self._window_xy = None
         rec = self._receive(s, self._candidates(s), self._rx[s.id])
         self.cursor_s[s.id] = t1_s
         return rec

@@ -39,6 +39,14 @@ class Transmissions:
         return int(self.t_s.shape[0])
 
 
+_EMPTY = Transmissions(
+    t_s=np.empty(0),
+    channel=np.empty(0, np.int16),
+    kind=np.empty(0, np.uint8),
+    seq=np.empty(0, np.int32),
+)
+"""No frames (shared; arrays of a frozen record are never written to)."""
+
 _DRAW_BLOCK = 256
 """Random numbers are drawn this many at a time; how they are used never depends on it."""
 
@@ -135,6 +143,10 @@ class TrafficGenerator:
         Frames before the emitter's ``start_s`` are never sent.
         """
         events = self._new_events(t_end_s)
+        if not len(events) and not (len(self._pending_t) and self._pending_t[0] < t_end_s):
+            # nothing starts in this window (the common case for sparse traffic)
+            self.until_s = max(self.until_s, t_end_s)
+            return _EMPTY
         t = np.concatenate([self._pending_t, (events[:, None] + self._offsets[None, :]).ravel()])
         ch = np.concatenate([self._pending_ch, np.tile(self._offset_ch, len(events))])
         order = np.argsort(t, kind="stable")
@@ -165,8 +177,9 @@ def transmissions(spec: TrafficSpec, duration_s: float, rng: np.random.Generator
 
 def merge_transmissions(parts: Sequence[Transmissions]) -> Transmissions:
     """Several models' frames in one time order (ties keep the order of ``parts``)."""
-    if len(parts) == 1:
-        return parts[0]
+    nonempty = [p for p in parts if len(p)]
+    if len(nonempty) <= 1:
+        return nonempty[0] if nonempty else (parts[0] if parts else _EMPTY)
     t = np.concatenate([p.t_s for p in parts])
     order = np.argsort(t, kind="stable")
     return Transmissions(

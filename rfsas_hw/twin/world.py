@@ -323,6 +323,16 @@ class World:
         rx = ReceiverStreams(self.scenario.seed, s, self.detail)
         return self._receive(s, self._candidates(s), rx)
 
+    def _frame_positions(self, c: dict[str, Any]) -> Array:
+        """Where each candidate frame's emitter was when it sent it, shape (n, 2), metres."""
+        t = c["t"]
+        e_idx = c["emitter"]
+        exy = np.empty((len(t), 2))
+        for i in np.unique(e_idx):
+            sel = e_idx == i
+            exy[sel] = self.emitter_position(int(i), t[sel])
+        return exy
+
     def _receive(self, s: SensorSpec, c: dict[str, Any], rx: ReceiverStreams) -> Receptions:
         """What sensor ``s`` makes of the candidate frames ``c`` (time-sorted).
 
@@ -341,10 +351,7 @@ class World:
         for code, name in enumerate(TECH_CODES):
             for ch in np.unique(c["channel"][tech == code]):
                 freq[(tech == code) & (c["channel"] == ch)] = channel_to_freq_mhz(int(ch), name)
-        exy = np.empty((n, 2))
-        for i in np.unique(e_idx):
-            sel = e_idx == i
-            exy[sel] = self.emitter_position(int(i), t[sel])
+        exy = self._frame_positions(c)
         sxy, heading = self.sensor_pose(s, t)
         delta = exy - sxy
         dist = np.hypot(delta[:, 0], delta[:, 1])

@@ -32,22 +32,20 @@ transmitter: every bearing carries the configured ``emitter`` id and
 
 from __future__ import annotations
 
-import logging
 import math
 import re
 import time
 from collections import deque
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
-import serial
 
 from rfsas_hw.angles import wrap_deg_180, wrap_deg_360
-from rfsas_hw.errors import ConfigError, DataFormatError, SourceError
+from rfsas_hw.errors import ConfigError, DataFormatError
 from rfsas_hw.records import BearingBatch, Pose
-from rfsas_hw.sources.base import BatchFilter, ErrorPolicy, Source
-
-log = logging.getLogger(__name__)
+from rfsas_hw.sources.base import BatchFilter, ErrorPolicy
+from rfsas_hw.sources.serial_lines import SerialLineSource
+from rfsas_hw.sources.spec_options import SpecKeys
 
 EARTH_RADIUS_M = 6_371_008.8
 """Mean Earth radius, metres (IUGG)."""
@@ -101,7 +99,7 @@ def to_local_m(lat_deg: float, lon_deg: float, origin: tuple[float, float]) -> t
     return east, north
 
 
-class AgreloSource(Source[BearingBatch]):
+class AgreloSource(SerialLineSource):
     """Bearings from an Agrelo-format Doppler DF unit on a serial port.
 
     Args:
@@ -123,6 +121,18 @@ class AgreloSource(Source[BearingBatch]):
     """
 
     scheme = "agrelo"
+    device = "DF unit"
+    max_line = MAX_LINE
+    spec_keys: ClassVar[SpecKeys] = {
+        "baud": ("baudrate", int),
+        "origin": ("origin", str),
+        "heading": ("heading_deg", float),
+        "sensor_id": ("sensor_id", str),
+        "channel": ("channel", int),
+        "min_speed_kn": ("min_speed_kn", float),
+    }
+    """``agrelo:URL[#key=value&…]`` keys: baud, origin (LAT,LON), heading, sensor_id,
+    channel, min_speed_kn."""
     yields_bearings = True
 
     def __init__(
@@ -151,7 +161,6 @@ class AgreloSource(Source[BearingBatch]):
             origin = (lat, lon)
         if origin is not None and not (-90 <= origin[0] <= 90 and -180 <= origin[1] <= 180):
             raise ConfigError(f"origin {origin} is not a latitude/longitude in degrees")
-        self.url = url
         self.sensor_id = sensor_id
         self.origin = origin
         self.fixed_heading_deg = heading_deg
@@ -167,43 +176,10 @@ class AgreloSource(Source[BearingBatch]):
         """Last position in the local frame with the heading in use (needs ``origin``)."""
         self.track: deque[tuple[int, Pose]] = deque(maxlen=10_000)
         """(t_ns, pose) at each bearing, for bearings from a moving unit."""
-        self._buf = b""
         self._line_no = 0
-        factory = port_factory or serial.serial_for_url
-        try:
-            self._port = factory(url, baudrate=baudrate, timeout=0.05)
-        except (serial.SerialException, OSError, ValueError) as err:
-            raise SourceError(f"cannot open serial port {url!r}: {err}") from err
+        self._open_port(url, baudrate, port_factory, "serial port")
         self.stats.extra.update(nmea_fixes=0, nmea_skipped=0)
         self._closed = False
-
-    @classmethod
-    def from_spec(cls, arg: str, **options: Any) -> AgreloSource:
-        """``agrelo:URL[#key=value&key=value]``; keys: baud, origin (LAT,LON),
-        heading, sensor_id, channel, min_speed_kn.
-
-        Raises:
-            ConfigError: an unknown key or a malformed value.
-        """
-        url, _, opts = arg.partition("#")
-        conv: dict[str, tuple[str, Any]] = {
-            "baud": ("baudrate", int),
-            "origin": ("origin", str),
-            "heading": ("heading_deg", float),
-            "sensor_id": ("sensor_id", str),
-            "channel": ("channel", int),
-            "min_speed_kn": ("min_speed_kn", float),
-        }
-        for part in filter(None, opts.split("&")):
-            key, sep, value = part.partition("=")
-            if not sep or key not in conv:
-                raise ConfigError(f"agrelo option {part!r}: use key=value, keys {', '.join(conv)}")
-            name, typ = conv[key]
-            try:
-                options.setdefault(name, typ(value))
-            except ValueError as err:
-                raise ConfigError(f"agrelo option {part!r}: {err}") from err
-        return cls(url, **options)
 
     @property
     def heading_deg(self) -> float | None:
@@ -255,22 +231,14 @@ class AgreloSource(Source[BearingBatch]):
         self.pose = Pose(east, north, math.nan if heading is None else heading)
 
     def _read_raw(self, timeout: float | None) -> BearingBatch | None:
-        try:
-            data = self._port.read(max(1, self._port.in_waiting))
-        except (serial.SerialException, OSError) as err:
-            log.warning("DF unit at %s is gone (%s)", self.url, err)
-            self.stats.errors.append(f"{self.url}: {err}")
-            self._end()
-            return None
-        if not data:
+        got_lines = self._read_lines()
+        if got_lines is None:
             return None
         now = time.time_ns()
-        lines = (self._buf + data).split(b"\n")
-        self._buf = lines.pop()
-        if len(self._buf) > MAX_LINE:
+        lines, overflow = got_lines
+        if overflow:
             self._line_no += 1
-            self._bad_line("malformed", self._buf, "line too long")
-            self._buf = b""
+            self._bad_line("malformed", overflow, "line too long")
         rel: list[float] = []
         sig: list[float] = []
         for raw in lines:
@@ -316,12 +284,6 @@ class AgreloSource(Source[BearingBatch]):
             emitter=np.full(n, self.emitter, np.uint64),
             relative_deg=relative,
         )
-
-    def _close(self) -> None:
-        try:
-            self._port.close()
-        except (serial.SerialException, OSError) as err:
-            log.debug("closing %s: %s", self.url, err)
 
 
 __all__ = ["AgreloSource", "nmea_checksum_ok", "sigma_from_quality", "to_local_m"]

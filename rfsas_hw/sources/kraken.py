@@ -54,6 +54,7 @@ from rfsas_hw.errors import ConfigError, DataFormatError
 from rfsas_hw.privacy.hashing import FixedNonce, MacHasher, NonceUnavailableError
 from rfsas_hw.records import BearingBatch
 from rfsas_hw.sources.base import MAX_KEPT_ERRORS, BatchFilter, ErrorPolicy, Source
+from rfsas_hw.sources.spec_options import split_spec
 
 log = logging.getLogger(__name__)
 
@@ -190,24 +191,19 @@ class KrakenSource(Source[BearingBatch]):
         Raises:
             ConfigError: an unknown key or a malformed value.
         """
-        url, _, opts = arg.partition("#")
-        conv: dict[str, tuple[str, Any]] = {
-            "sensor_id": ("sensor_id", str),
-            "heading": ("heading_deg", float),
-            "sign": ("sign", int),
-            "floor": ("floor_deg", float),
-            "min_confidence": ("min_confidence", float),
-            "poll": ("poll_s", float),
-        }
-        for part in filter(None, opts.split("&")):
-            key, sep, value = part.partition("=")
-            if not sep or key not in conv:
-                raise ConfigError(f"kraken option {part!r}: use key=value, keys {', '.join(conv)}")
-            name, typ = conv[key]
-            try:
-                options.setdefault(name, typ(value))
-            except ValueError as err:
-                raise ConfigError(f"kraken option {part!r}: {err}") from err
+        url, options = split_spec(
+            cls.scheme,
+            arg,
+            {
+                "sensor_id": ("sensor_id", str),
+                "heading": ("heading_deg", float),
+                "sign": ("sign", int),
+                "floor": ("floor_deg", float),
+                "min_confidence": ("min_confidence", float),
+                "poll": ("poll_s", float),
+            },
+            options,
+        )
         return cls(url, **options)
 
     def _fetch(self) -> str | None:

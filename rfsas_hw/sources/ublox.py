@@ -38,22 +38,20 @@ used (ids unlinkable across runs).
 from __future__ import annotations
 
 import csv
-import logging
 import math
 import os
 import time
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
-import serial
 
 from rfsas_hw.angles import wrap_deg_180, wrap_deg_360
 from rfsas_hw.errors import ConfigError, DataFormatError, SourceError
 from rfsas_hw.privacy.hashing import FixedNonce, MacHasher, NonceUnavailableError
 from rfsas_hw.records import BearingBatch
-from rfsas_hw.sources.base import BatchFilter, ErrorPolicy, Source
-
-log = logging.getLogger(__name__)
+from rfsas_hw.sources.base import BatchFilter, ErrorPolicy
+from rfsas_hw.sources.serial_lines import SerialLineSource
+from rfsas_hw.sources.spec_options import SpecKeys
 
 MAX_LINE = 400
 """Longest line accepted, bytes (a 12-field event with two 30-character strings is ~130)."""
@@ -93,7 +91,7 @@ def sigma_from_rssi(
     return math.hypot(floor_deg, phase)
 
 
-class UbloxSource(Source[BearingBatch]):
+class UbloxSource(SerialLineSource):
     """Bearings from a u-blox AoA anchor's ``+UUDF`` events on a serial port or TCP bridge.
 
     Args:
@@ -113,6 +111,17 @@ class UbloxSource(Source[BearingBatch]):
     """
 
     scheme = "ublox"
+    device = "u-blox unit"
+    max_line = MAX_LINE
+    spec_keys: ClassVar[SpecKeys] = {
+        "baud": ("baudrate", int),
+        "sensor_id": ("sensor_id", str),
+        "boresight": ("boresight_deg", float),
+        "sign": ("sign", int),
+        "floor": ("floor_deg", float),
+        "spacing": ("spacing_wavelengths", float),
+    }
+    """``ublox:URL[#key=value&…]`` keys: baud, sensor_id, boresight, sign, floor, spacing."""
     yields_bearings = True
     hashes_ids = True
     """Hashes transmitter ids itself: ``rfsas live`` hands it the deployment's hasher."""
@@ -138,52 +147,19 @@ class UbloxSource(Source[BearingBatch]):
             raise ConfigError(f"ublox sign must be 1 or -1, got {sign}")
         if not (floor_deg >= 0 and spacing_wavelengths > 0):
             raise ConfigError("ublox floor must be ≥ 0 and spacing > 0")
-        self.url = url
         self.sensor_id = sensor_id
         self.boresight_deg = float(boresight_deg)
         self.sign = sign
         self.floor_deg = float(floor_deg)
         self.spacing_wavelengths = float(spacing_wavelengths)
         self.hasher = hasher or MacHasher(FixedNonce(os.urandom(32)))
-        self._buf = b""
         self._line_no = 0
         self._binary_run = 0
-        factory = port_factory or serial.serial_for_url
-        try:
-            self._port = factory(url, baudrate=baudrate, timeout=0.05)
-        except (serial.SerialException, OSError, ValueError) as err:
-            raise SourceError(f"cannot open u-blox unit {url!r}: {err}") from err
+        self._open_port(url, baudrate, port_factory, "u-blox unit")
         self.stats.extra.update(
             events=0, startups=0, ok=0, error_replies=0, echoes=0, payloads=0, other_urcs=0
         )
         self._closed = False
-
-    @classmethod
-    def from_spec(cls, arg: str, **options: Any) -> UbloxSource:
-        """``ublox:URL[#key=value&…]``; keys: baud, sensor_id, boresight, sign, floor, spacing.
-
-        Raises:
-            ConfigError: an unknown key or a malformed value.
-        """
-        url, _, opts = arg.partition("#")
-        conv: dict[str, tuple[str, Any]] = {
-            "baud": ("baudrate", int),
-            "sensor_id": ("sensor_id", str),
-            "boresight": ("boresight_deg", float),
-            "sign": ("sign", int),
-            "floor": ("floor_deg", float),
-            "spacing": ("spacing_wavelengths", float),
-        }
-        for part in filter(None, opts.split("&")):
-            key, sep, value = part.partition("=")
-            if not sep or key not in conv:
-                raise ConfigError(f"ublox option {part!r}: use key=value, keys {', '.join(conv)}")
-            name, typ = conv[key]
-            try:
-                options.setdefault(name, typ(value))
-            except ValueError as err:
-                raise ConfigError(f"ublox option {part!r}: {err}") from err
-        return cls(url, **options)
 
     # -- parsing -----------------------------------------------------------------
 
@@ -215,21 +191,13 @@ class UbloxSource(Source[BearingBatch]):
         return mac, float(azimuth), float(max(present)), channel
 
     def _read_raw(self, timeout: float | None) -> BearingBatch | None:
-        try:
-            data = self._port.read(max(1, self._port.in_waiting))
-        except (serial.SerialException, OSError) as err:
-            log.warning("u-blox unit at %s is gone (%s)", self.url, err)
-            self.stats.errors.append(f"{self.url}: {err}")
-            self._end()
-            return None
-        if not data:
+        got_lines = self._read_lines()
+        if got_lines is None:
             return None
         now = time.time_ns()
-        lines = (self._buf + data).split(b"\n")
-        self._buf = lines.pop()
-        if len(self._buf) > MAX_LINE:
-            lines.append(self._buf)
-            self._buf = b""
+        lines, overflow = got_lines
+        if overflow:
+            lines.append(overflow)
         macs: list[int] = []
         az: list[float] = []
         rssi: list[float] = []
@@ -305,12 +273,6 @@ class UbloxSource(Source[BearingBatch]):
             emitter=emitter,
             relative_deg=relative,
         )
-
-    def _close(self) -> None:
-        try:
-            self._port.close()
-        except (serial.SerialException, OSError) as err:
-            log.debug("closing %s: %s", self.url, err)
 
 
 __all__ = ["UbloxSource", "mac_from_hex", "sigma_from_rssi"]

@@ -22,7 +22,7 @@ from rfsas_hw.df.check import (
     with_environment_floor,
 )
 from rfsas_hw.df.plot import plot_calibration
-from rfsas_hw.df.validate import Finding, check_samples, raise_on_errors
+from rfsas_hw.df.validate import Finding, check_samples, drop_sentinels, raise_on_errors
 from rfsas_hw.df.validate import check_calibration as validate_calibration
 from rfsas_hw.outpaths import check_output
 
@@ -232,7 +232,10 @@ def calibrate(
         if len(inputs) != 2:
             raise click.UsageError("--check takes CAL.yaml SAMPLES.csv")
         cal = load_calibration(inputs[0])
-        samples = read_samples_csv(inputs[1])
+        samples, dropped = drop_sentinels(read_samples_csv(inputs[1]))
+        if dropped:
+            _warn([Finding("warning", str(inputs[1]), f"{dropped} rows with sentinel readings "
+                           "(−128 dBm, out of range) left out of the check")])  # fmt: skip
         _warn(raise_on_errors(check_samples(samples, str(inputs[1])), "check data"))
         report = check_calibration(cal, samples)
         if as_json:

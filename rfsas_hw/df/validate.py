@@ -11,8 +11,9 @@ that look precise and are not. This module finds them, in one place, for
 Each finding is an ``error`` (the result would be wrong: refuse it) or a
 ``warning`` (unusual, possibly right: say so loudly). Thresholds and why:
 
-- RSSI outside −120…+20 dBm is not a Wi-Fi/BLE reading: −128, −127 and 0 are
-  what drivers write when a chain has no value (a "sentinel").
+- RSSI at or below −128 dBm (the int8 minimum drivers write for "no value", a
+  "sentinel") or at or above +20 dBm is not a reading; below −110 dBm no
+  receiver decodes a frame, so such readings are warned about.
 - ψ = (P₁ − K·P₂)/(P₁ + K·P₂) lies strictly inside (−1, 1) for any two
   positive powers (and any two dBm readings of one sign).
 - Angles are compass-like degrees from boresight: a grid or sweep beyond ±180°
@@ -41,8 +42,12 @@ from rfsas_hw.df.calibration import Calibration, CalibrationTable
 from rfsas_hw.errors import CalibrationError
 from rfsas_hw.rf.synth import TurntableSamples
 
-RSSI_RANGE_DBM = (-120.0, 20.0)
-"""Plausible RSSI readings, dBm; outside is a sentinel or a unit error."""
+RSSI_RANGE_DBM = (-128.0, 20.0)
+"""Possible RSSI readings, dBm, exclusive: −128 (the int8 minimum) is what drivers write
+for "no reading", and nothing received is above +20 dBm."""
+RSSI_SENSITIVITY_DBM = -110.0
+"""Below this no receiver decodes a frame: such readings are suspicious, not impossible
+(a simulated chain in a beam null reports them)."""
 NOISE_FLOOR_RANGE_DBM = (-130.0, -40.0)
 """Plausible noise floors, dBm."""
 MAX_ABS_ANGLE_DEG = 180.0
@@ -203,15 +208,25 @@ def check_samples(
     r1, r2, angle = samples.rssi1_dbm, samples.rssi2_dbm, samples.angle_deg
     lo, hi = RSSI_RANGE_DBM
     for name, values in (("rssi1_dbm", r1), ("rssi2_dbm", r2)):
-        bad = ~np.isfinite(values) | (values < lo) | (values > hi)
+        bad = ~np.isfinite(values) | (values <= lo) | (values >= hi)
         if bad.any():
             shown = ", ".join(f"{v:g}" for v in np.unique(values[bad])[:3])
             out.append(
                 Finding(
                     "error",
                     f"{where}: {name}",
-                    f"{int(bad.sum())} of {n} readings outside {lo:g}…{hi:g} dBm ({shown}): "
+                    f"{int(bad.sum())} of {n} readings are {shown} dBm, outside {lo:g}…{hi:g}: "
                     "driver sentinels for 'no reading'; drop those rows",
+                )
+            )
+        weak = ~bad & (values < RSSI_SENSITIVITY_DBM)
+        if weak.any():
+            out.append(
+                Finding(
+                    "warning",
+                    f"{where}: {name}",
+                    f"{int(weak.sum())} of {n} readings below {RSSI_SENSITIVITY_DBM:g} dBm, "
+                    "under any receiver's sensitivity: sentinels or a dead chain?",
                 )
             )
     if noise_floor_dbm is not None and not (
@@ -275,6 +290,29 @@ def check_samples(
                 )
             )
     return out
+
+
+def sentinel_rows(samples: TurntableSamples) -> np.ndarray:
+    """Rows whose either reading is not a reading (a sentinel, NaN, or out of range)."""
+    lo, hi = RSSI_RANGE_DBM
+    bad = np.zeros(len(samples.angle_deg), dtype=bool)
+    for values in (samples.rssi1_dbm, samples.rssi2_dbm):
+        bad |= ~np.isfinite(values) | (values <= lo) | (values >= hi)
+    return bad
+
+
+def drop_sentinels(samples: TurntableSamples) -> tuple[TurntableSamples, int]:
+    """``samples`` without its sentinel rows, and how many were dropped (for a check, where
+    a few bad rows should cost only themselves; a fit refuses them instead)."""
+    bad = sentinel_rows(samples)
+    if not bad.any():
+        return samples, 0
+    keep = ~bad
+    kept = TurntableSamples(
+        samples.angle_deg[keep], samples.rssi1_dbm[keep], samples.rssi2_dbm[keep],
+        samples.channel[keep],
+    )  # fmt: skip
+    return kept, int(bad.sum())
 
 
 def errors(findings: Iterable[Finding]) -> list[Finding]:

@@ -173,3 +173,11 @@ def test_the_shipped_files_are_credible() -> None:
     assert not check_samples(read_samples_csv(SWEEP))
     cal = load_calibration(CAL)
     assert np.all(np.abs(cal.tables[0].psi) < 1)
+
+
+def test_a_check_leaves_sentinel_rows_out_and_says_so(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    check = _sweep(tmp_path, "check", _sentinels)
+    code, _, err = run(["calibrate", "--check", str(CAL), str(check), "--json"], capsys)
+    assert code in (0, 1) and "rows with sentinel readings" in err and "left out" in err

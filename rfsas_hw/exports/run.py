@@ -13,17 +13,18 @@ import dataclasses
 import json
 import math
 from collections import Counter
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, TypeVar
 
-from rfsas_hw.errors import ConfigError, ExportError
+from rfsas_hw.errors import ConfigError, DataFormatError, ExportError
 from rfsas_hw.geo import SiteOrigin, site_origin_from_mapping
 from rfsas_hw.records import Assessment, Fix
 
 T = TypeVar("T")
 
-__all__ = ["BearingLine", "RunLog", "read_run"]
+__all__ = ["BearingLine", "RunLog", "RunRecord", "SiteLine", "iter_records", "read_run"]
 
 MAX_ERRORS_KEPT = 20
 """Messages of skipped lines kept for the user (all are counted)."""
@@ -31,7 +32,7 @@ MAX_ERRORS_KEPT = 20
 
 @dataclass(frozen=True, slots=True)
 class BearingLine:
-    """One bearing of a run log with the pose of the sensor that measured it."""
+    """One bearing of a run log, with the pose of the sensor that measured it if known."""
 
     t_ns: int
     """Capture time, UTC ns."""
@@ -43,10 +44,32 @@ class BearingLine:
     """Compass azimuth of the emitter from the sensor, degrees."""
     sigma_deg: float
     """One-sigma error of the azimuth, degrees."""
-    x_m: float
-    """Sensor east, metres."""
-    y_m: float
-    """Sensor north, metres."""
+    x_m: float = math.nan
+    """Sensor east, metres (NaN: the line has no pose, as in a bearings file)."""
+    y_m: float = math.nan
+    """Sensor north, metres (NaN: no pose)."""
+    heading_deg: float = math.nan
+    """Sensor heading, compass degrees (NaN: not given)."""
+    snr_db: float = math.nan
+    """Signal-to-noise ratio, dB (NaN: not given)."""
+    channel: int = 0
+    """IEEE channel (0: not given)."""
+    relative_deg: float = math.nan
+    """Azimuth relative to the sensor's heading, degrees (NaN: not given)."""
+
+
+@dataclass(frozen=True, slots=True)
+class SiteLine:
+    """A ``site`` line: its ``origin`` mapping as written (checked by who needs it)."""
+
+    where: str
+    """File and line number, for messages."""
+    origin: Any
+    """The ``origin`` value of the line."""
+
+
+RunRecord = BearingLine | Fix | Assessment | SiteLine
+"""What :func:`iter_records` yields."""
 
 
 @dataclass
@@ -66,7 +89,27 @@ class RunLog:
     """The first few skipped lines, with line numbers."""
 
 
-def _build(cls: type[T], data: dict[str, Any], where: str) -> T:
+def _num(data: Mapping[str, Any], key: str, where: str) -> float:
+    if key not in data:
+        raise ValueError(f"{where}: missing key {key}")
+    value = data[key]
+    if value is None:
+        return math.nan
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        raise ValueError(f"{where}: {key} is not a number")
+    return float(value)
+
+
+def _int(data: Mapping[str, Any], key: str, where: str) -> int:
+    if key not in data:
+        raise ValueError(f"{where}: missing key {key}")
+    value = data[key]
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise ValueError(f"{where}: {key} is not an integer")
+    return value
+
+
+def _record(cls: type[T], data: Mapping[str, Any], where: str) -> T:
     """A record dataclass from a JSON mapping: null → NaN, lists → tuples, types checked."""
     values: dict[str, Any] = {}
     for f in dataclasses.fields(cls):  # type: ignore[arg-type]
@@ -75,39 +118,101 @@ def _build(cls: type[T], data: dict[str, Any], where: str) -> T:
         value = data[f.name]
         kind = str(f.type)
         if kind == "float":
-            if value is None:
-                value = math.nan
-            elif isinstance(value, bool) or not isinstance(value, int | float):
-                raise ValueError(f"{where}: {f.name} is not a number")
-            value = float(value)
-        elif kind == "int" and (isinstance(value, bool) or not isinstance(value, int)):
-            raise ValueError(f"{where}: {f.name} is not an integer")
+            value = _num(data, f.name, where)
+        elif kind == "int":
+            value = _int(data, f.name, where)
+        elif kind == "bool" and not isinstance(value, bool):
+            raise ValueError(f"{where}: {f.name} is not true/false")
         elif kind == "str" and not isinstance(value, str):
             raise ValueError(f"{where}: {f.name} is not text")
         elif kind.startswith("tuple"):
-            if not isinstance(value, list):
-                raise ValueError(f"{where}: {f.name} is not a list")
-            value = tuple(str(v) for v in value)
+            if not isinstance(value, list) or not all(isinstance(v, str) for v in value):
+                raise ValueError(f"{where}: {f.name} is not a list of text")
+            value = tuple(value)
         values[f.name] = value
     return cls(**values)
 
 
-def _bearing(data: dict[str, Any], where: str) -> BearingLine:
+def _bearing(data: Mapping[str, Any], where: str) -> BearingLine:
+    sensor_id = data.get("sensor_id")
+    emitter = data.get("emitter")
+    if not isinstance(sensor_id, str) or not isinstance(emitter, str):
+        raise ValueError(f"{where}: sensor_id and emitter must be text")
     try:
-        num = {
-            k: math.nan if data[k] is None else float(data[k])
-            for k in ("azimuth_deg", "sigma_deg", "x_m", "y_m")
-        }
-        return BearingLine(
-            t_ns=int(data["t_ns"]),
-            sensor_id=str(data["sensor_id"]),
-            emitter=str(data["emitter"]),
-            **num,
-        )
-    except KeyError as err:
-        raise ValueError(f"{where}: missing key {err.args[0]}") from None
-    except (TypeError, ValueError):
-        raise ValueError(f"{where}: a value is not a number") from None
+        int(emitter, 16)
+    except ValueError:
+        raise ValueError(f"{where}: emitter {emitter!r} is not hex") from None
+
+    def optional(key: str) -> float:
+        return _num(data, key, where) if key in data else math.nan
+
+    return BearingLine(
+        t_ns=_int(data, "t_ns", where),
+        sensor_id=sensor_id,
+        emitter=emitter,
+        azimuth_deg=_num(data, "azimuth_deg", where),
+        sigma_deg=_num(data, "sigma_deg", where),
+        x_m=optional("x_m"),
+        y_m=optional("y_m"),
+        heading_deg=optional("heading_deg"),
+        snr_db=optional("snr_db"),
+        channel=_int(data, "channel", where) if "channel" in data else 0,
+        relative_deg=optional("relative_deg"),
+    )
+
+
+def iter_records(
+    path: str | Path,
+    skipped: Counter[str],
+    errors: list[str],
+    *,
+    default_record: str | None = None,
+) -> Iterator[RunRecord]:
+    """The records of a JSON-lines file in file order; ``stats`` lines are passed over.
+
+    A line that is not JSON or not a valid record is counted in ``skipped``
+    (by reason) and, while there is room, named in ``errors`` with its line
+    number. ``default_record`` is the kind of a line without a ``record`` key
+    (``"bearing"`` for a bearings file; None: such a line is a bad record).
+
+    Raises:
+        DataFormatError: the file cannot be read.
+    """
+    p = Path(path)
+    try:
+        f = p.open("r", encoding="utf-8", errors="replace")
+    except OSError as err:
+        raise DataFormatError(f"{p}: cannot read: {err.strerror or err}") from err
+    with f:
+        for lineno, line in enumerate(f, 1):
+            if not line.strip():
+                continue
+            where = f"{p}: line {lineno}"
+            record: RunRecord
+            try:
+                data = json.loads(line)
+                if not isinstance(data, dict):
+                    raise ValueError(f"{where}: not a JSON object")
+                kind = data.get("record", default_record)
+                if kind == "bearing":
+                    record = _bearing(data, where)
+                elif kind == "fix":
+                    record = _record(Fix, data, where)
+                elif kind == "assessment":
+                    record = _record(Assessment, data, where)
+                elif kind == "site":
+                    record = SiteLine(where, data.get("origin", {}))
+                elif kind == "stats":
+                    continue
+                else:
+                    raise ValueError(f"{where}: unknown record {kind!r}")
+            except (ValueError, TypeError) as err:
+                reason = "not JSON" if isinstance(err, json.JSONDecodeError) else "bad record"
+                skipped[reason] += 1
+                if len(errors) < MAX_ERRORS_KEPT:
+                    errors.append(f"{where}: not JSON" if reason == "not JSON" else str(err))
+                continue
+            yield record
 
 
 def read_run(path: str | Path) -> RunLog:
@@ -116,42 +221,20 @@ def read_run(path: str | Path) -> RunLog:
     Raises:
         ExportError: the file cannot be read, or its ``site`` line is invalid.
     """
-    p = Path(path)
-    run = RunLog(source=str(p))
+    run = RunLog(source=str(Path(path)))
     try:
-        f = p.open("r", encoding="utf-8", errors="replace")
-    except OSError as err:
-        raise ExportError(f"{p}: cannot read: {err.strerror or err}") from err
-    with f:
-        for lineno, line in enumerate(f, 1):
-            if not line.strip():
-                continue
-            where = f"{p}: line {lineno}"
-            try:
-                data = json.loads(line)
-                if not isinstance(data, dict):
-                    raise ValueError(f"{where}: not a JSON object")
-                kind = data.get("record")
-                body = {k: v for k, v in data.items() if k != "record"}
-                if kind == "site":
-                    try:
-                        origin = body.get("origin", {})
-                        run.origin = site_origin_from_mapping(origin, f"{where}: origin")
-                    except ConfigError as err:
-                        raise ExportError(str(err)) from err
-                elif kind == "bearing":
-                    run.bearings.append(_bearing(body, where))
-                elif kind == "fix":
-                    run.fixes.append(_build(Fix, body, where))
-                elif kind == "assessment":
-                    run.assessments.append(_build(Assessment, body, where))
-                elif kind == "stats":
-                    continue
-                else:
-                    raise ValueError(f"{where}: unknown record {kind!r}")
-            except (ValueError, TypeError) as err:
-                reason = "not JSON" if isinstance(err, json.JSONDecodeError) else "bad record"
-                run.skipped[reason] += 1
-                if len(run.errors) < MAX_ERRORS_KEPT:
-                    run.errors.append(f"{where}: not JSON" if reason == "not JSON" else str(err))
+        for record in iter_records(path, run.skipped, run.errors):
+            if isinstance(record, BearingLine):
+                run.bearings.append(record)
+            elif isinstance(record, Fix):
+                run.fixes.append(record)
+            elif isinstance(record, Assessment):
+                run.assessments.append(record)
+            else:
+                try:
+                    run.origin = site_origin_from_mapping(record.origin, f"{record.where}: origin")
+                except ConfigError as err:
+                    raise ExportError(str(err)) from err
+    except DataFormatError as err:
+        raise ExportError(str(err)) from err
     return run

@@ -18,17 +18,17 @@ JSON or not a valid record is skipped and counted with its line number.
 
 from __future__ import annotations
 
-import json
 import math
 from collections import Counter
 from collections.abc import Iterator, Mapping
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from rfsas_hw.errors import ConfigError, DataFormatError
+from rfsas_hw.errors import ConfigError
+from rfsas_hw.exports.run import BearingLine, iter_records
 from rfsas_hw.records import Assessment, BearingBatch, Fix, Pose
 from rfsas_hw.ros2.bag import RecordFormat, open_recording
 from rfsas_hw.ros2.scene import SceneBuilder, SceneConfig
@@ -36,20 +36,6 @@ from rfsas_hw.ros2.sink import BackendScene, SceneSink
 
 BATCH_GAP_NS = 100_000_000
 """Bearings of one sensor closer than this to the batch's first become one array, ns."""
-MAX_ERRORS_KEPT = 20
-
-
-@dataclass(frozen=True, slots=True)
-class _BearingRow:
-    t_ns: int
-    sensor_id: str
-    azimuth_deg: float
-    sigma_deg: float
-    snr_db: float
-    channel: int
-    emitter: int
-    relative_deg: float
-    pose: Pose | None
 
 
 @dataclass(slots=True)
@@ -78,78 +64,16 @@ class ExportResult:
     """Sensors whose bearings had no pose."""
 
 
-def _num(data: Mapping[str, Any], key: str, where: str) -> float:
-    if key not in data:
-        raise ValueError(f"{where}: missing key {key}")
-    value = data[key]
-    if value is None:
-        return math.nan
-    if isinstance(value, bool) or not isinstance(value, int | float):
-        raise ValueError(f"{where}: {key} is not a number")
-    return float(value)
+def _pose(line: BearingLine, poses: Mapping[str, Pose]) -> Pose | None:
+    """The sensor's pose: the one given by id, else the line's own (heading 0 if unknown)."""
+    pose = poses.get(line.sensor_id)
+    if pose is None and math.isfinite(line.x_m) and math.isfinite(line.y_m):
+        heading = line.heading_deg if math.isfinite(line.heading_deg) else 0.0
+        pose = Pose(line.x_m, line.y_m, heading)
+    return pose
 
 
-def _int(data: Mapping[str, Any], key: str, where: str) -> int:
-    value = data.get(key)
-    if isinstance(value, bool) or not isinstance(value, int):
-        raise ValueError(f"{where}: {key} is not an integer")
-    return value
-
-
-def _record(cls: type[Any], data: Mapping[str, Any], where: str) -> Any:
-    """A Fix or Assessment from its JSON mapping (null → NaN, lists → tuples)."""
-    values: dict[str, Any] = {}
-    for f in fields(cls):
-        kind = str(f.type)
-        if kind == "float":
-            values[f.name] = _num(data, f.name, where)
-        elif kind == "int":
-            values[f.name] = _int(data, f.name, where)
-        elif kind == "bool":
-            if not isinstance(data.get(f.name), bool):
-                raise ValueError(f"{where}: {f.name} is not true/false")
-            values[f.name] = data[f.name]
-        elif kind == "str":
-            if not isinstance(data.get(f.name), str):
-                raise ValueError(f"{where}: {f.name} is not text")
-            values[f.name] = data[f.name]
-        else:
-            items = data.get(f.name)
-            if not isinstance(items, list) or not all(isinstance(v, str) for v in items):
-                raise ValueError(f"{where}: {f.name} is not a list of text")
-            values[f.name] = tuple(items)
-    return cls(**values)
-
-
-def _bearing(data: Mapping[str, Any], where: str, poses: Mapping[str, Pose]) -> _BearingRow:
-    sensor_id = data.get("sensor_id")
-    emitter = data.get("emitter")
-    if not isinstance(sensor_id, str) or not isinstance(emitter, str):
-        raise ValueError(f"{where}: sensor_id and emitter must be text")
-    try:
-        emitter_int = int(emitter, 16)
-    except ValueError:
-        raise ValueError(f"{where}: emitter {emitter!r} is not hex") from None
-    pose = poses.get(sensor_id)
-    if pose is None and "x_m" in data:
-        x, y = _num(data, "x_m", where), _num(data, "y_m", where)
-        heading = _num(data, "heading_deg", where) if "heading_deg" in data else math.nan
-        if math.isfinite(x) and math.isfinite(y):
-            pose = Pose(x, y, heading if math.isfinite(heading) else 0.0)
-    return _BearingRow(
-        t_ns=_int(data, "t_ns", where),
-        sensor_id=sensor_id,
-        azimuth_deg=_num(data, "azimuth_deg", where),
-        sigma_deg=_num(data, "sigma_deg", where),
-        snr_db=_num(data, "snr_db", where) if "snr_db" in data else math.nan,
-        channel=_int(data, "channel", where) if "channel" in data else 0,
-        emitter=emitter_int,
-        relative_deg=_num(data, "relative_deg", where) if "relative_deg" in data else math.nan,
-        pose=pose,
-    )
-
-
-def _batch(rows: list[_BearingRow]) -> BearingBatch:
+def _batch(rows: list[BearingLine]) -> BearingBatch:
     return BearingBatch(
         sensor_id=rows[0].sensor_id,
         t_ns=np.array([r.t_ns for r in rows], np.int64),
@@ -157,7 +81,7 @@ def _batch(rows: list[_BearingRow]) -> BearingBatch:
         sigma_deg=np.array([r.sigma_deg for r in rows]),
         snr_db=np.array([r.snr_db for r in rows]),
         channel=np.array([r.channel for r in rows], np.int16),
-        emitter=np.array([r.emitter for r in rows], np.uint64),
+        emitter=np.array([int(r.emitter, 16) for r in rows], np.uint64),
         relative_deg=np.array([r.relative_deg for r in rows]),
     )
 
@@ -174,67 +98,45 @@ def read_events(
     Raises:
         DataFormatError: the file cannot be read.
     """
-    p = Path(path)
-    try:
-        f = p.open("r", encoding="utf-8", errors="replace")
-    except OSError as err:
-        raise DataFormatError(f"{p}: cannot read: {err.strerror or err}") from err
-    pending: list[_BearingRow] = []
+    pending: list[BearingLine] = []
+    pending_pose: Pose | None = None
     step: _Step | None = None
 
     def flush_bearings() -> Iterator[tuple[int, Any]]:
         if pending:
             batch = _batch(pending)
-            yield int(batch.t_ns.max()), (batch, pending[0].pose)
+            yield int(batch.t_ns.max()), (batch, pending_pose)
             pending.clear()
 
-    with f:
-        for lineno, line in enumerate(f, 1):
-            if not line.strip():
-                continue
-            where = f"{p}: line {lineno}"
-            try:
-                data = json.loads(line)
-                if not isinstance(data, dict):
-                    raise ValueError(f"{where}: not a JSON object")
-                kind = data.get("record", "bearing")
-                if kind == "bearing":
-                    row = _bearing(data, where, poses)
-                    if pending and (
-                        row.sensor_id != pending[0].sensor_id
-                        or row.pose != pending[0].pose
-                        or abs(row.t_ns - pending[0].t_ns) > BATCH_GAP_NS
-                    ):
-                        yield from flush_bearings()
-                    pending.append(row)
-                    continue
-                if kind == "fix":
-                    fix = _record(Fix, data, where)
-                    if step is not None and step.assessments:
-                        yield step.t_ns, step
-                        step = None
-                    if step is None:
-                        step = _Step(fix.t_ns)
-                    step.fixes.append(fix)
-                    step.t_ns = max(step.t_ns, fix.t_ns)
-                elif kind == "assessment":
-                    a = _record(Assessment, data, where)
-                    if step is not None and step.assessments and step.assessments[0].t_ns != a.t_ns:
-                        yield step.t_ns, step
-                        step = None
-                    if step is None:
-                        step = _Step(a.t_ns)
-                    step.assessments.append(a)
-                    step.t_ns = a.t_ns
-                elif kind in ("stats", "site"):
-                    continue
-                else:
-                    raise ValueError(f"{where}: unknown record {kind!r}")
-            except (ValueError, TypeError) as err:
-                reason = "not JSON" if isinstance(err, json.JSONDecodeError) else "bad record"
-                result.skipped[reason] += 1
-                if len(result.errors) < MAX_ERRORS_KEPT:
-                    result.errors.append(f"{where}: not JSON" if reason == "not JSON" else str(err))
+    records = iter_records(path, result.skipped, result.errors, default_record="bearing")
+    for record in records:
+        if isinstance(record, BearingLine):
+            pose = _pose(record, poses)
+            if pending and (
+                record.sensor_id != pending[0].sensor_id
+                or pose != pending_pose
+                or abs(record.t_ns - pending[0].t_ns) > BATCH_GAP_NS
+            ):
+                yield from flush_bearings()
+            if not pending:
+                pending_pose = pose
+            pending.append(record)
+        elif isinstance(record, Fix):
+            if step is not None and step.assessments:
+                yield step.t_ns, step
+                step = None
+            if step is None:
+                step = _Step(record.t_ns)
+            step.fixes.append(record)
+            step.t_ns = max(step.t_ns, record.t_ns)
+        elif isinstance(record, Assessment):
+            if step is not None and step.assessments and step.assessments[0].t_ns != record.t_ns:
+                yield step.t_ns, step
+                step = None
+            if step is None:
+                step = _Step(record.t_ns)
+            step.assessments.append(record)
+            step.t_ns = record.t_ns
     yield from flush_bearings()
     if step is not None:
         yield step.t_ns, step

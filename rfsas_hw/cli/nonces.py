@@ -7,6 +7,7 @@ from pathlib import Path
 
 import click
 
+from rfsas_hw.cli.exitcodes import WorkFailed
 from rfsas_hw.errors import ConfigError
 from rfsas_hw.link.distribution import NonceDistributor, NonceInbox
 from rfsas_hw.link.keys import KeyStore
@@ -118,7 +119,13 @@ def serve(
     finally:
         dist.close()
     sent = ", ".join(f"{rid} {n}" for rid, n in sorted(dist.sent.items())) or "none"
-    click.echo(f"envelopes sent: {sent}; send errors: {sum(dist.errors.values())}")
+    errors = sum(dist.errors.values())
+    click.echo(f"envelopes sent: {sent}; send errors: {errors}")
+    if errors:
+        failed = ", ".join(f"{rid} {n}" for rid, n in sorted(dist.errors.items()) if n)
+        raise WorkFailed(f"envelopes could not be sent: {failed}")
+    if not sum(dist.sent.values()):
+        raise WorkFailed("no envelope was sent (no enrolled receiver has an address)")
 
 
 @nonces.command("listen")
@@ -170,7 +177,7 @@ def listen(keys_dir: Path, url: str, epoch_s: float, grace_s: float, duration: f
         inbox.close()
     click.echo(f"envelopes accepted {inbox.accepted}, refused {inbox.rejected}")
     if inbox.accepted == 0:
-        raise ConfigError(f"{url}: no nonce envelope for {store.receiver_id!r} arrived")
+        raise WorkFailed(f"{url}: no nonce envelope for {store.receiver_id!r} arrived")
 
 
 @nonces.command("secret")

@@ -199,6 +199,11 @@ def render_table(service: BackendService, alarm: bool) -> Table:
     metavar="ID",
     help="Id of the vehicle judged against (its advisory topic).",
 )
+@click.option(
+    "--tile-plan",
+    type=click.Path(dir_okay=False, path_type=Path),
+    help="Tile plan (YAML): broker --listen URLs take the tiles of this backend's group.",
+)
 @click.option("--no-table", is_flag=True, help="Do not draw the live table.")
 @ros2_options
 def backend(
@@ -222,6 +227,7 @@ def backend(
     send_cues: str | None,
     cues_fallback: str | None,
     vehicle_id: str,
+    tile_plan: Path | None,
     no_table: bool,
     **ros2: Any,
 ) -> None:
@@ -264,8 +270,14 @@ def backend(
     if len(trust) == 0:
         raise ConfigError(f"{keys_dir}: no enrolled sensors in trust/ (rfsas keys enroll)")
     state = None if vehicle is None or vehicle.startswith("udp://") else load_vehicle(vehicle)
+    urls = split_urls(listen)
+    if tile_plan is not None:
+        from rfsas_hw.fleet.tiles import load_tile_plan, with_tiles
+
+        plan = load_tile_plan(tile_plan)
+        urls = [with_tiles(u, plan, store.id) for u in urls]
     receiver = Receiver.listen(
-        split_urls(listen),
+        urls,
         trust,
         # with an authority enrolled, envelopes arriving on the link (a broker's
         # retained nonce topic) give the keys that pre-authenticate version-2 messages

@@ -176,3 +176,19 @@ def assign_tiles(tiles: Sequence[str], groups: Sequence[str]) -> dict[str, list[
 
         out[max(groups, key=score)].append(tile)
     return out
+
+
+def with_tiles(url: str, plan: TilePlan, backend_id: str) -> str:
+    """``url`` with the ``tiles=`` of ``backend_id``'s group added, when it is a broker
+    URL (``mqtt://``, ``mqtts://``) that names no tiles or subscriptions of its own;
+    other URLs are returned unchanged.
+
+    Raises:
+        ConfigError: the backend is in no group of the plan.
+    """
+    if not url.startswith(("mqtt://", "mqtts://")):
+        return url
+    if "tiles=" in url or "sub=" in url:
+        raise ConfigError(f"{url!r}: give the tiles by the plan or in the URL, not both")
+    tiles = plan.listen_options(backend_id)["tiles"]
+    return f"{url}{'&' if '?' in url else '?'}tiles={tiles}"

@@ -1,5 +1,6 @@
-"""Sensors → broker → an active/active pair of ``rfsas backend`` processes → signed
-advisories → a vehicle. One backend is killed: the vehicle misses no advisory."""
+"""Sensors → broker → an active/active pair of ``rfsas backend`` processes (both given
+the region of the sensors by a tile plan) → signed advisories → a vehicle. One backend
+is killed: the vehicle misses no advisory."""
 
 from __future__ import annotations
 
@@ -15,8 +16,10 @@ from cryptography.hazmat.primitives.asymmetric import ec
 from fleethelp import ORIGIN
 
 from rfsas_hw.fleet.advisory import AdvisoryReceiver
+from rfsas_hw.geo import SiteOrigin
 from rfsas_hw.link import Publisher
 from rfsas_hw.link.mqtt import open_mqtt
+from rfsas_hw.link.topics import TopicRouter
 from rfsas_hw.records import BearingBatch, Pose
 
 EMITTER_XY = (20.0, 30.0)
@@ -48,11 +51,27 @@ class BackendCards:
         return self.keys.get(backend_id)
 
 
+def _tile_plan(path: Path) -> Path:
+    """Both backends serve the region that holds both sensors; another group, elsewhere."""
+    lat, lon = (float(v) for v in ORIGIN.split(","))
+    router = TopicRouter(SiteOrigin(lat, lon))
+    tiles = [router.tile_of(p.x_m, p.y_m) for p in SENSOR_POSES.values()]
+    region = next(a for a in (tiles[0][:n] for n in range(16, 0, -1)) if tiles[1].startswith(a))
+    assert len(region) >= 10
+    elsewhere = region[:-1] + str((int(region[-1]) + 1) % 4)
+    path.write_text(
+        "groups:\n"
+        f"  here: {{tiles: ['{region}'], members: [be-a, be-b]}}\n"
+        f"  there: {{tiles: ['{elsewhere}'], members: [be-z]}}\n"
+    )
+    return path
+
+
 def _backend(
     broker: Broker, deployment: Deployment, ident: str, vehicle: Path, log: Path
 ) -> subprocess.Popen[bytes]:
     cmd = [sys.executable, "-m", "rfsas_hw.cli.main", "backend"]
-    cmd += ["--listen", broker.url(ident, sub="rfsas/v1/bearing/#")]
+    cmd += ["--listen", broker.url(ident), "--tile-plan", str(_tile_plan(log.with_suffix(".yaml")))]
     cmd += ["--keys", str(deployment.backends[ident].path), "--vehicle", str(vehicle)]
     cmd += ["--advise", broker.url(ident), "--vehicle-id", "car-7", "--origin", ORIGIN]
     cmd += ["--no-table", "--duration", "30"]

@@ -7,7 +7,7 @@ from pathlib import Path
 import pytest
 
 from rfsas_hw.errors import ConfigError
-from rfsas_hw.fleet.tiles import TilePlan, assign_tiles, load_tile_plan
+from rfsas_hw.fleet.tiles import TilePlan, assign_tiles, load_tile_plan, with_tiles
 
 
 def plan(groups: dict[str, object]) -> TilePlan:
@@ -62,3 +62,12 @@ def test_assignment_is_stable_when_a_group_is_added() -> None:
     for g in ("g1", "g2"):
         assert set(three[g]) <= set(two[g])
     plan({g: {"tiles": ts, "members": [f"be-{g}"]} for g, ts in three.items()})
+
+
+def test_broker_urls_take_the_tiles_of_the_backends_group() -> None:
+    p = plan({"north": {"tiles": ["1202", "1203"], "members": ["be-a"]}})
+    assert with_tiles("mqtts://b?ca=x", p, "be-a") == "mqtts://b?ca=x&tiles=1202,1203"
+    assert with_tiles("mqtt://b", p, "be-a") == "mqtt://b?tiles=1202,1203"
+    assert with_tiles("udp://0.0.0.0:47000", p, "be-a") == "udp://0.0.0.0:47000"
+    with pytest.raises(ConfigError, match="not both"):
+        with_tiles("mqtt://b?tiles=1", p, "be-a")

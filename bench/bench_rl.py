@@ -1,89 +1,206 @@
-"""Learning to brake: the full PPO run and the learned policy next to the rule.
+"""Learning to slow down where phones have been heard: the learned-vs-rule protocol.
 
-    python bench/bench_rl.py [--steps 40000] [--episodes 100] [--out out/rl] [--docs]
+    python bench/bench_rl.py [--steps 15000] [--seeds 0,1,2,3,4] [--episodes 60]
+                             [--jobs 2] [--out out/rl] [--docs]
 
-Trains PPO (MlpPolicy, seed 0, batch_size 64, ent_coef 0.0, learning_rate
-3e-4, n_epochs 10, n_steps 64) on ``rfsas/Intersection-v0`` at the default
-(low) level of detail with the default reward (+1 for braking above the risk
-threshold, +1 for accelerating below it), one torch thread. The goal is a
-training run of at most 3 minutes on one CPU core; training stops at 175 s
-whatever the step count, and the table says how many steps were done.
+The ``corners`` scenario of ``rfsas/Intersection-v0`` (quiet and busy blind
+corners; busy ones have a history of crossings and produce more late
+crossers) at the default (low) level of detail. Three arms, each trained
+with every seed on 4 vectorised environments:
 
-Then the learned policy, the rule a user would write instead (brake while the
-estimated risk is above the threshold, else hold speed) and a car that ignores
-warnings (hold speed) drive the same episodes (same seeds) at reaction
-distances 40–100 m. Printed per distance: probability of collision, mean
-fatality risk of the collisions, risk per episode, and the relative risk
-reduction ``1 − R_learned/R_rule`` (pooled over distances by summed risk).
+- ``rp+prior``: reward ``risk-progress`` (risk_weight 10), RF activity prior
+  in the observation; PPO batch 128, n_steps 128 per environment,
+  ent_coef 0.01 (tuned: with the method's n_steps 64 and ent_coef 0 it
+  learned nothing useful in the previous single-seed run);
+- ``rp-noprior``: the same without the prior;
+- ``method+prior``: the method's reward (+1 braking above the risk threshold,
+  +1 accelerating below) with the prior, the method's PPO settings
+  (batch 64, n_steps 64, ent_coef 0, lr 3e-4).
 
-With ``--docs`` it also writes ``docs/images/rl_eval.png`` (the three measures
-against distance) and ``docs/images/rl_frame.png`` (one rendered frame).
+Then every model, the rule (brake while the estimated risk is above the
+threshold, else hold) and a car that ignores warnings drive the same
+episodes (episode k has seed 10000 + k) at reaction distances 30–100 m from
+the centre (70–0 m from the start line, the method's convention). Per
+distance: mean risk, standard error over the seeds and over the episodes, a
+paired t-test over the episodes (seed-averaged learned risk against the
+rule's), seeds at or below the rule. Pooled ratio rule/learned over the
+distances where the rule cannot stop in time.
 
-Needs the ``rl`` extra (``make rl``); without stable-baselines3 it says so and
-exits cleanly. Timings are from this one run on a machine that may be shared.
+Ablation: the same models on episodes without a warning (nobody crosses:
+duration; a crosser who is never heard: risk), and the mean speed along the
+approach at a busy and a quiet corner with and without a warning (60 m).
+
+``--jobs`` trainings run in parallel processes (each one torch thread).
+With ``--docs`` it writes ``docs/images/rl_eval.png`` and
+``docs/images/rl_speed.png``. Needs the ``rl`` extra; without
+stable-baselines3 it says so and exits cleanly. Timings are from this one run
+on a machine that may be shared.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import math
-import os
 import sys
 import time
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import asdict
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from rfsas_hw.envs.envconfig import EnvConfig, env_config_from_mapping
-from rfsas_hw.envs.rl import (
-    HoldPolicy,
-    LearnedPolicy,
-    RulePolicy,
-    evaluate,
-    plot,
-    risk_reduction,
-    train,
-    write_csv,
+from rfsas_hw.envs.protocol import (
+    PairedRow,
+    cannot_stop,
+    compare,
+    outcomes,
+    plot_speed_profiles,
+    pooled_ratio,
+    seed_model_path,
+    speed_profiles,
 )
+from rfsas_hw.envs.rl import HoldPolicy, LearnedPolicy, Policy, RulePolicy, train
 
-GOAL_TRAIN_S = 180.0
-BUDGET_S = 175.0
-DISTANCES = [40.0, 50.0, 60.0, 70.0, 80.0, 90.0, 100.0]
 REPO = Path(__file__).resolve().parent.parent
+DISTANCES = [30.0, 40.0, 50.0, 60.0, 70.0, 80.0, 90.0, 100.0]
+N_ENVS = 4
+TUNED = {"n_steps": 128, "batch_size": 128, "ent_coef": 0.01}
+METHOD = {"n_steps": 64, "batch_size": 64, "ent_coef": 0.0}
+ARMS: dict[str, tuple[dict[str, Any], dict[str, Any]]] = {
+    "rp+prior": (
+        {"reward": {"kind": "risk-progress"}, "prior": {"observe": True}},
+        TUNED,
+    ),
+    "rp-noprior": (
+        {"reward": {"kind": "risk-progress"}, "prior": {"observe": False}},
+        TUNED,
+    ),
+    "method+prior": ({"reward": {"kind": "method"}, "prior": {"observe": True}}, METHOD),
+}
 
 
-def fmt(x: float, digits: int = 3) -> str:
-    return "  —  " if math.isnan(x) else f"{x:.{digits}f}"
+ARMS_EVAL = {"rule": "rp-noprior"}
+SPEED_EPISODES = 20
 
 
-def write_frame(model: LearnedPolicy, path: Path) -> None:
-    """One frame of the learned policy's episode at medium detail (lines of bearing visible)."""
-    os.environ.setdefault("SDL_VIDEODRIVER", "dummy")
-    from PIL import Image
+def arm_config(arm: str) -> EnvConfig:
+    data, _ = ARMS[arm]
+    return env_config_from_mapping({"scenario": {"kind": "corners"}, **data})
 
-    from rfsas_hw.envs.env import IntersectionEnv
 
-    config = env_config_from_mapping({"sensing": {"detail": "medium"}})
-    env = IntersectionEnv(config, render_mode="rgb_array")
-    obs, _ = env.reset(seed=2, options={"reaction_distance_m": 70.0})
-    frame = env.render()
-    while True:
-        obs, _, term, trunc, info = env.step(model.act(obs))
-        if (env.warned and info["distance_m"] < 30.0) or term or trunc:
-            frame = env.render()
-            break
-    env.close()
-    assert frame is not None
-    Image.fromarray(frame).save(path)
+def train_one(job: tuple[str, int, int, str]) -> tuple[str, int, int, float]:
+    arm, seed, steps, out = job
+    _, ppo = ARMS[arm]
+    path = seed_model_path(Path(out) / f"{arm}.zip", seed)
+    r = train(
+        steps,
+        path,
+        config=arm_config(arm),
+        seed=seed,
+        log_dir=path.with_name(path.stem + "-logs"),
+        n_envs=N_ENVS,
+        **ppo,
+    )
+    return arm, seed, r.steps, r.seconds
+
+
+def eval_one(job: tuple[str, int, int, int, str]) -> dict[str, Any]:
+    """Every evaluation of one model (or the rule): paired distances, ablation, speed."""
+    arm, seed, episodes, n_abl, out = job
+    config = arm_config(ARMS_EVAL.get(arm, arm))
+    policy: Policy = (
+        RulePolicy(config.risk_threshold)
+        if arm == "rule"
+        else LearnedPolicy.load(seed_model_path(Path(out) / f"{arm}.zip", seed))
+    )
+    res: dict[str, Any] = {
+        "main": outcomes(policy, DISTANCES, episodes, config=config),
+        "empty": {},
+        "unheard": {},
+        "speed": {},
+    }
+    for corner in ("busy", "quiet"):
+        for kind, opts in (("empty", {"crosser": False}), ("unheard", {"heard": False})):
+            res[kind][corner] = outcomes(
+                policy, [None], n_abl, config=config, options={"corner": corner, **opts}
+            )
+        for label, opts2 in (
+            ("no warning", {"crosser": False}),
+            ("warning at 60 m", {"reaction_distance_m": 60.0}),
+        ):
+            res["speed"][f"{corner}, {label}"] = speed_profiles(
+                policy,
+                min(SPEED_EPISODES, n_abl),
+                config=config,
+                options={"corner": corner, **opts2},
+            )
+    return res
+
+
+def fmt(x: float, digits: int = 4) -> str:
+    return "—" if math.isnan(x) else f"{x:.{digits}f}"
+
+
+def print_table(arm: str, rows: list[PairedRow], start_m: float, stop: list[float]) -> float:
+    print(f"\n{arm}: learned ({rows[0].seeds} seeds) vs rule, {rows[0].episodes} paired episodes")
+    head = (
+        f"{'d ctr':>5} {'d start':>7} | {'learned risk':>12} {'±SE seeds':>9} {'±SE eps':>8} "
+        f"{'P(coll)':>7} | {'rule risk':>9} {'±SE':>7} {'P(coll)':>7} | {'p':>7} "
+        f"{'seeds≤':>6} | {'t lrn':>5} {'t rule':>6}"
+    )
+    print(head)
+    print("-" * len(head))
+    for r in rows:
+        print(
+            f"{r.distance_m:5.0f} {start_m - r.distance_m:7.0f} | {r.risk:12.4f} "
+            f"{fmt(r.risk_se_seeds):>9} {fmt(r.risk_se_episodes):>8} {r.p_collision:7.3f} | "
+            f"{r.baseline_risk:9.4f} {fmt(r.baseline_se):>7} {r.baseline_p_collision:7.3f} | "
+            f"{r.p_value:7.3g} {r.seeds_at_or_below:>4}/{r.seeds} | "
+            f"{r.time_s:5.2f} {r.baseline_time_s:6.2f}"
+        )
+    ratio = pooled_ratio(rows, stop)
+    at_or_below = all(r.risk <= r.baseline_risk for r in rows)
+    print(
+        f"pooled rule/learned where the rule cannot stop ({', '.join(f'{d:g}' for d in stop)} m): "
+        f"{ratio:.2f}×; learned ≤ rule at every distance: {at_or_below}"
+    )
+    return ratio
+
+
+def plot_eval(results: dict[str, list[PairedRow]], path: Path) -> None:
+    from rfsas_hw.optional import pyplot
+
+    plt = pyplot()
+    fig, ax = plt.subplots(figsize=(7, 4), constrained_layout=True)
+    first = next(iter(results.values()))
+    d = [r.distance_m for r in first]
+    ax.errorbar(d, [r.baseline_risk for r in first], [r.baseline_se for r in first],
+                fmt="k--o", label="rule")  # fmt: skip
+    for arm, rows in results.items():
+        ax.errorbar(d, [r.risk for r in rows], [r.risk_se_seeds for r in rows], fmt="-o", label=arm)
+    ax.set_yscale("symlog", linthresh=1e-4)
+    ax.set_xlabel("reaction distance from the centre (m)")
+    ax.set_ylabel("risk per episode")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.savefig(str(path), dpi=110)
+    plt.close(fig)
 
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--steps", type=int, default=40_000, help="PPO steps (default 40000)")
-    ap.add_argument("--episodes", type=int, default=100, help="episodes per policy and distance")
-    ap.add_argument("--out", type=Path, default=REPO / "out" / "rl", help="model, logs, CSV")
+    ap.add_argument("--steps", type=int, default=15_000, help="PPO steps per seed and arm")
+    ap.add_argument("--seeds", default="0,1,2,3,4", help="training seeds")
+    ap.add_argument("--episodes", type=int, default=60, help="episodes per policy and distance")
+    ap.add_argument("--ablation", type=int, default=30, help="episodes per corner, ablation")
+    ap.add_argument("--jobs", type=int, default=2, help="processes for training and evaluation")
+    ap.add_argument("--arms", default=",".join(ARMS), help="arms to run")
+    ap.add_argument("--out", type=Path, default=REPO / "out" / "rl", help="models, logs, JSON")
     ap.add_argument(
-        "--docs", action="store_true", help="write docs/images/rl_eval.png and rl_frame.png"
+        "--docs", action="store_true", help="write docs/images/rl_eval.png, rl_speed.png"
     )
     args = ap.parse_args()
     try:
@@ -91,69 +208,101 @@ def main() -> int:
     except ImportError:
         print("stable-baselines3 is not installed: run `make rl` first; skipping")
         return 0
-
-    config = EnvConfig()
+    seeds = [int(s) for s in args.seeds.split(",")]
+    arms = args.arms.split(",")
     args.out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
-    result = train(
-        args.steps,
-        args.out / "model.zip",
-        config=config,
-        log_dir=args.out / "logs",
-        max_seconds=BUDGET_S,
-    )
-    ok = "ok" if result.seconds <= GOAL_TRAIN_S else "OVER"
-    print(
-        f"training: {result.steps} of {args.steps} steps, {result.episodes} episodes in "
-        f"{result.seconds:.1f} s ({result.steps / result.seconds:.0f} steps/s, "
-        f"goal ≤ {GOAL_TRAIN_S:.0f} s: {ok}); model {result.model_path}"
-    )
-    learned = LearnedPolicy.load(result.model_path)
-    t1 = time.perf_counter()
-    rows = evaluate(
-        [learned, RulePolicy(config.risk_threshold), HoldPolicy()],
-        DISTANCES,
-        args.episodes,
-        config=config,
-    )
-    t_eval = time.perf_counter() - t1
-    write_csv([r for r in rows if r.policy != "hold"], args.out / "eval.csv")
-    per, pooled = risk_reduction(rows)
-    by = {(r.distance_m, r.policy): r for r in rows}
+    jobs = [(a, s, args.steps, str(args.out)) for a in arms for s in seeds]
+    with ProcessPoolExecutor(max_workers=args.jobs) as pool:
+        done = list(pool.map(train_one, jobs))
+    t_train = time.perf_counter() - t0
+    for arm, seed, steps, secs in done:
+        print(f"trained {arm} seed {seed}: {steps} steps in {secs:.0f} s")
+    print(f"training: {len(jobs)} runs, {t_train:.0f} s wall with {args.jobs} processes")
 
-    print(
-        f"\n{args.episodes} episodes per policy and distance (same seeds for all), "
-        f"threshold {config.risk_threshold:g}, evaluation {t_eval:.0f} s"
-    )
-    head = (
-        f"{'dist m':>6} | {'learned P(coll)':>15} {'P_f':>6} {'risk':>14} | "
-        f"{'rule P(coll)':>12} {'P_f':>6} {'risk':>14} | {'RRR':>6} | {'hold risk':>9}"
-    )
-    print(head)
-    print("-" * len(head))
-    for d in DISTANCES:
-        a, b, h = by[(d, "learned")], by[(d, "rule")], by[(d, "hold")]
-        rrr = per.get(d, math.nan)
-        print(
-            f"{d:6.0f} | {a.p_collision:15.2f} {fmt(a.p_fatality):>6} "
-            f"{a.risk:7.4f} ± {a.risk_stderr:.4f} | {b.p_collision:12.2f} {fmt(b.p_fatality):>6} "
-            f"{b.risk:7.4f} ± {b.risk_stderr:.4f} | "
-            f"{'  —' if math.isnan(rrr) else f'{rrr:+6.0%}'} | {h.risk:9.4f}"
+    t1 = time.perf_counter()
+    base_config = arm_config(arms[0])
+    start_m = base_config.vehicle.start_distance_m
+    stop = [d for d in DISTANCES if cannot_stop(base_config, d)]
+    # the rule ignores the prior entry: its episodes are the same in every arm
+    eval_jobs = [("rule", 0, args.episodes, args.ablation, str(args.out))]
+    eval_jobs += [(a, s, args.episodes, args.ablation, str(args.out)) for a in arms for s in seeds]
+    with ProcessPoolExecutor(max_workers=args.jobs) as pool:
+        evals = dict(
+            zip([(j[0], j[1]) for j in eval_jobs], pool.map(eval_one, eval_jobs), strict=True)
         )
-    mean_t = {
-        p: np.mean([r.mean_time_s for r in rows if r.policy == p]) for p in ("learned", "rule")
+    t_eval = time.perf_counter() - t1
+    base = evals[("rule", 0)]["main"]
+    hold = outcomes(HoldPolicy(), DISTANCES[:1], args.episodes, config=base_config)
+    results = {arm: compare([evals[(arm, s)]["main"] for s in seeds], base) for arm in arms}
+    summary: dict[str, Any] = {
+        "steps": args.steps,
+        "seeds": seeds,
+        "episodes": args.episodes,
+        "ablation_episodes": args.ablation,
+        "jobs": args.jobs,
+        "train_s": t_train,
+        "eval_s": t_eval,
+        "hold_risk": float(hold.risk.mean()),
+        "hold_p_collision": float(hold.collision.mean()),
+        "arms": {},
     }
     print(
-        f"\nrisk reduction over all distances (summed risks): {pooled:+.0%}; "
-        f"mean episode time learned {mean_t['learned']:.2f} s, rule {mean_t['rule']:.2f} s"
+        f"\nevaluation and ablation {t_eval:.0f} s wall; a car ignoring warnings: risk "
+        f"{hold.risk.mean():.4f} (P(coll) {hold.collision.mean():.3f}) at every distance"
     )
-    print(f"wrote {args.out / 'eval.csv'}; total {time.perf_counter() - t0:.0f} s")
+    for arm in arms:
+        ratio = print_table(arm, results[arm], start_m, stop)
+        summary["arms"][arm] = {
+            "rows": [asdict(r) for r in results[arm]],
+            "pooled_ratio_cannot_stop": ratio,
+            "at_or_below_everywhere": all(r.risk <= r.baseline_risk for r in results[arm]),
+        }
+
+    print(f"\nwithout a warning ({args.ablation} episodes per corner; mean over the seeds)")
+    print(
+        f"{'arm':>13} {'corner':>6} | {'empty: t (s)':>12} | {'unheard: risk':>13} {'P(coll)':>7}"
+    )
+    ablation: dict[str, Any] = {}
+    for name in ["rule", *arms]:
+        keys = [("rule", 0)] if name == "rule" else [(name, s) for s in seeds]
+        for corner in ("busy", "quiet"):
+            t_empty = float(np.mean([evals[k]["empty"][corner].time_s.mean() for k in keys]))
+            r_un = float(np.mean([evals[k]["unheard"][corner].risk.mean() for k in keys]))
+            c_un = float(np.mean([evals[k]["unheard"][corner].collision.mean() for k in keys]))
+            ablation[f"{name}/{corner}"] = {
+                "empty_time_s": t_empty,
+                "unheard_risk": r_un,
+                "unheard_p_collision": c_un,
+            }
+            print(f"{name:>13} {corner:>6} | {t_empty:12.2f} | {r_un:13.4f} {c_un:7.3f}")
+    summary["ablation"] = ablation
+
+    curves: dict[str, tuple[Any, Any]] = {}
+    for name in ["rule", *[a for a in arms if a.startswith("rp")]]:
+        keys = [("rule", 0)] if name == "rule" else [(name, s) for s in seeds]
+        for label in evals[keys[0]]["speed"]:
+            grid = evals[keys[0]]["speed"][label][0]
+            mean = np.mean([evals[k]["speed"][label][1] for k in keys], axis=0)
+            curves[f"{name}, {label}"] = (grid, mean)
+    summary["speed_at"] = {
+        name: {f"{d:g}": float(np.interp(d, g[::-1], v[::-1])) for d in (80, 60, 40, 20, 5)}
+        for name, (g, v) in curves.items()
+    }
+    print("\nmean speed (m/s) at distance to the centre")
+    for name, at in summary["speed_at"].items():
+        print(f"  {name:40s} " + " ".join(f"{d}m {v:5.2f}" for d, v in at.items()))
+    t2 = t1
+    summary["ablation_s"] = time.perf_counter() - t2
+    summary["total_s"] = time.perf_counter() - t0
+    (args.out / "summary.json").write_text(json.dumps(summary, indent=1, default=float))
+    print(f"\nwrote {args.out / 'summary.json'}; total {summary['total_s']:.0f} s")
     if args.docs:
         img = REPO / "docs" / "images"
         img.mkdir(parents=True, exist_ok=True)
-        plot([r for r in rows if r.policy != "hold"], img / "rl_eval.png")
-        write_frame(learned, img / "rl_frame.png")
-        print(f"wrote {img / 'rl_eval.png'} and {img / 'rl_frame.png'}")
+        plot_eval(results, img / "rl_eval.png")
+        plot_speed_profiles(curves, img / "rl_speed.png")
+        print(f"wrote {img / 'rl_eval.png'} and {img / 'rl_speed.png'}")
     return 0
 
 

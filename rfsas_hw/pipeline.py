@@ -164,7 +164,7 @@ class SensorPipeline:
             out = self._hash(waiting)
             if out is not None and len(out):
                 parts.append(out)
-        return _concat(self.sensor_id, parts)
+        return BearingBatch.concat(self.sensor_id, parts)
 
     def release(self) -> BearingBatch:
         """Bearings of held frames whose nonce has now arrived (empty if none); drops
@@ -181,7 +181,7 @@ class SensorPipeline:
             self.stats.released += len(out)
             if len(out):
                 parts.append(out)
-        return _concat(self.sensor_id, parts)
+        return BearingBatch.concat(self.sensor_id, parts)
 
     def finish(self) -> BearingBatch:
         """At the end of a run: what can still be released; the rest is dropped and
@@ -257,20 +257,3 @@ class SensorPipeline:
             self.alarm = True
             self.stats.nonce_alarms += 1
             log.warning("nonce alarm: %s", reason)
-
-
-def _concat(sensor_id: str, parts: list[BearingBatch]) -> BearingBatch:
-    if not parts:
-        return BearingBatch.empty(sensor_id)
-    if len(parts) == 1:
-        return parts[0]
-    return BearingBatch(
-        sensor_id=sensor_id,
-        t_ns=np.concatenate([p.t_ns for p in parts]),
-        azimuth_deg=np.concatenate([p.azimuth_deg for p in parts]),
-        sigma_deg=np.concatenate([p.sigma_deg for p in parts]),
-        snr_db=np.concatenate([p.snr_db for p in parts]),
-        channel=np.concatenate([p.channel for p in parts]),
-        emitter=np.concatenate([p.emitter for p in parts]),
-        relative_deg=np.concatenate([p.relative_deg for p in parts]),
-    )

@@ -387,6 +387,29 @@ class BearingBatch:
             sensor_id, np.empty(0, np.int64), z, z, z, np.empty(0, np.int16), np.empty(0, np.uint64)
         )
 
+    @classmethod
+    def concat(cls, sensor_id: str, batches: Sequence[BearingBatch]) -> BearingBatch:
+        """The rows of ``batches`` end to end, as bearings of ``sensor_id``.
+
+        Empty batches are passed over; a single non-empty batch of that sensor
+        is returned as it is (not copied).
+        """
+        parts = [b for b in batches if len(b)]
+        if not parts:
+            return cls.empty(sensor_id)
+        if len(parts) == 1 and parts[0].sensor_id == sensor_id:
+            return parts[0]
+        return cls(
+            sensor_id=sensor_id,
+            t_ns=np.concatenate([p.t_ns for p in parts]),
+            azimuth_deg=np.concatenate([p.azimuth_deg for p in parts]),
+            sigma_deg=np.concatenate([p.sigma_deg for p in parts]),
+            snr_db=np.concatenate([p.snr_db for p in parts]),
+            channel=np.concatenate([p.channel for p in parts]),
+            emitter=np.concatenate([p.emitter for p in parts]),
+            relative_deg=np.concatenate([p.relative_deg for p in parts]),
+        )
+
     def __len__(self) -> int:
         return int(self.t_ns.shape[0])
 

@@ -191,20 +191,8 @@ def sensor_bearings(
         pipe = SensorPipeline(calibration, hasher, sensor_id, src.pose_at(world.t0_ns))
         for batch in src:
             pipe.pose = src.pose_at(int(np.median(batch.t_ns)))
-            out = pipe.process(batch)
-            if len(out):
-                parts.append(out)
-    if not parts:
-        return BearingBatch.empty(sensor_id)
-    return BearingBatch(
-        sensor_id=sensor_id,
-        t_ns=np.concatenate([p.t_ns for p in parts]),
-        azimuth_deg=np.concatenate([p.azimuth_deg for p in parts]),
-        sigma_deg=np.concatenate([p.sigma_deg for p in parts]),
-        snr_db=np.concatenate([p.snr_db for p in parts]),
-        channel=np.concatenate([p.channel for p in parts]),
-        emitter=np.concatenate([p.emitter for p in parts]),
-    )
+            parts.append(pipe.process(batch))
+    return BearingBatch.concat(sensor_id, parts)
 
 
 @dataclass

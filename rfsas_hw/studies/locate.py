@@ -86,27 +86,11 @@ def run_pipelines(
             for batch in src:
                 pipe.pose = src.pose_at(int(np.median(batch.t_ns)))
                 parts.append(pipe.process(batch))
-        bearings = _concat(sid, parts)
+        bearings = BearingBatch.concat(sid, parts)
         t_s = (bearings.t_ns - world.t0_ns) / 1e9
         xy, _ = world.sensor_pose(sid, t_s)
         out[sid] = SensorBearings(sid, bearings, xy, pipe.stats.as_dict())
     return out
-
-
-def _concat(sensor_id: str, parts: list[BearingBatch]) -> BearingBatch:
-    parts = [p for p in parts if len(p)]
-    if not parts:
-        return BearingBatch.empty(sensor_id)
-    return BearingBatch(
-        sensor_id=sensor_id,
-        t_ns=np.concatenate([p.t_ns for p in parts]),
-        azimuth_deg=np.concatenate([p.azimuth_deg for p in parts]),
-        sigma_deg=np.concatenate([p.sigma_deg for p in parts]),
-        snr_db=np.concatenate([p.snr_db for p in parts]),
-        channel=np.concatenate([p.channel for p in parts]),
-        emitter=np.concatenate([p.emitter for p in parts]),
-        relative_deg=np.concatenate([p.relative_deg for p in parts]),
-    )
 
 
 def emitter_hash(world: World, emitter_id: str, hasher: MacHasher, t_ns: int) -> int:

@@ -228,3 +228,33 @@ def test_retained_nonce_envelope_is_delivered_late_and_then_expires(
         assert later.recv_from(0.7) is None
     finally:
         later.close()
+
+
+def test_clients_reconnect_and_resubscribe_after_a_broker_restart(
+    broker: Broker, deployment: Deployment
+) -> None:
+    store = deployment.backends["be-a"]
+    rx = Receiver.listen(broker.url("be-a"), store.trust)
+    pub = Publisher.to_url(
+        broker.url("rsu-1", origin=ORIGIN), deployment.sensors["rsu-1"].signer(), POSE
+    )
+    try:
+        pub.on_bearings(bearings_now("rsu-1", seed=1))
+        assert len(drain(rx, 1)) == 1
+        broker.kill()
+        pub.on_bearings(bearings_now("rsu-1", seed=2))  # refused while the broker is gone
+        broker.start()
+        got = []
+        deadline = time.monotonic() + 20
+        while not got and time.monotonic() < deadline:
+            pub.on_bearings(bearings_now("rsu-1", seed=3))
+            got = rx.receive(timeout=0.2)
+        tx_stats = pub.transport.stats  # type: ignore[attr-defined]
+        rx_stats = rx.transport.stats  # type: ignore[union-attr]
+    finally:
+        pub.close()
+        rx.close()
+    assert got, "no message after the broker came back"
+    assert tx_stats.connects >= 2 and rx_stats.connects >= 2
+    assert tx_stats.disconnects >= 1 and rx_stats.disconnects >= 1
+    assert pub.stats.dropped["send_error"] >= 1

@@ -7,6 +7,7 @@ import shutil
 import signal
 import tempfile
 import threading
+from collections.abc import Callable
 from pathlib import Path
 
 import click
@@ -30,9 +31,20 @@ def emulate() -> None:
     """Run a software AoA unit; prints the URL a source reads it from."""
 
 
-def _stop_on_sigterm(event: threading.Event) -> None:
-    """A terminated emulator still closes its pty or port."""
-    signal.signal(signal.SIGTERM, lambda *_: event.set())
+_seed_option = click.option("--seed", type=int, default=0, show_default=True, help="Random seed.")
+_duration_option = click.option(
+    "--duration", type=float, default=None, help="Stop after this many seconds."
+)
+
+
+def _serve(
+    run: Callable[[float | None], None], stop: threading.Event, duration: float | None
+) -> None:
+    """Run an emulator until ``duration`` ends, Ctrl-C, or SIGTERM (which still lets it
+    close its pty or port)."""
+    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    with contextlib.suppress(KeyboardInterrupt):
+        run(duration)
 
 
 @emulate.command("ublox")
@@ -65,8 +77,8 @@ def _stop_on_sigterm(event: threading.Event) -> None:
 @click.option("--noise", type=float, default=2.0, show_default=True, help="Azimuth σ, degrees.")
 @click.option("--garbage", type=float, default=0.0, help="Probability of a damaged line.")
 @click.option("--binary", is_flag=True, help="Send binary output (a unit left in binary mode).")
-@click.option("--seed", type=int, default=0, show_default=True, help="Random seed.")
-@click.option("--duration", type=float, default=None, help="Stop after this many seconds.")
+@_seed_option
+@_duration_option
 def emulate_ublox(
     use_pty: bool,
     tcp: int | None,
@@ -109,11 +121,8 @@ def emulate_ublox(
     print(endpoint.path, flush=True)
     click.echo(f"emulating a u-blox AoA anchor on {endpoint.path}; Ctrl-C stops", err=True)
     server = UbloxServer(emulator, endpoint, rate_hz=rate)
-    _stop_on_sigterm(server.stop_event)
     try:
-        server.run(duration)
-    except KeyboardInterrupt:
-        pass
+        _serve(server.run, server.stop_event, duration)
     finally:
         endpoint.close()
         if made_dir is not None:
@@ -144,8 +153,8 @@ def emulate_ublox(
 @click.option("--noise", type=float, default=2.0, show_default=True, help="Bearing σ, degrees.")
 @click.option("--torn", type=float, default=0.0, help="Probability a poll gets a torn page.")
 @click.option("--markup", is_flag=True, help="Serve an HTML page (the wrong output mode).")
-@click.option("--seed", type=int, default=0, show_default=True, help="Random seed.")
-@click.option("--duration", type=float, default=None, help="Stop after this many seconds.")
+@_seed_option
+@_duration_option
 def emulate_kraken(
     port: int,
     vfos: tuple[str, ...],
@@ -172,7 +181,5 @@ def emulate_kraken(
     server = KrakenServer(emulator, port, rate_hz=rate)
     print(server.url, flush=True)
     click.echo(f"emulating a KrakenSDR at {server.url}; Ctrl-C stops", err=True)
-    _stop_on_sigterm(server.stop_event)
-    with contextlib.suppress(KeyboardInterrupt):
-        server.run(duration)
+    _serve(server.run, server.stop_event, duration)
     click.echo(f"wrote {emulator.frames} frames ({emulator.torn_pages} torn polls)", err=True)

@@ -42,7 +42,7 @@ import numpy.typing as npt
 from rfsas_hw.errors import ConfigError, DataFormatError
 from rfsas_hw.records import Assessment, Fix
 
-__all__ = ["FORMAT", "ActivityPrior", "PriorConfig"]
+__all__ = ["FORMAT", "ActivityPrior", "PriorConfig", "PriorSink"]
 
 FORMAT = "rfsas-activity-prior"
 """Value of the ``format`` key of a prior file."""
@@ -410,6 +410,31 @@ class ActivityPrior:
         except (KeyError, TypeError, ValueError, ConfigError) as err:
             raise DataFormatError(f"{where}: bad activity prior field: {err}") from err
         return prior
+
+
+class PriorSink:
+    """A result sink that keeps a prior file up to date across backend runs.
+
+    Opens ``path`` (or starts an empty prior when it does not exist), counts
+    every step's trustworthy fixes and writes the file back on :meth:`close`
+    (which :meth:`BackendService.close` calls).
+
+    Raises:
+        DataFormatError: ``path`` exists but is not an activity prior.
+    """
+
+    def __init__(self, path: str | Path, config: PriorConfig | None = None) -> None:
+        self.path = Path(path)
+        self.prior = ActivityPrior.load(self.path) if self.path.exists() else ActivityPrior(config)
+
+    def on_results(self, fixes: Sequence[Fix], assessments: Sequence[Assessment]) -> None:
+        """Count the step's trustworthy fixes."""
+        self.prior.on_results(fixes, assessments)
+
+    def close(self) -> None:
+        """Forget the in-memory emitter table and save the prior."""
+        self.prior.close()
+        self.prior.save(self.path)
 
 
 def _hours(values: Any, name: str) -> Array:

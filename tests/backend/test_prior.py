@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from rfsas_hw.angles import math_rad_to_compass
-from rfsas_hw.backend.prior import ActivityPrior, PriorConfig
+from rfsas_hw.backend.prior import ActivityPrior, PriorConfig, PriorSink
 from rfsas_hw.backend.service import BackendConfig, BackendService, JsonlSink
 from rfsas_hw.errors import ConfigError, DataFormatError
 from rfsas_hw.records import BearingBatch, Pose
@@ -30,7 +30,7 @@ def walker(k: int, t_s: float) -> np.ndarray:
     return np.array([-12.0 + 4.0 * t_s, 2.5])
 
 
-def run_backend(path: Path, prior: ActivityPrior) -> None:
+def run_backend(path: Path, prior: ActivityPrior | PriorSink) -> None:
     """Three crossers, one after the other, heard by two sensors, 10 Hz, through the service
     with a JSONL sink and the prior as a second sink."""
     sink = JsonlSink(path)
@@ -223,3 +223,15 @@ def test_density_ahead_sums_the_tiles_along_the_path() -> None:
         prior.density_ahead(np.zeros(3))
     with pytest.raises(ConfigError, match="tile_m"):
         PriorConfig(tile_m=0)
+
+
+def test_a_prior_sink_keeps_the_file_across_backend_runs(tmp_path: Path) -> None:
+    path = tmp_path / "site-prior.json"
+    for run in range(2):
+        run_backend(tmp_path / f"run{run}.jsonl", PriorSink(path))  # saved when it ends
+        assert ActivityPrior.load(path).visits((0, 0)).sum() == pytest.approx(
+            3.0 * (run + 1), rel=1e-3
+        )
+    path.write_text("{}")
+    with pytest.raises(DataFormatError, match="site-prior"):
+        PriorSink(path)

@@ -13,6 +13,7 @@ from pathlib import Path
 import click
 
 from rfsas_hw.board.transport import PtyEndpoint, TcpEndpoint
+from rfsas_hw.cli.board import check_link
 from rfsas_hw.errors import SourceError
 from rfsas_hw.sources.kraken_emulator import KrakenEmulator, KrakenServer, Vfo
 from rfsas_hw.sources.ublox_emulator import Tag, UbloxEmulator, UbloxServer
@@ -58,7 +59,7 @@ def _serve(
 @click.option(
     "--link",
     type=click.Path(dir_okay=False, path_type=Path),
-    help="Keep a symlink to the pty here.",
+    help="Keep a symlink to the pty here; must not exist, or be a link an earlier emulator left.",
 )
 @click.option(
     "--tag",
@@ -114,6 +115,8 @@ def emulate_ublox(
         if link is None:
             made_dir = Path(tempfile.mkdtemp(prefix="rfsas-aoa-"))
             link = made_dir / "ttyUBLOX"
+        else:
+            check_link(link)
         try:
             endpoint = PtyEndpoint(link)
         except OSError as err:

@@ -109,3 +109,13 @@ def test_bad_emulator_options_exit_2(capsys: pytest.CaptureFixture[str]) -> None
     assert code == 2 and "MAC,AZIMUTH" in err
     code, _, err = run(["aoa", "emulate", "kraken", "--vfo", "1", "--duration", "0"], capsys)
     assert code == 2 and "FREQ_MHZ,BEARING" in err
+
+
+def test_ublox_emulator_refuses_to_replace_a_file(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    mine = tmp_path / "notes.txt"
+    mine.write_text("keep me")
+    code, _, err = run(["aoa", "emulate", "ublox", "--link", str(mine), "--duration", "0"], capsys)
+    assert code == 2 and "not a pseudo-terminal link" in err
+    assert mine.read_text() == "keep me"

@@ -8,6 +8,7 @@ and one line in :func:`build_listeners`, and every sensor command gets it.
 from __future__ import annotations
 
 import json
+import math
 import os
 from collections.abc import Callable, Iterable
 from pathlib import Path
@@ -338,6 +339,17 @@ def failure(summary: RunSummary) -> str | None:
     return f"0 bearings from {summary.observations:,} observations ({reason} {count:,}): {hint}"
 
 
+def _json_safe(value: Any) -> Any:
+    """``value`` with every non-finite float as None (bare NaN is not JSON)."""
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if isinstance(value, dict):
+        return {str(k): _json_safe(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_json_safe(v) for v in value]
+    return value
+
+
 def finish_run(
     summary: RunSummary,
     title: str,
@@ -362,7 +374,7 @@ def finish_run(
         record = summary.as_dict()
         record["ok"] = problem is None
         record["failure"] = problem
-        click.echo(json.dumps(record), err=to_stderr)
+        click.echo(json.dumps(_json_safe(record), allow_nan=False), err=to_stderr)
     else:
         (err_console if to_stderr else Console()).print(summary_table(summary, title))
     print_errors(err_console, summary)

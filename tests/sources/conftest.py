@@ -2,7 +2,11 @@
 
 from __future__ import annotations
 
+import contextlib
+import os
 import sys
+import tty
+from collections.abc import Iterator
 from pathlib import Path
 
 # The tests share the independent radiotap writer in this folder.
@@ -23,3 +27,14 @@ def cal_path(tmp_path_factory: pytest.TempPathFactory) -> Path:
     path = tmp_path_factory.mktemp("cal") / "cal.yaml"
     save_calibration(fit_calibration(samples, per_channel=False), path)
     return path
+
+
+@pytest.fixture
+def unit() -> Iterator[tuple[int, str]]:
+    """A raw pseudo-terminal standing in for a serial unit: (master fd, slave device path)."""
+    master, slave = os.openpty()
+    tty.setraw(slave)
+    yield master, os.ttyname(slave)
+    for fd in (master, slave):
+        with contextlib.suppress(OSError):
+            os.close(fd)

@@ -2,12 +2,9 @@
 
 from __future__ import annotations
 
-import contextlib
 import math
 import os
 import time
-import tty
-from collections.abc import Iterator
 
 import numpy as np
 import pytest
@@ -36,16 +33,6 @@ RMC = nmea("GPRMC,120000.00,A,5130.000,N,00007.200,W,12.0,90.0,221126,,,A")
 RMC_STOPPED = nmea("GPRMC,120001.00,A,5130.000,N,00007.200,W,0.1,270.0,221126,,,A")
 GGA = nmea("GPGGA,120002.00,5130.060,N,00007.200,W,1,08,0.9,35.0,M,47.0,M,,")
 ORIGIN = (51.5, -0.12)
-
-
-@pytest.fixture
-def unit() -> Iterator[tuple[int, str]]:
-    master, slave = os.openpty()
-    tty.setraw(slave)
-    yield master, os.ttyname(slave)
-    for fd in (master, slave):
-        with contextlib.suppress(OSError):
-            os.close(fd)
 
 
 def _read_all(src: AgreloSource, seconds: float = 0.5) -> list[BearingBatch]:

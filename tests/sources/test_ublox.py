@@ -2,15 +2,12 @@
 
 from __future__ import annotations
 
-import contextlib
 import io
 import logging
 import math
 import os
 import re
 import time
-import tty
-from collections.abc import Iterator
 
 import numpy as np
 import pytest
@@ -34,16 +31,6 @@ LINE_9 = b'+UUDF:6C1DEBA5F60C,-53,8,2,0,37,"6C1DEBA09862","",1437347'
 LINE_12 = b'+UUDF:CCF9578E0D8A,-42,-31,4,-43,38,"CCF9578E0D89","room 1, east",15900,24,-30,5'
 TAGS = (0xCCF9578E0D8A, 0x6C1DEBA5F60C)
 KEY = b"k" * 32
-
-
-@pytest.fixture
-def unit() -> Iterator[tuple[int, str]]:
-    master, slave = os.openpty()
-    tty.setraw(slave)
-    yield master, os.ttyname(slave)
-    for fd in (master, slave):
-        with contextlib.suppress(OSError):
-            os.close(fd)
 
 
 def _read_all(

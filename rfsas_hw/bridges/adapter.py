@@ -6,7 +6,7 @@ add (walkers with phones, an occluding building), which of its actions
 brakes, and how its rendered frames map to the ground. The wrapper
 (:class:`rfsas_hw.envs.rfsas_wrapper.RfsasWrapper`) calls it in this order::
 
-    obs, info = env.reset(seed=s)
+    obs, info = env.reset(seed=adapter.env_seed(env, s))
     adapter.reset(env, s)              # add walkers, place the occluder and units
     snap = adapter.read(env)           # -> Bridge.step(snap.t_s, snap.ego, snap.entities)
     ... each step:
@@ -53,6 +53,9 @@ class SimAdapter(Protocol):
 
     frame_name: str
     """Name of the simulator's convention in :data:`rfsas_hw.bridges.coords.FRAMES`."""
+
+    def env_seed(self, env: Any, seed: int) -> int:
+        """The seed to reset ``env`` with for the episode seed ``seed``."""
 
     def reset(self, env: Any, seed: int) -> None:
         """Prepare a freshly reset ``env`` (add walkers, place the occluder), seeded by ``seed``."""

@@ -14,10 +14,11 @@ and the simulator's :class:`~rfsas_hw.bridges.coords.SimFrame`:
   reach the ego's lane when an ego holding its speed would (±
   ``jitter_s``; followers ``follow_gap_s`` apart): without braking, the ego
   hits the first one;
-- two roadside units stand 5 m past the crossing, one on each side of the
-  road (3·lane width/2 + 3 m from the lane centre on the left, 12 m on the
-  right), aimed at where the crossers come out: the building hides nothing
-  from them, and their bearings cross at a useful angle.
+- two roadside units stand past the crossing, one on each side of the road:
+  5 m past it and 3·lane width/2 + 3 m left of the lane centre, aimed at the
+  kerb where the crossers come out; 6 m past it and 20 m right, aimed 8 m
+  beyond that kerb, so it sees their whole approach: the building hides
+  nothing from them, and their bearings cross at a useful angle.
 
 Which lateral side is "right" differs between simulators (highway-env's
 ``y`` points south); it is found from the frame, not assumed.
@@ -199,8 +200,9 @@ def plan_crossing(
         loss_db=c.building_loss_db,
     )
     aim = _rfsas(frame, at(s_c, kerb))
+    approach = _rfsas(frame, at(s_c, kerb + right * 8.0))
 
-    def unit(uid: str, s: float, offset: float) -> UnitSpec:
+    def unit(uid: str, s: float, offset: float, aim: tuple[float, float]) -> UnitSpec:
         x, y = _rfsas(frame, at(s, offset))
         heading = math.degrees(math.atan2(aim[0] - x, aim[1] - y)) % 360.0
         return UnitSpec(id=uid, pose=PoseSpec(x_m=x, y_m=y, heading_deg=heading))
@@ -221,8 +223,8 @@ def plan_crossing(
     return CrossingPlan(
         building,
         (
-            unit("rsu-left", s_c + 5.0, -right * (3.0 * half + 3.0)),
-            unit("rsu-right", s_c + 5.0, right * 12.0),
+            unit("rsu-left", s_c + 5.0, -right * (3.0 * half + 3.0), aim),
+            unit("rsu-right", s_c + 6.0, right * 20.0, approach),
         ),
         tuple(crossers),
         at(s_c, 0.0),

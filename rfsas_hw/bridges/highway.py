@@ -172,6 +172,10 @@ class HighwayAdapter:
 
     # -- episode set-up ------------------------------------------------------------
 
+    def env_seed(self, env: Any, seed: int) -> int:
+        """``seed`` itself: highway-env seeds its random generator with it."""
+        return seed
+
     def reset(self, env: Any, seed: int) -> None:
         """Place the building, the units and the crossers for a freshly reset ``env``.
 

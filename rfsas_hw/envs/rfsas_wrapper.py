@@ -219,7 +219,10 @@ class RfsasWrapper(
     ) -> tuple[Any, dict[str, Any]]:
         """Reset the env, the adapter and a fresh bridge; the first RF-SAS picture is empty."""
         ep = self._episode_seed(seed)
-        inner, info = self.env.reset(seed=ep if seed is None else seed, options=options)
+        kwargs: dict[str, Any] = {"seed": self.adapter.env_seed(self.env, ep)}
+        if options:  # MetaDrive's reset takes no options
+            kwargs["options"] = options
+        inner, info = self.env.reset(**kwargs)
         if self.bridge is not None:
             self.bridge.close()
         self.adapter.reset(self.env, ep)

@@ -13,7 +13,14 @@ from typing import TYPE_CHECKING, Any
 
 import click
 from rich.console import Console
-from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+from rich.progress import (
+    BarColumn,
+    MofNCompleteColumn,
+    Progress,
+    TextColumn,
+    TimeElapsedColumn,
+    TimeRemainingColumn,
+)
 from rich.table import Table
 
 if TYPE_CHECKING:
@@ -336,7 +343,16 @@ def evaluate(
         return
     learned = rl.LearnedPolicy.load(model_path)
     rule = rl.RulePolicy(config.risk_threshold if threshold is None else threshold)
-    rows = rl.evaluate([learned, rule], dists, episodes, config=config, seed=seed)
+    with _episode_bar() as bar:
+        task = bar.add_task("episodes", total=None)
+        rows = rl.evaluate(
+            [learned, rule],
+            dists,
+            episodes,
+            config=config,
+            seed=seed,
+            progress=lambda done, total: bar.update(task, completed=done, total=total),
+        )
     per, pooled = rl.risk_reduction(rows)
     Console().print(_table(rows, per, pooled, ["learned", "rule"]))
     if csv_path is not None:
@@ -345,6 +361,18 @@ def evaluate(
     if plot_path is not None:
         rl.plot(rows, plot_path)
         click.echo(f"wrote {plot_path}")
+
+
+def _episode_bar() -> Progress:
+    """A progress bar on stderr for simulated episodes (gone when they are done)."""
+    return Progress(
+        "[progress.description]{task.description}",
+        BarColumn(),
+        MofNCompleteColumn(),
+        TimeRemainingColumn(),
+        console=Console(stderr=True),
+        transient=True,
+    )
 
 
 def _evaluate_seeds(

@@ -297,11 +297,13 @@ def evaluate(
     *,
     config: EnvConfig | None = None,
     seed: int = 10_000,
+    progress: Callable[[int, int], None] | None = None,
 ) -> list[EvalRow]:
     """Run every policy for ``episodes`` episodes at each reaction distance.
 
     Episode ``k`` uses seed ``seed + k`` for every policy and distance, so the
-    policies meet the same cross traffic and measurement noise.
+    policies meet the same cross traffic and measurement noise. ``progress`` is
+    called after each episode with (episodes done, episodes in all).
 
     Raises:
         ConfigError: ``episodes`` < 1.
@@ -310,6 +312,8 @@ def evaluate(
         raise ConfigError(f"evaluation needs at least one episode, got {episodes}")
     env = IntersectionEnv(config)
     rows: list[EvalRow] = []
+    distances_m = list(distances_m)
+    total, done = len(distances_m) * len(policies) * episodes, 0
     for d in distances_m:
         for policy in policies:
             realised = np.zeros(episodes)
@@ -317,6 +321,9 @@ def evaluate(
             times = np.zeros(episodes)
             for k in range(episodes):
                 info = run_episode(env, policy, seed + k, d)
+                done += 1
+                if progress is not None:
+                    progress(done, total)
                 times[k] = info["t_s"]
                 if info["collision"]:
                     fatal.append(info["realised_risk"])

@@ -159,31 +159,37 @@ class DashboardState:
     def close(self) -> None:
         """Nothing to release (a result sink's close)."""
 
-    def _fix_entry(self, fix: Fix) -> dict[str, Any]:
-        ell = ellipse_of(fix.cov_xx_m2, fix.cov_xy_m2, fix.cov_yy_m2, ELLIPSE_SIGMA)
-        entry: dict[str, Any] = {
-            "emitter": fix.emitter,
-            "t_ns": fix.t_ns,
-            "x_m": _num(fix.x_m),
-            "y_m": _num(fix.y_m),
-            "ok": fix.ok,
-            "status": fix.status,
-            "sensors": list(fix.sensors),
-            "ellipse": None
-            if ell is None
-            else {
-                "semi_major_m": _num(ell.semi_major_m),
-                "semi_minor_m": _num(ell.semi_minor_m),
-                "orientation_deg": _num(ell.orientation_deg, 2),
-                "n_sigma": ell.n_sigma,
-            },
-        }
+    def _fix_entries(self, fixes: Sequence[Fix]) -> list[dict[str, Any]]:
+        """The page's view of ``fixes``; latitude/longitude of all in one conversion."""
+        entries: list[dict[str, Any]] = []
+        for fix in fixes:
+            ell = ellipse_of(fix.cov_xx_m2, fix.cov_xy_m2, fix.cov_yy_m2, ELLIPSE_SIGMA)
+            entries.append(
+                {
+                    "emitter": fix.emitter,
+                    "t_ns": fix.t_ns,
+                    "x_m": _num(fix.x_m),
+                    "y_m": _num(fix.y_m),
+                    "ok": fix.ok,
+                    "status": fix.status,
+                    "sensors": list(fix.sensors),
+                    "ellipse": None
+                    if ell is None
+                    else {
+                        "semi_major_m": _num(ell.semi_major_m),
+                        "semi_minor_m": _num(ell.semi_minor_m),
+                        "orientation_deg": _num(ell.orientation_deg, 2),
+                        "n_sigma": ell.n_sigma,
+                    },
+                }
+            )
         origin = self.site.origin
-        if origin is not None:
-            lat, lon, _ = origin.to_geodetic(fix.x_m, fix.y_m)
-            entry["lat_deg"] = round(float(lat), 8)
-            entry["lon_deg"] = round(float(lon), 8)
-        return entry
+        if origin is not None and fixes:
+            lat, lon, _ = origin.to_geodetic([f.x_m for f in fixes], [f.y_m for f in fixes])
+            for entry, lat_deg, lon_deg in zip(entries, lat.tolist(), lon.tolist(), strict=True):
+                entry["lat_deg"] = round(lat_deg, 8)
+                entry["lon_deg"] = round(lon_deg, 8)
+        return entries
 
     def snapshot(self) -> dict[str, Any]:
         """Everything the page draws, JSON-ready (see the module docstring)."""
@@ -206,7 +212,7 @@ class DashboardState:
                 )
             oldest = now - int(self.limits.bearing_keep_s * NS)
             bearings = [b for b in self._bearings.values() if b["t_ns"] >= oldest]
-            fixes = [self._fix_entry(f) for f in self._fixes.values()]
+            fixes = list(self._fixes.values())
             tracks = []
             for emitter, points in self._tracks.items():
                 a = self._assessments.get(emitter)
@@ -222,13 +228,15 @@ class DashboardState:
             timeline = [[t, None if r is None else _num(r, 6), adv] for t, r, adv in self._timeline]
             advisory = self._timeline[-1][2] if self._timeline else "none"
             version = self.version
+        # built outside the lock: the backend's thread never waits for the page
+        fix_entries = self._fix_entries(fixes)
         return {
             "version": version,
             "t_ns": now,
             "advisory": advisory,
             "sensors": sensors,
             "bearings": bearings,
-            "fixes": fixes,
+            "fixes": fix_entries,
             "tracks": tracks,
             "vehicle": None
             if vehicle is None

@@ -36,12 +36,15 @@ def estimate_phase(
     *,
     hybrid: bool = True,
     form: PhaseForm = "textbook",
+    mono: DfResult | None = None,
 ) -> tuple[InterferometerResult, npt.NDArray[np.float64]]:
     """Interferometer angle, σ and flags per frame, and the per-frame SNR of the pair, dB.
 
     Frames whose channel has no phase offset are flagged ``NO_TABLE``; frames the
     source flagged ``PHASE_AMBIGUOUS`` (Intel 5300 at 2.4 GHz) ``AMBIGUOUS``.
-    With ``hybrid`` the monopulse angle (where valid) chooses the branch.
+    With ``hybrid`` the monopulse angle (where valid) chooses the branch;
+    ``mono`` is that monopulse result when the caller already has it for
+    these frames (else it is computed here).
 
     Raises:
         CalibrationError: the calibration has no ``phase`` section, or the
@@ -81,7 +84,8 @@ def estimate_phase(
         snr = np.full(n, np.nan)
     hint = hint_sigma = None
     if hybrid and rssi.shape[1] >= 2:
-        mono = estimate(cal, rssi[:, 0], rssi[:, 1], batch.channel)
+        if mono is None:
+            mono = estimate(cal, rssi[:, 0], rssi[:, 1], batch.channel)
         hint = np.where(mono.valid, mono.angle_deg, np.nan)
         hint_sigma = np.where(mono.valid, mono.sigma_deg, np.nan)
     result = bearings(
@@ -113,12 +117,13 @@ def phase_df_result(cal: Calibration, batch: ObservationBatch, mono: DfResult) -
 
     Angle and σ come from :func:`estimate_phase`; the SNR column and a
     ``LOW_SNR`` flag are the monopulse's (the stronger antenna's RSSI). A
-    saturated RSSI does not reject a phase bearing.
+    saturated RSSI does not reject a phase bearing. ``mono`` also picks the
+    interferometer's branch (its ``LOW_SNR`` frames are rejected either way).
 
     Raises:
         CalibrationError: as :func:`estimate_phase`.
     """
-    res, _ = estimate_phase(cal, batch)
+    res, _ = estimate_phase(cal, batch, mono=mono)
     flags = (mono.flags & np.uint8(DfFlag.LOW_SNR)).astype(np.uint8)
     for src, dst in (
         (IfFlag.MISSING_CHAIN, DfFlag.MISSING_CHAIN),

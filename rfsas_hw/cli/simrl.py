@@ -23,6 +23,8 @@ from rich.progress import (
 )
 from rich.table import Table
 
+from rfsas_hw.outpaths import check_output
+
 if TYPE_CHECKING:
     from rfsas_hw.envs.envconfig import EnvConfig
     from rfsas_hw.envs.rl import EvalRow
@@ -164,6 +166,8 @@ def train(
     """Train a PPO agent (MlpPolicy, seed 0, batch 64, n_steps 64, lr 3e-4) to brake."""
     from rfsas_hw.envs import rl
 
+    if config_path is not None:
+        check_output(model_path, [config_path], force=True)
     config = _env_config(config_path, detail, reward, prior, scenario)
     seed_list = _parse_seeds(seeds)
     if seed_list is not None:
@@ -335,6 +339,9 @@ def evaluate(
     """Compare the learned policy with the rule (brake above the risk threshold, else hold)."""
     from rfsas_hw.envs import rl
 
+    for target in (csv_path, plot_path):
+        if target is not None:  # a result of an earlier run may be replaced, an input never
+            check_output(target, [p for p in (model_path, config_path) if p], force=True)
     config = _env_config(config_path, detail, prior=prior, scenario=scenario)
     dists = rl.parse_distances(distances)
     seed_list = _parse_seeds(seeds)
@@ -497,6 +504,7 @@ def render(
     """Render one episode of the learned (or rule) policy to a video."""
     from rfsas_hw.envs import rl
 
+    check_output(output, [p for p in (model_path, config_path) if p], force=True)
     config = _env_config(config_path, detail)
     policy: Any = (
         rl.LearnedPolicy.load(model_path)

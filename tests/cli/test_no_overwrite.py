@@ -29,6 +29,7 @@ def workdir(tmp_path_factory: pytest.TempPathFactory) -> Path:
     write_calibration(d / "cal.yaml")
     shutil.copy(TURNTABLE, d / "sweep.csv")
     shutil.copy(CHECK, d / "check.csv")
+    (d / "model.zip").write_bytes(b"PK\x05\x06" + bytes(18))  # a trained policy, as far as names go
     return d
 
 
@@ -44,7 +45,13 @@ COMMANDS: list[tuple[str, list[str], list[str]]] = [
      ["calibrate", "sweep.csv", "-o", "new.yaml", "--plot", "{out}"]),
     ("calibrate --check -o", ["cal.yaml", "check.csv"],
      ["calibrate", "--check", "cal.yaml", "check.csv", "-o", "{out}"]),
+    ("sim evaluate --csv", ["model.zip"],
+     ["sim", "evaluate", "--model", "model.zip", "--csv", "{out}"]),
+    ("sim render", ["model.zip"], ["sim", "render", "--model", "model.zip", "--output", "{out}"]),
 ]  # fmt: skip
+
+REPLACE_WITHOUT_FORCE = {"sim evaluate --csv", "sim render"}
+"""Commands whose outputs are results of a previous run: replaced, but never an input."""
 
 ALIASES: dict[str, Callable[[Path, Path], Path]] = {
     "same path": lambda d, p: p,
@@ -83,7 +90,8 @@ def test_no_command_writes_over_any_of_its_inputs(
 ) -> None:
     monkeypatch.chdir(workdir)
     (workdir / "sub").mkdir(exist_ok=True)
-    _, inputs, template = command
+    name, inputs, template = command
+    force = force and name not in REPLACE_WITHOUT_FORCE
     victim = workdir / inputs[pick % len(inputs)]
     out = ALIASES[alias](workdir, victim)
     before = {name: (workdir / name).read_bytes() for name in inputs}

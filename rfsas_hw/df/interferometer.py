@@ -12,10 +12,10 @@ with ``φ_cal`` the pair's calibrated offset (cables, chains, the board).
 Per frame:
 
 1. The sampling-time offset (a linear phase across subcarriers, common to
-   every antenna) is removed (:func:`remove_sto`). It cancels in
-   ``h_b·conj(h_a)`` already, but not in per-antenna phases or in a pair
-   whose chains differ by a delay, which the calibration's
-   ``delay_ns`` then removes.
+   every antenna) cancels in ``h_b·conj(h_a)`` (its ramp has unit
+   magnitude), so the pair needs no STO removal; :func:`remove_sto` is for
+   per-antenna phases. A delay between the pair's chains does not cancel:
+   the calibration's ``delay_ns`` removes it.
 2. ``z_k = h_b,k·conj(h_a,k)`` over subcarriers and streams; the frame's
    phase is ``arg Σ z_k`` minus ``φ_cal``, and its measured spread is the
    magnitude-weighted RMS of ``arg z_k`` about that mean divided by ``√N``
@@ -116,7 +116,7 @@ def pair_phase(
     offset_rad: npt.ArrayLike = 0.0,
     delay_ns: npt.ArrayLike = 0.0,
 ) -> PairPhase:
-    """Phase of antenna ``b`` relative to ``a`` per frame, after STO and calibration removal.
+    """Phase of antenna ``b`` relative to ``a`` per frame, after calibration removal.
 
     ``offset_rad`` and ``delay_ns`` (chain b's extra delay, giving a phase
     ``2π·Δf·k·delay`` across subcarriers) may be scalars or per-frame arrays.
@@ -127,9 +127,9 @@ def pair_phase(
     n_rx = csi.h.shape[1]
     if not (0 <= a < n_rx and 0 <= b < n_rx and a != b):
         raise ValueError(f"antenna pair ({a}, {b}) not in a block of {n_rx} antennas")
-    h = remove_sto(csi.h, csi.subcarrier)
     sub = csi.subcarrier.astype(np.float64)
-    z = h[:, b] * np.conj(h[:, a])  # (n, n_tx, n_sc)
+    # the common sampling-time offset cancels in this product: no remove_sto
+    z = csi.h[:, b] * np.conj(csi.h[:, a])  # (n, n_tx, n_sc)
     delay = np.broadcast_to(np.asarray(delay_ns, np.float64), (len(csi),))
     if np.any(delay != 0):
         turn = 2 * math.pi * SUBCARRIER_SPACING_HZ * 1e-9 * delay[:, None] * sub[None, :]

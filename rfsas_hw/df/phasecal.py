@@ -33,7 +33,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from rfsas_hw.df.interferometer import SUBCARRIER_SPACING_HZ, geometric_phase_rad, remove_sto
+from rfsas_hw.df.interferometer import SUBCARRIER_SPACING_HZ, geometric_phase_rad
 from rfsas_hw.errors import CalibrationError
 from rfsas_hw.records import CsiBlock
 
@@ -121,8 +121,8 @@ def fit_phase_offset(
     if n and not np.all(freq > 0):
         raise CalibrationError(f"{where}: frames without a frequency; give it (freq=MHz)")
     theta = np.broadcast_to(np.asarray(true_deg, np.float64), (n,))
-    h = remove_sto(csi.h, csi.subcarrier)
-    z = h[:, b] * np.conj(h[:, a])  # (n, n_tx, n_sc)
+    # the common sampling-time offset cancels in this product: no remove_sto
+    z = csi.h[:, b] * np.conj(csi.h[:, a])  # (n, n_tx, n_sc)
     sub_mhz = csi.subcarrier.astype(np.float64) * SUBCARRIER_SPACING_HZ / 1e6
     geo = geometric_phase_rad(theta[:, None], freq[:, None] + sub_mhz[None, :], baseline_m)
     z = z * np.exp(-1j * geo)[:, None, :]

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import subprocess
 import sys
 import time
@@ -53,6 +54,10 @@ def test_emulate_prints_its_path_and_info_reads_it(
         code, out, err = run(["board", "info", path], capsys)
         assert code == 0, err
         assert "board id" in out and "5246000000000001" in out and "TIME_SYNC" in out
+        code, out, err = run(["board", "info", path, "--json"], capsys)
+        assert code == 0, err
+        facts = json.loads(out)
+        assert facts["board_id"] == "5246000000000001" and "TIME_SYNC" in facts["capabilities"]
         with SerialSource(path, channel=11) as src:
             deadline = time.monotonic() + 3
             got = 0

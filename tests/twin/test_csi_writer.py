@@ -124,4 +124,6 @@ def test_feitcsi_codec_round_trip(n: int, nrx: int, ntx: int, nsc: int, seed: in
     np.testing.assert_array_equal(obs.rssi_dbm[:, : min(nrx, 2)], rssi[:, : min(nrx, 2)])
     got = obs.csi.h.astype(np.complex128)
     scale = np.abs(got).max(axis=(1, 2, 3)) / np.abs(h).max(axis=(1, 2, 3))
-    np.testing.assert_allclose(got, h * scale[:, None, None, None], atol=1.0)
+    # int16 rounding moves a value by up to 0.5·√2 and the scale read from the largest
+    # rounded value by as much again at full scale: within 1.5 in all
+    np.testing.assert_allclose(got, h * scale[:, None, None, None], atol=1.5)

@@ -65,6 +65,8 @@ def parse_pose(text: str, origin: str | None = None) -> Pose:
         x, y, heading = (float(p) for p in parts)
     except ValueError as err:
         raise ConfigError(f"--pose {text!r}: expected X_M,Y_M,HEADING_DEG, e.g. 0,0,90") from err
+    if not all(math.isfinite(v) for v in (x, y, heading)):
+        raise ConfigError(f"--pose {text!r}: every value must be a finite number")
     return Pose(x, y, heading % 360.0)
 
 

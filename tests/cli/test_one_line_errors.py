@@ -30,6 +30,7 @@ TURNTABLE = REPO / "calibration" / "example_turntable.csv"
         ["board", "info", "loop://", "--timeout", "0"],
         ["live", "pcap:x.pcap", "--calibration", "c.yaml", "--out", "b.jsonl", "--duration", "inf"],
         ["replay", "x.pcap", "--calibration", "c.yaml", "--out", "b.jsonl", "--epoch", "0"],
+        ["replay", "x.pcap", "--calibration", "c.yaml", "--out", "b.jsonl", "--pose", "1,2,nan"],
         ["plan", "--trials", "0"],
         ["plan", "--dwell", "-3"],
         ["link", "watch", "--listen", "udp://127.0.0.1:99999", "--keys", "{tmp}"],

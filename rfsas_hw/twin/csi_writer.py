@@ -35,6 +35,17 @@ FEIT_HEADER_BYTES = 272
 FTM_CLOCK_NS = 3.125
 FULL_SCALE = 8000.0
 """Largest |I|, |Q| a frame is scaled to (int16 leaves headroom for the noise)."""
+_FEIT_HEADER = np.dtype(
+    {
+        "names": ["length", "ticks", "nrx", "ntx", "nsc", "energy", "mac"],
+        "formats": ["<u4", "<u4", "u1", "u1", "<u4", ("<u4", 2), ("u1", 6)],
+        "offsets": [0, 8, 46, 47, 52, 60, 68],
+        "itemsize": FEIT_HEADER_BYTES,
+    }
+)
+"""The fields of a FeitCSI frame header this writer fills (the rest stay zero)."""
+_MAC_SHIFTS = np.arange(40, -1, -8, dtype=np.uint64)
+"""Shifts of a 48-bit MAC's bytes, most significant first (the header is big-endian)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -132,21 +143,21 @@ def write_feitcsi(
     iq[..., 0] = np.round(h.real * scale[:, None, None, None])
     iq[..., 1] = np.round(h.imag * scale[:, None, None, None])
     ticks = (np.round(t / FTM_CLOCK_NS).astype(np.int64) & 0xFFFFFFFF).astype(np.uint32)
-    length = 4 * nrx * ntx * nsc
+    head = np.zeros(n, _FEIT_HEADER)
+    length = 4 * nrx * ntx * nsc  # bytes of I/Q after the header
+    head["length"] = length
+    head["ticks"] = ticks
+    head["nrx"], head["ntx"], head["nsc"] = nrx, ntx, nsc
+    chains = rssi[:, : min(nrx, 2)]
+    finite = np.isfinite(chains)
+    energy = np.clip(-np.round(np.where(finite, chains, -1.0)), 1, 255)
+    head["energy"][:, : chains.shape[1]] = np.where(finite, energy, 0)
+    head["mac"] = (macs[:, None] >> _MAC_SHIFTS) & np.uint64(0xFF)
+    frames = np.empty((n, FEIT_HEADER_BYTES + length), np.uint8)
+    frames[:, :FEIT_HEADER_BYTES] = head.view(np.uint8).reshape(n, FEIT_HEADER_BYTES)
+    frames[:, FEIT_HEADER_BYTES:] = iq.reshape(n, length // 2).view(np.uint8)
     with open(path, "wb") as out:
-        for i in range(n):
-            head = bytearray(FEIT_HEADER_BYTES)
-            head[0:4] = length.to_bytes(4, "little")
-            head[8:12] = int(ticks[i]).to_bytes(4, "little")
-            head[46], head[47] = nrx, ntx
-            head[52:56] = nsc.to_bytes(4, "little")
-            for c in range(min(nrx, 2)):
-                value = rssi[i, c]
-                energy = int(np.clip(-np.round(value), 1, 255)) if np.isfinite(value) else 0
-                head[60 + 4 * c : 64 + 4 * c] = energy.to_bytes(4, "little")
-            head[68:74] = int(macs[i]).to_bytes(6, "big")
-            out.write(bytes(head))
-            out.write(iq[i].tobytes())
+        out.write(frames.tobytes())
     return int(n)
 
 

@@ -19,6 +19,7 @@ from collections import Counter
 from pathlib import Path
 
 import numpy as np
+import numpy.typing as npt
 
 from rfsas_hw.errors import CaptureFormatError
 from rfsas_hw.records import ObsFlag
@@ -64,6 +65,22 @@ def _resync(raw: bytes, start: int, total: int, layout: tuple[int, ...]) -> int 
             return pos
         pos = raw.find(length, pos + 1)
     return None
+
+
+def _bodies(raw: bytes, starts: npt.NDArray[np.int64], length: int) -> npt.NDArray[np.int16]:
+    """The I/Q words after the headers at ``starts`` (frames of one layout), shape (n, length/2).
+
+    Frames that follow each other without a gap are cut from one view of the file.
+    """
+    buf = np.frombuffer(raw, np.uint8)
+    stride = HEADER_BYTES + length
+    out = np.empty((len(starts), length // 2), "<i2")
+    cuts = np.flatnonzero(np.diff(starts) != stride) + 1
+    for rows in np.split(np.arange(len(starts)), cuts):
+        first = int(starts[rows[0]])
+        run = buf[first : first + stride * len(rows)].reshape(len(rows), stride)
+        out[rows] = np.ascontiguousarray(run[:, HEADER_BYTES:]).view("<i2")
+    return out
 
 
 def read_feitcsi(path: str | Path, freq_mhz: int = 0) -> CsiCapture:
@@ -118,18 +135,17 @@ def read_feitcsi(path: str | Path, freq_mhz: int = 0) -> CsiCapture:
         while j < len(heads) and heads[j][2:5] == layout:
             j += 1
         nrx, ntx, nsc = layout
-        frames = new_frames("feitcsi", j - i, nrx, ntx, ofdm_subcarriers(nsc))
-        for row, (start, length, _, _, _, clock, r1, r2, mac) in enumerate(heads[i:j]):
-            body = np.frombuffer(raw, "<i2", length // 2, start + HEADER_BYTES).astype(np.float32)
-            iq = body[0::2] + 1j * body[1::2]
-            frames.h[row] = iq.reshape(nrx, ntx, nsc)
-            frames.t_ns[row] = clock
-            frames.mac[row] = mac
-            for k, energy in enumerate((r1, r2)[:nrx]):
-                if energy:
-                    frames.rssi_dbm[row, k] = -float(energy)
-                else:
-                    frames.flags[row] |= np.uint16(ObsFlag.SENTINEL_CHAIN)
+        n = j - i
+        frames = new_frames("feitcsi", n, nrx, ntx, ofdm_subcarriers(nsc))
+        cols = np.array([(hd[0], hd[5], hd[6], hd[7], hd[8]) for hd in heads[i:j]], np.int64)
+        body = _bodies(raw, cols[:, 0], heads[i][1]).astype(np.float32)
+        frames.h[:] = (body[:, 0::2] + 1j * body[:, 1::2]).reshape(n, nrx, ntx, nsc)
+        frames.t_ns[:] = cols[:, 1]
+        frames.mac[:] = cols[:, 4]
+        energy = cols[:, 2 : 2 + min(nrx, 2)]
+        read = energy != 0
+        frames.rssi_dbm[:, : energy.shape[1]] = np.where(read, -energy, np.nan)
+        frames.flags[~read.all(axis=1)] |= np.uint16(ObsFlag.SENTINEL_CHAIN)
         frames.freq_mhz[:] = freq_mhz
         blocks.append(frames)
         i = j

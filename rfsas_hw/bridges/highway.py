@@ -278,8 +278,9 @@ class HighwayAdapter:
         return list(self._units)
 
     def brake_action(self, env: Any, action: Any) -> Any:
-        """An emergency stop: for discrete meta-actions the ego's target speed is set to its
-        lowest (0 m/s in ``intersection-v0``) and ``IDLE`` is returned, so it brakes at once
+        """An emergency stop: for discrete meta-actions the ego's target speed is set to 0 (below
+        the lowest rung of scenes such as ``highway-v0``, whose ladder starts at 20 m/s) and
+        ``IDLE`` is returned, so it brakes at once
         (``SLOWER`` steps the target down one rung per decision, measured from the current
         speed: from 9 m/s it keeps asking for 4.5 m/s until the ego is below 6.75 m/s);
         for continuous actions, full deceleration.
@@ -293,7 +294,7 @@ class HighwayAdapter:
         ego = base.vehicle
         if indexes is not None and "IDLE" in indexes and hasattr(ego, "target_speeds"):
             ego.speed_index = 0
-            ego.target_speed = float(np.min(ego.target_speeds))
+            ego.target_speed = 0.0
             return np.int64(indexes["IDLE"])
         if getattr(at, "longitudinal", False) and hasattr(at, "space"):
             out = np.array(action, dtype=np.float32, copy=True).reshape(-1)

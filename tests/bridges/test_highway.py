@@ -77,3 +77,20 @@ def test_shield_cuts_collisions_against_the_baseline() -> None:
     assert shield.collisions <= 2 and shield.collisions <= base.collisions - 4
     assert all(o.shielded_steps > 0 for o in out["shield"])
     assert all(o.first_brake_s is not None for o in out["baseline"])
+
+
+def test_any_scene_with_a_road_network_gets_its_crossing() -> None:
+    # highway-v0: a long straight road at 25 m/s; the crossing is 60 m ahead
+    def make(shield: bool) -> RfsasWrapper:
+        scene = make_scene("highway-v0", {"policy_frequency": 5, "vehicles_count": 3})
+        return RfsasWrapper(scene, HighwayAdapter(), shield=shield)
+
+    out = compare(
+        {"baseline": lambda: make(False), "shield": lambda: make(True)},
+        lambda obs, env: idle_action(env),
+        range(2),
+        20,
+    )
+    assert [o.collided for o in out["baseline"]] == [True, True]
+    # highway-v0's slowest rung is 20 m/s: the shield's stop goes below it
+    assert [o.collided for o in out["shield"]] == [False, False]

@@ -12,6 +12,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import re
 from collections import Counter
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
@@ -27,6 +28,8 @@ T = TypeVar("T")
 __all__ = ["BearingLine", "RunLog", "RunRecord", "SiteLine", "iter_records", "read_run"]
 
 MAX_ERRORS_KEPT = 20
+_EMITTER = re.compile(r"[0-9a-fA-F]{1,16}")
+"""A hashed emitter id as written: a 64-bit number in hex."""
 """Messages of skipped lines kept for the user (all are counted)."""
 
 
@@ -138,10 +141,8 @@ def _bearing(data: Mapping[str, Any], where: str) -> BearingLine:
     emitter = data.get("emitter")
     if not isinstance(sensor_id, str) or not isinstance(emitter, str):
         raise ValueError(f"{where}: sensor_id and emitter must be text")
-    try:
-        int(emitter, 16)
-    except ValueError:
-        raise ValueError(f"{where}: emitter {emitter!r} is not hex") from None
+    if _EMITTER.fullmatch(emitter) is None:
+        raise ValueError(f"{where}: emitter {emitter!r} is not 1 to 16 hex digits")
 
     def optional(key: str) -> float:
         return _num(data, key, where) if key in data else math.nan

@@ -236,6 +236,23 @@ def test_a_corrupted_line_costs_only_that_line(run_path: Path, tmp_path: Path) -
     )
 
 
+def test_an_emitter_id_that_is_not_64_bit_hex_costs_only_its_line(
+    run_path: Path, tmp_path: Path
+) -> None:
+    lines = run_path.read_text().splitlines()
+    rows = [i for i, line in enumerate(lines) if '"record": "bearing"' in line][:3]
+    for i, emitter in zip(rows, ("-5", "1" * 17, "0x12"), strict=True):
+        data = json.loads(lines[i])
+        data["emitter"] = emitter
+        lines[i] = json.dumps(data)
+    bad = tmp_path / "bad.jsonl"
+    bad.write_text("\n".join(lines) + "\n")
+    run = read_run(bad)
+    assert run.skipped == {"bad record": 3}
+    assert all("is not 1 to 16 hex digits" in e for e in run.errors)
+    assert len(run.bearings) == len(read_run(run_path).bearings) - 3
+
+
 def test_no_origin_is_one_clear_error(tmp_path: Path) -> None:
     path = write_run(tmp_path / "plain.jsonl", origin=None)
     with pytest.raises(ExportError, match="no site origin; give --origin"):

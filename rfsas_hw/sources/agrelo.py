@@ -174,8 +174,6 @@ class AgreloSource(SerialLineSource):
         """Last trusted GPS course over ground, compass degrees."""
         self.position_deg: tuple[float, float] | None = None
         """Last GPS position (lat, lon), degrees."""
-        self.pose: Pose | None = None
-        """Last position in the local frame with the heading in use (needs ``origin``)."""
         self.track: deque[tuple[int, Pose]] = deque(maxlen=10_000)
         """(t_ns, pose) at each bearing, for bearings from a moving unit."""
         self._line_no = 0
@@ -223,14 +221,16 @@ class AgreloSource(SerialLineSource):
     def _fix(self, lat: float, lon: float) -> None:
         self.position_deg = (lat, lon)
         self.stats.extra["nmea_fixes"] += 1
-        self._update_pose()
 
-    def _update_pose(self) -> None:
+    @property
+    def pose(self) -> Pose | None:
+        """Last position in the local frame with the heading in use (None without
+        ``origin`` or a fix)."""
         if self.origin is None or self.position_deg is None:
-            return
+            return None
         east, north = to_local_m(*self.position_deg, self.origin)
         heading = self.heading_deg
-        self.pose = Pose(east, north, math.nan if heading is None else heading)
+        return Pose(east, north, math.nan if heading is None else heading)
 
     def _read_raw(self, timeout: float | None) -> BearingBatch | None:
         got_lines = self._read_lines()
@@ -269,9 +269,9 @@ class AgreloSource(SerialLineSource):
             sig.append(sigma_from_quality(q, self.min_sigma_deg))
         if not rel:
             return None
-        self._update_pose()
-        if self.pose is not None:
-            self.track.append((now, self.pose))
+        pose = self.pose
+        if pose is not None:
+            self.track.append((now, pose))
         relative = np.asarray(wrap_deg_180(np.asarray(rel)))
         heading = self.heading_deg
         assert heading is not None

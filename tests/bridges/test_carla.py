@@ -162,7 +162,8 @@ def _drive(autopilot: bool) -> tuple[FakeActor, list[str], list[str]]:
         extent=carla.Vector3D(0.3, 0.3, 0.9),
     )
     world = FakeWorld([ego, ped])
-    advisories, actions = [], []
+    advisories: list[str] = []
+    actions: list[str] = []
     with Bridge(cfg) as bridge:
         sensor = CarlaRfsasSensor(
             world, ego, bridge, origin=ORIGIN, control=CarlaControl(hold_s=0.5), autopilot=autopilot

@@ -145,9 +145,11 @@ def test_overlay_draws_bearings_on_the_env_frame() -> None:
         drawn = 0
         for _ in range(10):
             _, _, term, _, info = env.step(idle_action(env))
-            plain = env.env.render()
-            frame = env.render()
+            plain = np.asarray(env.env.render())
+            frame = np.asarray(env.render())
             assert frame.shape == plain.shape and frame.dtype == np.uint8
+            # highway-env never draws this colour: every such pixel is a bearing line
+            assert not np.all(plain == BEARING_RGB, axis=-1).any()
             if any(info["rfsas"]["bearings"].values()):
                 drawn = max(drawn, int(np.all(frame == BEARING_RGB, axis=-1).sum()))
             if term:

@@ -122,12 +122,11 @@ class SensorPipeline:
         """
         n = len(batch)
         self.stats.observations += n
-        released = self.release()
-        if n == 0:
-            return released
-        if batch.n_antennas < 2:
-            self.stats.rejected["missing_chain"] += n
-            return released
+        released = self.release() if self._waiting else None
+        if n == 0 or batch.n_antennas < 2:
+            if n:
+                self.stats.rejected["missing_chain"] += n
+            return released if released is not None else BearingBatch.empty(self.sensor_id)
         rssi = batch.rssi_dbm
         result = estimate(
             self.calibration, rssi[:, 0], rssi[:, 1], batch.channel, min_snr_db=self.min_snr_db
@@ -144,20 +143,21 @@ class SensorPipeline:
                 if count:
                     self.stats.rejected[flag.name.lower()] += count
         if not valid.any():
-            return released
+            return released if released is not None else BearingBatch.empty(self.sensor_id)
         good = batch.select(valid)
-        epochs = good.t_ns // self.hasher.epoch_ns
-        parts = [released] if len(released) else []
-        distinct = np.unique(epochs).tolist()
+        parts = [released] if released is not None and len(released) else []
+        epoch_ns = self.hasher.epoch_ns
+        first, last = int(good.t_ns.min()) // epoch_ns, int(good.t_ns.max()) // epoch_ns
+        epochs = None if first == last else good.t_ns // epoch_ns
+        distinct = [first] if epochs is None else np.unique(epochs).tolist()
+        angle = result.angle_deg[valid].astype(np.float64)
+        sigma, snr = result.sigma_deg[valid], result.snr_db[valid]
         for epoch in distinct:
-            sel = slice(None) if len(distinct) == 1 else epochs == epoch
-            waiting = _Waiting(
-                int(epoch),
-                good.select(sel),
-                result.angle_deg[valid][sel].astype(np.float64),
-                result.sigma_deg[valid][sel],
-                result.snr_db[valid][sel],
-            )
+            if epochs is None:  # the usual case: no copies
+                waiting = _Waiting(int(epoch), good, angle, sigma, snr)
+            else:
+                sel = epochs == epoch
+                waiting = _Waiting(int(epoch), good.select(sel), angle[sel], sigma[sel], snr[sel])
             if any(w.epoch == waiting.epoch for w in self._waiting):
                 self._hold(waiting)  # behind the frames of its epoch already waiting
                 continue

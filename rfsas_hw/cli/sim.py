@@ -103,8 +103,10 @@ def turntable(scenario: Path, sensors: tuple[str, ...], mode: str, force: bool) 
     sc = load_scenario(scenario)
     chosen = [s for s in sc.spec.sensors if not sensors or s.id in sensors]
     paths = {s.id: sc.calibration_path(s.id) for s in chosen}
-    for path in paths.values():  # refuse before anything is written
+    for sid, path in paths.items():  # refuse before anything is written
         if path is not None:
+            # a scenario file names where its tables go: only beside it, never elsewhere
+            inside(sc.base_dir, str(sc.sensor(sid).calibration))
             check_output(path, [scenario], force=force, what="calibration file")
     for s in chosen:
         path = paths[s.id]

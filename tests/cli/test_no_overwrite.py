@@ -143,6 +143,11 @@ def test_sim_turntable_never_overwrites_without_force(
     code, _, err = run(["sim", "turntable", str(scene), "--sensor", "rsu-nw"], capsys)
     assert code == BAD_INPUT and "--force" in err
     assert existing.read_text() == "measured on the real turntable\n"
+    # a table named outside the scenario's directory is never written
+    scene = _scenario(tmp_path, cal="../victim.yaml")
+    code, _, err = run(["sim", "turntable", str(scene), "--sensor", "rsu-nw", "--force"], capsys)
+    assert code == BAD_INPUT and "outside" in err
+    assert not (tmp_path.parent / "victim.yaml").exists()
 
 
 @pytest.mark.parametrize("bad_id", ["../../victim", "/etc/passwd", ".hidden", "a/b", "-rf", ""])

@@ -8,6 +8,7 @@ is skipped, saying what is missing.
 from __future__ import annotations
 
 import warnings
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -122,3 +123,23 @@ def test_shield_cuts_collisions_against_the_baseline() -> None:
     assert base.collisions >= 4
     assert shield.collisions <= base.collisions - 3
     assert all(o.shielded_steps > 0 for o in out["shield"])
+
+
+def test_stub_assets_name_what_is_missing_and_spare_real_ones(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from rfsas_hw.bridges import metadrive as md
+
+    assets = tmp_path / "assets"
+    monkeypatch.setattr(md, "_assets_dir", lambda: assets)
+    problem = md.asset_problem()
+    assert problem is not None and str(assets / "version.txt") in problem
+    md.write_stub_assets()
+    assert md.asset_problem() is None
+    assert (assets / "version.txt").read_text().strip() == md.importlib.import_module(
+        "metadrive.version"
+    ).VERSION
+    # real assets (a version file already there) are left alone
+    (assets / "version.txt").write_text("real\n")
+    md.write_stub_assets()
+    assert (assets / "version.txt").read_text() == "real\n"

@@ -19,10 +19,9 @@ while the speed is at least ``min_speed_kn`` (the last good course is kept
 while stopped). Without either, bearings are skipped (``no_heading``).
 
 **Position.** Latitude/longitude become east/north metres of the local frame
-whose origin is ``origin=(lat_deg, lon_deg)`` (the intersection centre), on
-a local tangent plane (equirectangular on a sphere of the mean Earth radius:
-against WGS-84 its east scale is about 0.3 % short at 51° N, some 4 m at
-1.4 km; :class:`rfsas_hw.geo.SiteOrigin` gives the ellipsoid's answer).
+whose origin is ``origin=(lat_deg, lon_deg)`` (the intersection centre),
+through :class:`rfsas_hw.geo.SiteOrigin` (WGS-84, the same conversion every
+other output uses).
 Without an origin, :attr:`AgreloSource.pose` stays None and only
 :attr:`AgreloSource.position_deg` is kept. A :class:`BearingBatch` has no
 position column; the pose at each bearing's time is in :attr:`AgreloSource.track`.
@@ -44,13 +43,12 @@ import numpy as np
 
 from rfsas_hw.angles import wrap_deg_180, wrap_deg_360
 from rfsas_hw.errors import ConfigError, DataFormatError
+from rfsas_hw.geo import SiteOrigin
 from rfsas_hw.records import BearingBatch, Pose
 from rfsas_hw.sources.base import BatchFilter, ErrorPolicy
 from rfsas_hw.sources.serial_lines import SerialLineSource
 from rfsas_hw.sources.spec_options import SpecKeys
 
-EARTH_RADIUS_M = 6_371_008.8
-"""Mean Earth radius, metres (IUGG)."""
 _BEARING = re.compile(rb"^%(\d{3})/(\d)$")
 MAX_LINE = 200
 
@@ -94,11 +92,9 @@ def _latlon(value: str, hemi: str, degree_digits: int) -> float:
 
 
 def to_local_m(lat_deg: float, lon_deg: float, origin: tuple[float, float]) -> tuple[float, float]:
-    """East/north metres of a position relative to ``origin`` (lat, lon) on a tangent plane."""
-    lat0, lon0 = origin
-    east = math.radians(lon_deg - lon0) * EARTH_RADIUS_M * math.cos(math.radians(lat0))
-    north = math.radians(lat_deg - lat0) * EARTH_RADIUS_M
-    return east, north
+    """East/north metres of a position relative to ``origin`` (lat, lon), on the site plane."""
+    east, north, _ = SiteOrigin(*origin).to_local(lat_deg, lon_deg)
+    return float(east), float(north)
 
 
 class AgreloSource(SerialLineSource):

@@ -58,11 +58,18 @@ def test_nmea_checksum() -> None:
 
 
 def test_local_frame_from_origin() -> None:
+    # WGS-84 radii of curvature at 51.5° N: meridian M and prime vertical N
+    a, e2 = 6_378_137.0, 6.69437999014e-3
+    s2 = math.sin(math.radians(51.5)) ** 2
+    meridian = a * (1 - e2) / (1 - e2 * s2) ** 1.5
+    prime = a / math.sqrt(1 - e2 * s2)
     east, north = to_local_m(51.501, -0.12, ORIGIN)
     assert east == pytest.approx(0.0, abs=1e-6)
-    assert north == pytest.approx(111.195, abs=0.01)  # 0.001° of latitude
+    assert north == pytest.approx(math.radians(0.001) * meridian, abs=0.01)  # ≈ 111.26 m
     east, _ = to_local_m(51.5, -0.119, ORIGIN)
-    assert east == pytest.approx(111.195 * math.cos(math.radians(51.5)), abs=0.01)
+    assert east == pytest.approx(
+        math.radians(0.001) * prime * math.cos(math.radians(51.5)), abs=0.01
+    )
 
 
 def test_bearings_with_gps_course_and_position(unit: tuple[int, str]) -> None:

@@ -16,6 +16,7 @@ import click
 from rfsas_hw.cli.exportmaps import export_map
 from rfsas_hw.cli.sensoropts import parse_pose
 from rfsas_hw.errors import ConfigError
+from rfsas_hw.outpaths import check_output
 from rfsas_hw.records import Pose
 
 
@@ -126,6 +127,9 @@ def export(
         out = runs[0].with_suffix(DEFAULT_SUFFIX[fmt])
         if out == runs[0]:
             raise click.UsageError(f"{out} is the input; give --out")
+    # an export of a previous run may be replaced; an input never (same path or inode)
+    if not out.is_dir():  # rosbag2 writes a directory
+        check_output(out, runs, force=True)
     opts = {"poses": poses, "storage": storage, "origin": origin, "flagged": flagged}
     for line in FORMATS[fmt](runs, out, fmt, opts):
         click.echo(line)

@@ -29,6 +29,7 @@ def workdir(tmp_path_factory: pytest.TempPathFactory) -> Path:
     write_calibration(d / "cal.yaml")
     shutil.copy(TURNTABLE, d / "sweep.csv")
     shutil.copy(CHECK, d / "check.csv")
+    (d / "run.jsonl").write_text('{"record": "stats"}\n')
     (d / "model.zip").write_bytes(b"PK\x05\x06" + bytes(18))  # a trained policy, as far as names go
     return d
 
@@ -48,9 +49,11 @@ COMMANDS: list[tuple[str, list[str], list[str]]] = [
     ("sim evaluate --csv", ["model.zip"],
      ["sim", "evaluate", "--model", "model.zip", "--csv", "{out}"]),
     ("sim render", ["model.zip"], ["sim", "render", "--model", "model.zip", "--output", "{out}"]),
+    ("export", ["run.jsonl"],
+     ["export", "run.jsonl", "--to", "kml", "--origin", "52.2,0.12", "-o", "{out}"]),
 ]  # fmt: skip
 
-REPLACE_WITHOUT_FORCE = {"sim evaluate --csv", "sim render"}
+REPLACE_WITHOUT_FORCE = {"sim evaluate --csv", "sim render", "export"}
 """Commands whose outputs are results of a previous run: replaced, but never an input."""
 
 ALIASES: dict[str, Callable[[Path, Path], Path]] = {

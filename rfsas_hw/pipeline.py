@@ -16,6 +16,7 @@ is raised; it clears when frames flow again.
 from __future__ import annotations
 
 import logging
+import time
 from collections import Counter, deque
 from dataclasses import dataclass, field
 
@@ -113,6 +114,8 @@ class SensorPipeline:
         self._waiting: deque[_Waiting] = deque()
         self.alarm = False
         """True while frames wait for, or were lost for want of, a nonce."""
+        self.end_wait_s = 0.0
+        """How long :meth:`finish` waits for missing nonces when the input ends, seconds."""
         self.alarm_reason = ""
 
     def process(self, batch: ObservationBatch) -> BearingBatch:
@@ -183,10 +186,16 @@ class SensorPipeline:
                 parts.append(out)
         return BearingBatch.concat(self.sensor_id, parts)
 
-    def finish(self) -> BearingBatch:
-        """At the end of a run: what can still be released; the rest is dropped and
-        counted as ``nonce_unavailable``."""
-        out = self.release()
+    def finish(self, wait_s: float = 0.0) -> BearingBatch:
+        """At the end of a run: what can still be released, waiting up to ``wait_s``
+        seconds for missing nonces (a short recording may end before the authority's
+        first envelope arrives); the rest is dropped and counted as ``nonce_unavailable``."""
+        parts = [self.release()]
+        deadline = time.monotonic() + wait_s
+        while self._waiting and time.monotonic() < deadline:
+            time.sleep(min(0.1, max(0.0, deadline - time.monotonic())))
+            parts.append(self.release())
+        out = BearingBatch.concat(self.sensor_id, [p for p in parts if len(p)])
         for waiting in self._waiting:
             self.stats.rejected["nonce_unavailable"] += len(waiting.frames)
         self._waiting.clear()

@@ -260,7 +260,10 @@ class Runner:
             finally:
                 try:
                     if self.pipeline is not None:
-                        self._emit(self.pipeline.finish())
+                        # at the end of the input held frames may still get their nonce;
+                        # an interrupted run does not wait
+                        ended = self.summary.stopped == "end of input"
+                        self._emit(self.pipeline.finish(self.pipeline.end_wait_s if ended else 0))
                 finally:
                     self.listener.close()
                     self._finish()

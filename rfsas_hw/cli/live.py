@@ -127,6 +127,8 @@ def live(
             nonce_secret=nonce_secret,
             epoch_s=epoch_s,
         )
+        if inbox is not None:
+            pipeline.end_wait_s = 10.0  # a short input may end before the first envelope
     options: dict[str, Any] = {"errors": errors}
     if pipeline is None and getattr(source_class(scheme), "hashes_ids", False):
         # the unit names its transmitters (BLE tag addresses): the source hashes

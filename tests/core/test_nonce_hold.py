@@ -119,3 +119,24 @@ def test_finish_counts_what_never_got_a_nonce(calibration) -> None:  # type: ign
     pipe.process(frames(0))
     assert len(pipe.finish()) == 0
     assert pipe.stats.rejected["nonce_unavailable"] == 50 and pipe.stats.held == 0
+
+
+def test_finish_waits_a_bounded_time_for_a_late_nonce(calibration) -> None:  # type: ignore[no-untyped-def]
+    import threading
+    import time
+
+    pipe, auth = make(calibration)
+    pipe.process(frames(0))
+    timer = threading.Timer(0.3, lambda: auth.given.__setitem__(epoch_no(0), b"n0" * 16))
+    timer.start()
+    t0 = time.monotonic()
+    out = pipe.finish(wait_s=5.0)
+    timer.join()
+    assert len(out) == 50 and time.monotonic() - t0 < 3.0
+    assert not pipe.stats.rejected
+    # without the nonce it gives up after the wait and counts the frames
+    pipe.process(frames(3))
+    t0 = time.monotonic()
+    assert len(pipe.finish(wait_s=0.3)) == 0
+    assert 0.25 < time.monotonic() - t0 < 3.0
+    assert pipe.stats.rejected["nonce_unavailable"] == 50

@@ -337,7 +337,7 @@ def backend(
             feed.close()
         raise
     service = BackendService(config, vehicle=state, sinks=sinks)
-    service.link_stats = lambda: dict(receiver.stats.as_dict())
+    service.link_stats = receiver.counters
     try:
         ros2_out = attach_scene(service, out, ros2)
     except Exception:

@@ -523,6 +523,19 @@ class Receiver:
         self.latency.poll(self.clock())
         return out
 
+    def counters(self) -> dict[str, int]:
+        """:attr:`stats` flat, plus the counters of broker transports
+        (``mqtt.sent``, ``mqtt.received``, ``mqtt.dropped``, ``mqtt.disconnects``, …;
+        summed over several)."""
+        out = self.stats.as_dict()
+        parts = getattr(self.transport, "transports", {self: self.transport})
+        for transport in parts.values():
+            stats = getattr(transport, "stats", None)
+            if stats is not None and hasattr(stats, "as_dict"):
+                for key, value in stats.as_dict().items():
+                    out[f"mqtt.{key}"] = out.get(f"mqtt.{key}", 0) + int(value)
+        return out
+
     def close(self) -> None:
         """Close the transport, if any; idempotent."""
         if self.transport is not None:

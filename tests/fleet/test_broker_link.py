@@ -158,7 +158,7 @@ def test_forged_tampered_and_mistopicked_messages_are_rejected(
         other = seal(s2, msg("rsu-2", 4), derive_key(key1, "rsu-2"))
         for payload in (forged_v1, forged_v2, bytes(tampered), other, good):
             tx.publish(Route(topic1), payload)
-        got = drain(rx, 1, timeout_s=3, until=lambda: rx.stats.datagrams >= 7)
+        got = drain(rx, 1, timeout_s=10, until=lambda: rx.stats.datagrams >= 7)
         time.sleep(0.2)
         got += rx.receive(timeout=0.1)
     finally:
@@ -190,14 +190,19 @@ def test_broker_killed_while_udp_runs_alongside_loses_nothing(
             pub.on_bearings(bearings_now("rsu-1", 2, seed=i))
             got += rx.receive(timeout=0.01)
         got += drain(rx, sent - len(got), timeout_s=3)
+        counters = rx.counters()
     finally:
         pub.close()
         rx.close()
     assert len({m.message.seq for m in got}) == sent
     assert len(got) == sent
     assert pub.stats.messages == sent and pub.stats.dropped == {}
-    # the copies that came through the broker before it died: dropped as replays
-    assert rx.stats.rejected["replay"] >= sent // 3 - 2
+    # every second copy (through the broker before it died, or on UDP) is a replay
+    assert rx.stats.rejected == {"replay": rx.stats.datagrams - sent}
+    assert rx.stats.rejected["replay"] >= 1
+    # the broker's side of the counters: it carried some, then went away
+    assert 1 <= counters["mqtt.received"] < sent
+    assert counters["mqtt.disconnects"] >= 1
 
 
 def test_retained_nonce_envelope_is_delivered_late_and_then_expires(

@@ -40,6 +40,7 @@ COMMANDS: list[str] = [
     "rfsas_hw.cli.link:link",
     "rfsas_hw.cli.backend:backend",
     "rfsas_hw.cli.broker:broker",
+    "rfsas_hw.cli.advisories:advisories",
     "rfsas_hw.cli.export:export",
     "rfsas_hw.cli.board:board",
     "rfsas_hw.cli.aoa:aoa",

@@ -119,6 +119,8 @@ def parse_yaml(text: str, where: str, error: type[RfsasError] = ConfigError) -> 
         return yaml.safe_load(text)
     except RecursionError as err:
         raise error(f"{where}: invalid YAML: nested too deeply") from err
+    except ValueError as err:  # an integer of thousands of digits (Python's int limit)
+        raise error(f"{where}: invalid YAML: a value too large to read ({err!s:.60})") from err
     except yaml.YAMLError as err:
         mark = getattr(err, "problem_mark", None)
         at = f" line {mark.line + 1}, column {mark.column + 1}:" if mark is not None else ""

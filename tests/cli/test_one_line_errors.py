@@ -52,6 +52,7 @@ def test_bad_options_are_one_line_and_exit_2(
         ("format: rfsas-calibration\n".encode("utf-16"), "UTF-16"),
         (b"format: caf\xe9\n", "not UTF-8"),
         (b"[" * 500 + b"]" * 500, "nested deeper"),
+        (b"version: " + b"9" * 5000 + b"\n", "too large to read"),
     ],
 )
 def test_a_calibration_file_that_is_not_yaml_text(

@@ -1,7 +1,11 @@
 """Learning to slow down where phones have been heard: the learned-vs-rule protocol.
 
-    python bench/bench_rl.py [--steps 15000] [--seeds 0,1,2,3,4] [--episodes 60]
-                             [--jobs 2] [--out out/rl] [--docs]
+    python bench/bench_rl.py [--steps 20000] [--seeds 0,1,2,3,4] [--episodes 60]
+                             [--ablation 30] [--jobs 3] [--out out/rl] [--docs]
+
+Run time: one run with the defaults took 1594 s (training 906 s, evaluation
+and ablation 687 s) on a shared 2-core machine with a load average of 2–8;
+the numbers are in docs/simulation.md §10.
 
 The ``corners`` scenario of ``rfsas/Intersection-v0`` (quiet and busy blind
 corners; busy ones have a history of crossings and produce more late
@@ -192,11 +196,11 @@ def plot_eval(results: dict[str, list[PairedRow]], path: Path) -> None:
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--steps", type=int, default=15_000, help="PPO steps per seed and arm")
+    ap.add_argument("--steps", type=int, default=20_000, help="PPO steps per seed and arm")
     ap.add_argument("--seeds", default="0,1,2,3,4", help="training seeds")
     ap.add_argument("--episodes", type=int, default=60, help="episodes per policy and distance")
     ap.add_argument("--ablation", type=int, default=30, help="episodes per corner, ablation")
-    ap.add_argument("--jobs", type=int, default=2, help="processes for training and evaluation")
+    ap.add_argument("--jobs", type=int, default=3, help="processes for training and evaluation")
     ap.add_argument("--arms", default=",".join(ARMS), help="arms to run")
     ap.add_argument("--out", type=Path, default=REPO / "out" / "rl", help="models, logs, JSON")
     ap.add_argument(

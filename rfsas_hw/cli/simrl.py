@@ -346,6 +346,8 @@ def evaluate(
     dists = rl.parse_distances(distances)
     seed_list = _parse_seeds(seeds)
     if seed_list is not None:
+        if csv_path is not None or plot_path is not None:
+            raise click.UsageError("--csv and --plot are for one model, not with --seeds")
         _evaluate_seeds(model_path, seed_list, dists, episodes, seed, threshold, config)
         return
     learned = rl.LearnedPolicy.load(model_path)

@@ -103,3 +103,13 @@ def test_the_prior_can_come_from_a_file(tmp_path: Path) -> None:
     config = env_config_from_mapping({"prior": {"observe": True, "path": str(tmp_path / "x")}})
     with pytest.raises(DataFormatError, match="prior"):
         IntersectionEnv(config)
+
+
+def test_the_env_with_the_prior_passes_the_checkers(env: IntersectionEnv) -> None:
+    from gymnasium.utils.env_checker import check_env
+
+    check_env(env, skip_render_check=True)
+    sb3_checker = pytest.importorskip(
+        "stable_baselines3.common.env_checker", reason="stable-baselines3 is not installed"
+    )
+    sb3_checker.check_env(env, warn=True)

@@ -127,5 +127,9 @@ def test_cli_trains_and_evaluates_several_seeds(tmp_path: Path) -> None:
         "--prior", "off",
     )  # fmt: skip
     assert code == 2 and "--prior" in out
+    code, out = rfsas(
+        "sim", "evaluate", "--model", str(model), "--seeds", "0", "--csv", str(tmp_path / "x.csv"),
+    )  # fmt: skip
+    assert code == 2 and "--seeds" in out
     code, out = rfsas("sim", "train", "--seeds", "1,1", "-o", str(model))
     assert code == 2 and "distinct" in out

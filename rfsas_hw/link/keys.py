@@ -42,6 +42,7 @@ from pathlib import Path
 from typing import Literal, cast, get_args
 
 import yaml
+from cryptography.exceptions import UnsupportedAlgorithm
 from cryptography.hazmat.primitives import serialization
 from cryptography.hazmat.primitives.asymmetric import ec, x25519
 
@@ -193,9 +194,17 @@ def _read_private(path: Path) -> object:
             f"a private key must be readable by its owner only (chmod 600 {path})"
         )
     try:
-        return serialization.load_pem_private_key(path.read_bytes(), password=None)
-    except (OSError, ValueError, TypeError) as err:
-        raise KeyStoreError(f"{path}: not a readable private key: {err}") from err
+        data = path.read_bytes()
+    except OSError as err:
+        raise KeyStoreError(f"{path}: cannot read: {err.strerror or err}") from err
+    if len(data) > 64 * 1024:
+        raise KeyStoreError(f"{path}: {len(data):,} bytes is not a private key file")
+    try:
+        return serialization.load_pem_private_key(data, password=None)
+    except (ValueError, TypeError, UnsupportedAlgorithm) as err:
+        # one line: the library's messages can span several
+        reason = " ".join(str(err).split())[:120]
+        raise KeyStoreError(f"{path}: not a readable private key: {reason}") from err
 
 
 def _check_trusted_path(path: Path) -> None:

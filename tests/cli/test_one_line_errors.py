@@ -112,3 +112,21 @@ def test_calibrate_check_exit_code_and_json(
     code, out, err = run(["calibrate", "--check", str(cal), str(swapped), "--json"], capsys)
     assert code == FAILED and json.loads(out)["consistent"] is False
     assert "NOT consistent" in err
+
+
+def test_a_pem_key_of_an_unknown_algorithm_is_one_line(tmp_path: Path) -> None:
+    import base64
+
+    from rfsas_hw.errors import KeyStoreError
+    from rfsas_hw.link.keys import KeyStore
+
+    store = KeyStore.create(tmp_path / "rsu-1", "sensor")
+    pem = (store.path / "sign.key").read_text().splitlines()
+    der = base64.b64decode("".join(line for line in pem if not line.startswith("-----")))
+    ec_oid = bytes.fromhex("06072a8648ce3d0201")  # id-ecPublicKey, 1.2.840.10045.2.1
+    assert ec_oid in der
+    body = base64.b64encode(der.replace(ec_oid, ec_oid[:-1] + b"\x03")).decode()
+    (store.path / "sign.key").write_text(f"{pem[0]}\n{body}\n{pem[-1]}\n")
+    with pytest.raises(KeyStoreError, match="not a readable private key") as info:
+        KeyStore.open(store.path).signer()
+    assert "\n" not in str(info.value)

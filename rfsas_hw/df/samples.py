@@ -20,6 +20,8 @@ from rfsas_hw.rf.synth import TurntableSamples
 
 REQUIRED = ("angle_deg", "rssi1_dbm", "rssi2_dbm")
 OPTIONAL = ("channel",)
+MAX_CHANNEL = 255
+"""Highest channel number (IEEE channels of 2.4/5/6 GHz and BLE are below it; 0: unknown)."""
 
 
 def read_samples_csv(path: str | Path) -> TurntableSamples:
@@ -83,6 +85,11 @@ def _parse_samples(p: Path, text: str) -> TurntableSamples:
                 raise DataFormatError(
                     f"{p}: line {line_no}: column 'channel': {text!r} is not an integer"
                 ) from err
+            if not 0 <= channel <= MAX_CHANNEL:
+                raise DataFormatError(
+                    f"{p}: line {line_no}: column 'channel': {channel} is not a channel "
+                    f"number (0-{MAX_CHANNEL})"
+                )
         rows.append((values[0], values[1], values[2], channel))
     if not rows:
         raise DataFormatError(f"{p}: no samples after the header")

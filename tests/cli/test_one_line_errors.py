@@ -130,3 +130,11 @@ def test_a_pem_key_of_an_unknown_algorithm_is_one_line(tmp_path: Path) -> None:
     with pytest.raises(KeyStoreError, match="not a readable private key") as info:
         KeyStore.open(store.path).signer()
     assert "\n" not in str(info.value)
+
+
+@pytest.mark.parametrize("channel", ["99999999999999999999", "-1", "70000"])
+def test_a_channel_out_of_range_in_a_sweep_is_named(tmp_path: Path, channel: str) -> None:
+    path = tmp_path / "s.csv"
+    path.write_text(f"angle_deg,rssi1_dbm,rssi2_dbm,channel\n0,-50,-51,{channel}\n")
+    with pytest.raises(DataFormatError, match="line 2: column 'channel'"):
+        read_samples_csv(path)

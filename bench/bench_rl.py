@@ -144,6 +144,27 @@ def eval_one(job: tuple[str, int, int, int, str]) -> dict[str, Any]:
     return res
 
 
+def per_seed(out: Path, seeds: list[int], arms: list[str], episodes: int) -> None:
+    """Per seed, from the models of a finished run: risk at 30 and 40 m, and the speed
+    20 m before the centre at a busy and a quiet corner without a warning (10 episodes)."""
+    print("arm, seed | risk 30 m | risk 40 m | v(20 m) busy / quiet, no warning (m/s)")
+    for arm in [a for a in arms if a.startswith("rp")]:
+        cfg = arm_config(arm)
+        for s in seeds:
+            m = LearnedPolicy.load(seed_model_path(out / f"{arm}.zip", s))
+            o = outcomes(m, [30.0, 40.0], episodes, config=cfg)
+            v20 = []
+            for corner in ("busy", "quiet"):
+                g, v = speed_profiles(
+                    m, 10, config=cfg, options={"corner": corner, "crosser": False}
+                )
+                v20.append(float(np.interp(20.0, g[::-1], v[::-1])))
+            print(
+                f"{arm} {s} | {o.risk[0].mean():.4f} | {o.risk[1].mean():.4f} | "
+                f"{v20[0]:.1f} / {v20[1]:.1f}"
+            )
+
+
 def fmt(x: float, digits: int = 4) -> str:
     return "—" if math.isnan(x) else f"{x:.{digits}f}"
 
@@ -206,6 +227,9 @@ def main() -> int:
     ap.add_argument(
         "--docs", action="store_true", help="write docs/images/rl_eval.png, rl_speed.png"
     )
+    ap.add_argument(
+        "--per-seed", action="store_true", help="only the per-seed table, from the models in --out"
+    )
     args = ap.parse_args()
     try:
         import stable_baselines3  # noqa: F401
@@ -214,6 +238,9 @@ def main() -> int:
         return 0
     seeds = [int(s) for s in args.seeds.split(",")]
     arms = args.arms.split(",")
+    if args.per_seed:
+        per_seed(args.out, seeds, arms, args.episodes)
+        return 0
     args.out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
     jobs = [(a, s, args.steps, str(args.out)) for a in arms for s in seeds]

@@ -289,6 +289,8 @@ class OdometryFeed:
         del timeout  # samples are queued by DDS; taking them never waits
         with self._lock:
             for sample in self._reader.take(N=64):
+                if is_state_change(sample):
+                    continue
                 try:
                     self.latest = odometry_to_vehicle(sample)
                     self.received += 1
@@ -303,6 +305,15 @@ class OdometryFeed:
         self._reader = _Closed()
         self.participant = None
         self._domain = None
+
+
+def is_state_change(sample: Any) -> bool:
+    """True for a reader's instance-state notice (a writer left or disposed), not data.
+
+    Cyclone DDS hands these out of ``take()`` as ``InvalidSample`` objects
+    beside the real samples, for example when a publisher closes.
+    """
+    return type(sample).__name__ == "InvalidSample"
 
 
 class _Closed:

@@ -19,7 +19,7 @@ from cyclonedds.topic import Topic as DdsTopic
 from cyclonedds.util import duration
 
 from rfsas_hw.ros2 import topics
-from rfsas_hw.ros2.dds import DdsConfig, _participant, idl_class
+from rfsas_hw.ros2.dds import DdsConfig, _participant, idl_class, is_state_change
 
 
 def main() -> None:
@@ -42,6 +42,8 @@ def main() -> None:
         for name, reader in readers.items():
             for sample in reader.take(N=256):
                 idle = False
+                if is_state_change(sample):  # a writer that left, not a message
+                    continue
                 got += 1
                 print(json.dumps({"topic": name, "cdr": sample.serialize().hex()}), flush=True)
         if idle:

@@ -213,3 +213,32 @@ def test_odometry_feed_gives_the_vehicle_state() -> None:
     assert got is not None and feed.received == 1
     assert (got.x_m, got.y_m, got.t_ns) == (3.0, -40.0, state.t_ns)
     assert got.heading_deg == pytest.approx(20.0) and got.speed_mps == pytest.approx(9.5)
+
+
+def test_odometry_feed_skips_instance_state_notices() -> None:
+    """When a publisher leaves, Cyclone DDS hands the reader an InvalidSample (no data):
+    the feed skips it instead of failing, and keeps the last vehicle state."""
+    from cyclonedds.internal import InvalidSample
+
+    from rfsas_hw.backend.vehicle import VehicleState
+
+    state = VehicleState(x_m=1.0, y_m=2.0, heading_deg=90.0, speed_mps=5.0, t_ns=1_000_000_000)
+    (odom,) = [o for o in SceneBuilder().vehicle(state.t_ns, state) if o.topic is topics.EGO]
+
+    class Reader:
+        def __init__(self, batches: list[list[Any]]) -> None:
+            self.batches = batches
+
+        def take(self, N: int = 1) -> list[Any]:
+            return self.batches.pop(0) if self.batches else []
+
+    feed = OdometryFeed("/odom", DdsConfig(domain_id=DOMAIN + 2, interface="lo"))
+    try:
+        notice = InvalidSample(key_sample=None, sample_info=None)  # type: ignore[arg-type]
+        feed._reader = Reader([[odom.message, notice], [notice]])
+        first = feed.poll()
+        second = feed.poll()
+    finally:
+        feed.close()
+    assert first is not None and second is first
+    assert feed.received == 1 and feed.rejected == 0

@@ -3,18 +3,14 @@
 from __future__ import annotations
 
 import contextlib
-import shutil
 import signal
-import tempfile
 import threading
 from collections.abc import Callable
 from pathlib import Path
 
 import click
 
-from rfsas_hw.board.transport import PtyEndpoint, TcpEndpoint
-from rfsas_hw.cli.board import check_link
-from rfsas_hw.errors import SourceError
+from rfsas_hw.cli.board import serving_endpoint
 from rfsas_hw.sources.kraken_emulator import KrakenEmulator, KrakenServer, Vfo
 from rfsas_hw.sources.ublox_emulator import Tag, UbloxEmulator, UbloxServer
 
@@ -49,7 +45,7 @@ def _serve(
 
 
 @emulate.command("ublox")
-@click.option("--pty", "use_pty", is_flag=True, default=True, help="Serve on a pseudo-terminal.")
+@click.option("--pty", "use_pty", is_flag=True, help="Serve on a pseudo-terminal (the default).")
 @click.option(
     "--tcp",
     type=click.IntRange(0, 65535),
@@ -107,29 +103,11 @@ def emulate_ublox(
         binary=binary,
         seed=seed,
     )
-    made_dir: Path | None = None
-    endpoint: PtyEndpoint | TcpEndpoint
-    if tcp is not None:
-        endpoint = TcpEndpoint(tcp)
-    else:
-        if link is None:
-            made_dir = Path(tempfile.mkdtemp(prefix="rfsas-aoa-"))
-            link = made_dir / "ttyUBLOX"
-        else:
-            check_link(link)
-        try:
-            endpoint = PtyEndpoint(link)
-        except OSError as err:
-            raise SourceError(f"cannot create a pty at {link}: {err}") from err
-    print(endpoint.path, flush=True)
-    click.echo(f"emulating a u-blox AoA anchor on {endpoint.path}; Ctrl-C stops", err=True)
-    server = UbloxServer(emulator, endpoint, rate_hz=rate)
-    try:
+    with serving_endpoint(use_pty, tcp, link, "rfsas-aoa-", "ttyUBLOX") as endpoint:
+        print(endpoint.path, flush=True)
+        click.echo(f"emulating a u-blox AoA anchor on {endpoint.path}; Ctrl-C stops", err=True)
+        server = UbloxServer(emulator, endpoint, rate_hz=rate)
         _serve(server.run, server.stop_event, duration)
-    finally:
-        endpoint.close()
-        if made_dir is not None:
-            shutil.rmtree(made_dir, ignore_errors=True)
     click.echo(
         f"sent {emulator.events} events ({emulator.garbage_lines} damaged), "
         f"{server.bytes_sent} bytes",

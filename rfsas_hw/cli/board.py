@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 import os
 import shutil
 import signal
 import tempfile
+from collections.abc import Iterator
 from datetime import UTC, datetime
 from pathlib import Path
 
@@ -146,8 +148,47 @@ def check_link(link: Path) -> None:
         )
 
 
+@contextlib.contextmanager
+def serving_endpoint(
+    use_pty: bool, tcp: int | None, link: Path | None, prefix: str, name: str
+) -> Iterator[PtyEndpoint | TcpEndpoint]:
+    """The pty (default) or TCP endpoint an emulator serves on; closed, with its temp dir, after.
+
+    Without ``link`` the pty's symlink ``name`` lives in a fresh temporary directory
+    whose name starts with ``prefix``.
+
+    Raises:
+        ConfigError: both ``--pty`` and ``--tcp``, or a ``link`` that is not safe to use.
+        SourceError: the pty cannot be created.
+    """
+    if use_pty and tcp is not None:
+        raise ConfigError("give --pty or --tcp, not both")
+    made_dir: Path | None = None
+    endpoint: PtyEndpoint | TcpEndpoint
+    if tcp is not None:
+        endpoint = TcpEndpoint(tcp)
+    else:
+        if link is None:
+            made_dir = Path(tempfile.mkdtemp(prefix=prefix))
+            link = made_dir / name
+        else:
+            check_link(link)
+        try:
+            endpoint = PtyEndpoint(link)
+        except OSError as err:
+            if made_dir is not None:
+                shutil.rmtree(made_dir, ignore_errors=True)
+            raise SourceError(f"cannot create a pty at {link}: {err}") from err
+    try:
+        yield endpoint
+    finally:
+        endpoint.close()
+        if made_dir is not None:
+            shutil.rmtree(made_dir, ignore_errors=True)
+
+
 @board.command("emulate")
-@click.option("--pty", "use_pty", is_flag=True, default=True, help="Serve on a pseudo-terminal.")
+@click.option("--pty", "use_pty", is_flag=True, help="Serve on a pseudo-terminal (the default).")
 @click.option(
     "--tcp",
     type=click.IntRange(0, 65535),
@@ -221,37 +262,18 @@ def emulate(
         feed = Scenario([Emitter.parse(s, i) for i, s in enumerate(specs)], seed=seed)
     fault_plan = Faults.parse(faults)
     emulator = BoardEmulator(feed, batch_size=batch)
-    endpoint: PtyEndpoint | TcpEndpoint
-    made_dir: Path | None = None
-    if tcp is not None:
-        endpoint = TcpEndpoint(tcp)
-    else:
-        if link is None:
-            made_dir = Path(tempfile.mkdtemp(prefix="rfsas-board-"))
-            link = made_dir / "ttyBOARD"
-        else:
-            check_link(link)
-        try:
-            endpoint = PtyEndpoint(link)
-        except OSError as err:
-            raise SourceError(f"cannot create a pty at {link}: {err}") from err
-    # flushed at once: scripts read the path before the emulator ends
-    print(endpoint.path, flush=True)
-    click.echo(
-        f"emulating a DF board on {endpoint.path} at {baud or 'unpaced'} baud; Ctrl-C stops",
-        err=True,
-    )
-    runner = EmulatorRunner(emulator, endpoint, baud=baud or None, faults=fault_plan)
-    # a terminated emulator still removes its pty link
-    signal.signal(signal.SIGTERM, lambda *_: runner.stop_event.set())
-    try:
-        runner.run(duration)
-    except KeyboardInterrupt:
-        pass
-    finally:
-        endpoint.close()
-        if made_dir is not None:
-            shutil.rmtree(made_dir, ignore_errors=True)
+    with serving_endpoint(use_pty, tcp, link, "rfsas-board-", "ttyBOARD") as endpoint:
+        # flushed at once: scripts read the path before the emulator ends
+        print(endpoint.path, flush=True)
+        click.echo(
+            f"emulating a DF board on {endpoint.path} at {baud or 'unpaced'} baud; Ctrl-C stops",
+            err=True,
+        )
+        runner = EmulatorRunner(emulator, endpoint, baud=baud or None, faults=fault_plan)
+        # a terminated emulator still removes its pty link
+        signal.signal(signal.SIGTERM, lambda *_: runner.stop_event.set())
+        with contextlib.suppress(KeyboardInterrupt):
+            runner.run(duration)
     c, r = emulator.counters, runner.stats
     click.echo(
         f"sent {c.frames_sent} frames ({c.measurements_sent} measurements, "

@@ -87,6 +87,11 @@ def test_bad_fault_and_emitter_specs_are_clean_errors(capsys: pytest.CaptureFixt
     assert code == 2 and "emitter 'left'" in err
 
 
+def test_pty_and_tcp_together_are_refused(capsys: pytest.CaptureFixture[str]) -> None:
+    code, _, err = run(["board", "emulate", "--pty", "--tcp", "0", "--duration", "0"], capsys)
+    assert code == 2 and "give --pty or --tcp, not both" in err
+
+
 def test_list_runs(capsys: pytest.CaptureFixture[str]) -> None:
     code, out, err = run(["board", "list"], capsys)
     assert code == 0, err

@@ -109,6 +109,10 @@ def test_bad_emulator_options_exit_2(capsys: pytest.CaptureFixture[str]) -> None
     assert code == 2 and "MAC,AZIMUTH" in err
     code, _, err = run(["aoa", "emulate", "kraken", "--vfo", "1", "--duration", "0"], capsys)
     assert code == 2 and "FREQ_MHZ,BEARING" in err
+    code, _, err = run(
+        ["aoa", "emulate", "ublox", "--pty", "--tcp", "0", "--duration", "0"], capsys
+    )
+    assert code == 2 and "give --pty or --tcp, not both" in err
 
 
 def test_ublox_emulator_refuses_to_replace_a_file(

@@ -67,7 +67,7 @@ from rfsas_hw.link.message import (
     peek_prefix,
     signed_part,
 )
-from rfsas_hw.link.preauth import PreauthKeys, RateLimiter, append_tag, tag_ok
+from rfsas_hw.link.preauth import PreauthKeys, RateLimiter, sign_datagram, tag_ok
 from rfsas_hw.link.replay import ReplayGuard
 from rfsas_hw.link.signing import Signer, verify
 from rfsas_hw.link.topics import Route, TopicRouter, advisory_topic, vehicle_topic
@@ -197,12 +197,9 @@ def sign_advisory(signer: Signer, msg: AdvisoryMessage, preauth_key: bytes | Non
     Raises:
         LinkError: the message does not encode or names another sender.
     """
-    if msg.sender_id != signer.sender_id:
-        raise LinkError(f"advisory from {msg.sender_id!r} cannot be signed as {signer.sender_id!r}")
-    version = VERSION if preauth_key is None else VERSION_PREAUTH
-    body = encode_advisory_body(msg, version)
-    signed = body + signer.sign(body)
-    return signed if preauth_key is None else append_tag(preauth_key, signed)
+    return sign_datagram(
+        signer, msg.sender_id, "advisory", lambda v: encode_advisory_body(msg, v), preauth_key
+    )
 
 
 @dataclass(frozen=True, slots=True)

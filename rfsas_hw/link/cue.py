@@ -65,7 +65,7 @@ from rfsas_hw.link.message import (
     pack_prefix,
     peek_prefix,
 )
-from rfsas_hw.link.preauth import append_tag
+from rfsas_hw.link.preauth import sign_datagram
 from rfsas_hw.link.signing import Signer
 
 TYPE_CUE = 3
@@ -231,12 +231,9 @@ def sign_cue(signer: Signer, cue: Cue, preauth_key: bytes | None = None) -> byte
     Raises:
         LinkError: the cue does not encode, or names another sender.
     """
-    if cue.sender_id != signer.sender_id:
-        raise LinkError(f"cue from {cue.sender_id!r} cannot be signed as {signer.sender_id!r}")
-    version = VERSION if preauth_key is None else VERSION_PREAUTH
-    body = encode_cue_body(cue, version)
-    signed = body + signer.sign(body)
-    return signed if preauth_key is None else append_tag(preauth_key, signed)
+    return sign_datagram(
+        signer, cue.sender_id, "cue", lambda v: encode_cue_body(cue, v), preauth_key
+    )
 
 
 @dataclass(frozen=True, slots=True)

@@ -27,6 +27,7 @@ from typing import Protocol, runtime_checkable
 from rfsas_hw.errors import LinkError
 from rfsas_hw.link.message import (
     PREAUTH_BYTES,
+    VERSION,
     VERSION_PREAUTH,
     SafetyMessage,
     encode_body,
@@ -95,22 +96,36 @@ class PreauthKeys:
         return key
 
 
+def sign_datagram(
+    signer: Signer,
+    sender_id: str,
+    what: str,
+    encode: Callable[[int], bytes],
+    key: bytes | None,
+) -> bytes:
+    """The datagram of a message of any type: its body (``encode(version)``),
+    the signature, and with ``key`` the pre-authentication tag.
+
+    Version 2 when ``key`` is given, else version 1. ``what`` names the kind of
+    message in the error.
+
+    Raises:
+        LinkError: ``sender_id`` is not the signer's, or the body does not encode.
+    """
+    if sender_id != signer.sender_id:
+        raise LinkError(f"{what} from {sender_id!r} cannot be signed as {signer.sender_id!r}")
+    body = encode(VERSION if key is None else VERSION_PREAUTH)
+    signed = body + signer.sign(body)
+    return signed if key is None else signed + make_tag(key, signed)
+
+
 def seal(signer: Signer, msg: SafetyMessage, key: bytes) -> bytes:
     """The version-2 datagram of ``msg``: signed by ``signer``, tagged with ``key``.
 
     Raises:
         LinkError: the message does not encode, or names another sender.
     """
-    if msg.sender_id != signer.sender_id:
-        raise LinkError(f"message from {msg.sender_id!r} cannot be signed as {signer.sender_id!r}")
-    body = encode_body(msg, VERSION_PREAUTH)
-    signed = body + signer.sign(body)
-    return signed + make_tag(key, signed)
-
-
-def append_tag(key: bytes, signed: bytes) -> bytes:
-    """``signed`` (a version-2 message of any type, signature included) with its tag."""
-    return signed + make_tag(key, signed)
+    return sign_datagram(signer, msg.sender_id, "message", lambda v: encode_body(msg, v), key)
 
 
 class RateLimiter:

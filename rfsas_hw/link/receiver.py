@@ -333,11 +333,12 @@ class Receiver:
         self, datagram: bytes, now_ns: int, shed: bool = False, topic: str | None = None
     ) -> VerifiedMessage | None:
         self.stats.datagrams += 1
-        if self._tag_keys and self._forged(datagram, now_ns):
+        tagged = self._fast_tag(datagram, now_ns) if self._tag_keys else None
+        if tagged is False:
             self.stats.rejected["bad_preauth"] += 1
             return None
         try:
-            verified = self._check(bytes(datagram), now_ns, shed, topic)
+            verified = self._check(bytes(datagram), now_ns, shed, topic, tagged is True)
         except (_RejectError, MessageFormatError) as rej:
             self.stats.rejected[rej.reason] += 1
             if log.isEnabledFor(logging.DEBUG):
@@ -355,7 +356,12 @@ class Receiver:
         return verified
 
     def _check(
-        self, datagram: bytes, now_ns: int, shed: bool, topic: str | None = None
+        self,
+        datagram: bytes,
+        now_ns: int,
+        shed: bool,
+        topic: str | None = None,
+        tag_checked: bool = False,
     ) -> VerifiedMessage | None:
         cfg = self.config
         head = peek(datagram, cfg.max_datagram)  # MessageFormatError is a rejection too
@@ -371,7 +377,7 @@ class Receiver:
         key = self.trust.signing_key(head.sender_id)
         if key is None:
             raise _RejectError("unknown_sender", head.sender_id)
-        self._preauthenticate(datagram, head, now_ns)
+        self._preauthenticate(datagram, head, now_ns, tag_checked)
         if shed:
             raise _RejectError("overload", head.sender_id)
         body, signature = signed_part(datagram)
@@ -394,9 +400,12 @@ class Receiver:
             raise _RejectError("replay", f"{msg.sender_id} seq {msg.seq}")
         return VerifiedMessage(msg, now_ns, age_us / US_PER_S)
 
-    def _preauthenticate(self, datagram: bytes, head: Peeked, now_ns: int) -> None:
-        """The cheap checks before the signature: pre-authentication tag, exact
-        copies of verified messages, the sender's budget of signature checks."""
+    def _preauthenticate(
+        self, datagram: bytes, head: Peeked, now_ns: int, tag_checked: bool = False
+    ) -> None:
+        """The cheap checks before the signature: pre-authentication tag (unless
+        ``tag_checked``: :meth:`_fast_tag` found it right), exact copies of verified
+        messages, the sender's budget of signature checks."""
         t_gen_us, seq, epoch = header_epoch(datagram, head)
         if head.preauth:
             if self.config.check_epoch and epoch not in self._accepted_epochs(now_ns):
@@ -410,11 +419,11 @@ class Receiver:
                     raise _RejectError("no_preauth_key", f"{head.sender_id} epoch {epoch}")
             else:
                 # an enrolled sender's key for an accepted epoch: later datagrams of the
-                # same pair may be refused by the fast check in _forged
+                # same pair may be refused by the fast check in _fast_tag
                 if len(self._tag_keys) >= 4096:
                     self._tag_keys.clear()
                 self._tag_keys[(head.sender_id.encode("ascii"), epoch)] = key
-                if not tag_ok(key, datagram):
+                if not tag_checked and not tag_ok(key, datagram):
                     raise _RejectError("bad_preauth", head.sender_id)
         elif not self.config.accept_v1:
             raise _RejectError(
@@ -428,21 +437,22 @@ class Receiver:
         if not self.limiter.allow(head.sender_id):
             raise _RejectError("rate_limited", head.sender_id)
 
-    def _forged(self, datagram: bytes, now_ns: int) -> bool:
-        """True for a well-formed version-2 safety message of a sender and epoch whose
-        key is already known, and whose tag is wrong: the flood's fast way out, with
-        no parsing beyond the lengths. Anything else goes the full way."""
+    def _fast_tag(self, datagram: bytes, now_ns: int) -> bool | None:
+        """The tag of a well-formed version-2 safety message of a sender and epoch whose
+        key is already known: False when it is wrong (the flood's fast way out, with
+        no parsing beyond the lengths), True when it is right (the full check need not
+        compute it again). None for anything else: that goes the full way."""
         if len(datagram) < 48 or datagram[2] != VERSION_PREAUTH or datagram[3] != TYPE_SAFETY:
-            return False
+            return None
         at = 6 + datagram[5]
         n = datagram[at + 32] if len(datagram) > at + 32 else 0
         if n == 0 or len(datagram) != at + 33 + n * BEARING_BYTES + SIGNATURE_BYTES + PREAUTH_BYTES:
-            return False
+            return None
         epoch = int.from_bytes(datagram[at + 12 : at + 20], "big")
         key = self._tag_keys.get((datagram[6:at], epoch))
         if key is None or (self.config.check_epoch and epoch not in self._accepted_epochs(now_ns)):
-            return False
-        return not tag_ok(key, datagram)
+            return None
+        return tag_ok(key, datagram)
 
     def _accepted_epochs(self, now_ns: int) -> tuple[int, ...]:
         # a flood asks this for every datagram: answer from the last millisecond's result

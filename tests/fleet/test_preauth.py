@@ -132,15 +132,16 @@ def test_fast_refusal_gives_the_same_answers(signer: Signer, trust: TrustedKeys)
     r = receiver(trust, accept_v1=False)
     assert r.feed(v2(signer, seq=1), NOW_NS) is not None  # the key of (rsu-1, epoch) is known
     forged = v2(signer, seq=2)[:-8] + bytes(8)
-    assert r._forged(forged, NOW_NS)
+    assert r._fast_tag(forged, NOW_NS) is False
+    assert r._fast_tag(v2(signer, seq=3), NOW_NS) is True  # checked once, not again
     assert r.feed(forged, NOW_NS) is None
     assert r.feed(v2(signer, seq=3), NOW_NS) is not None
     # another epoch, another sender, a bad length: the full checks decide
     other_epoch = v2(signer, seq=4, nonce=NONCE)
     other = bytearray(other_epoch)
     other[6 + 5 + 12 : 6 + 5 + 20] = (1).to_bytes(8, "big")
-    assert not r._forged(bytes(other), NOW_NS)
-    assert not r._forged(forged + b"x", NOW_NS)
+    assert r._fast_tag(bytes(other), NOW_NS) is None
+    assert r._fast_tag(forged + b"x", NOW_NS) is None
     r.feed(bytes(other), NOW_NS)
     assert r.stats.rejected == {"bad_preauth": 1, "wrong_epoch": 1}
     assert r.stats.verified == 2

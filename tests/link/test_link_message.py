@@ -212,3 +212,44 @@ def test_value_corruptions_are_malformed(offset: int, fmt: str, value: float) ->
     with pytest.raises(MessageFormatError) as info:
         decode(bytes(raw))
     assert info.value.reason == "malformed"
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    n=st.integers(1, 12),
+    seed=st.integers(0, 2**32 - 1),
+    bad=st.sampled_from(["", "az", "nan_sigma", "inf_snr", "time", "channel"]),
+)
+def test_few_bearing_path_matches_the_vectorised_one(n: int, seed: int, bad: str) -> None:
+    """Messages of up to eight bearings are parsed without numpy: same values, same errors."""
+    import rfsas_hw.link.message as codec
+
+    raw = bytearray(encode_body(message("rsu-1", n, seed=seed)) + bytes(SIGNATURE_BYTES))
+    row = HEADER_BYTES + 5 + (seed % n) * BEARING_BYTES
+    if bad == "az":
+        struct.pack_into(">f", raw, row + 16, 360.0)
+    elif bad == "nan_sigma":
+        struct.pack_into(">f", raw, row + 20, float("nan"))
+    elif bad == "inf_snr":
+        struct.pack_into(">f", raw, row + 24, float("-inf"))
+    elif bad == "time":
+        struct.pack_into(">q", raw, row, -1)
+    elif bad == "channel":
+        struct.pack_into(">H", raw, row + 28, 0x8000)
+    outcomes = []
+    for few in (8, 0):
+        old, codec._FEW_BEARINGS = codec._FEW_BEARINGS, few
+        try:
+            outcomes.append(decode(bytes(raw)))
+        except MessageFormatError as err:
+            outcomes.append(str(err))
+        finally:
+            codec._FEW_BEARINGS = old
+    fast, reference = outcomes
+    if isinstance(reference, str):
+        assert fast == reference and bad
+        return
+    assert isinstance(fast, SafetyMessage) and not bad
+    for name in ("t_ns", "azimuth_deg", "sigma_deg", "snr_db", "channel", "emitter"):
+        a, b = getattr(fast.bearings, name), getattr(reference.bearings, name)
+        assert a.dtype == b.dtype and np.array_equal(a, b), name

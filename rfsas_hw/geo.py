@@ -7,6 +7,13 @@ and longitude. The conversion is the exact geodetic ↔ ECEF ↔ ENU chain of
 ``pymap3d`` (a small, pure-Python, well-tested library), not a flat-earth
 approximation: over a site a few kilometres across the two differ by
 centimetres, which is the precision the exports promise.
+
+Local → geodetic, which the broker's topic router and the advisories ask for
+every assessment, is done here in closed form instead: the ENU → ECEF rotation
+and Heikkinen's exact ECEF → geodetic solution (J. Zhu, "Conversion of
+Earth-centered Earth-fixed coordinates to geodetic coordinates", IEEE TAES 30(3),
+1994). pymap3d's iterative solver costs about 0.3 ms a point; this costs a few
+microseconds, and the tests hold it to pymap3d within 1e-9 degrees and 0.1 mm.
 """
 
 from __future__ import annotations
@@ -23,6 +30,48 @@ import pymap3d
 from rfsas_hw.errors import ConfigError
 
 FloatArray = npt.NDArray[np.float64]
+
+
+_WGS84_A = 6_378_137.0
+"""WGS-84 semi-major axis, metres."""
+_WGS84_F = 1.0 / 298.257223563
+_WGS84_B = _WGS84_A * (1.0 - _WGS84_F)
+_E2 = 1.0 - (_WGS84_B / _WGS84_A) ** 2
+"""First eccentricity squared."""
+_EP2 = (_WGS84_A / _WGS84_B) ** 2 - 1.0
+"""Second eccentricity squared."""
+
+
+def _ecef_to_geodetic(
+    x: FloatArray, y: FloatArray, z: FloatArray
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """ECEF metres → (latitude °, longitude °, ellipsoid height m), Heikkinen's closed
+    form; exact for points away from the Earth's centre (all of ours)."""
+    a2, b2 = _WGS84_A**2, _WGS84_B**2
+    p2 = x * x + y * y
+    p = np.sqrt(p2)
+    z2 = z * z
+    f = 54.0 * b2 * z2
+    g = p2 + (1.0 - _E2) * z2 - _E2 * (a2 - b2)
+    c = _E2 * _E2 * f * p2 / (g * g * g)
+    s = np.cbrt(1.0 + c + np.sqrt(c * c + 2.0 * c))
+    k = s + 1.0 + 1.0 / s
+    pp = f / (3.0 * k * k * g * g)
+    q = np.sqrt(1.0 + 2.0 * _E2 * _E2 * pp)
+    r0 = -(pp * _E2 * p) / (1.0 + q) + np.sqrt(
+        np.maximum(
+            0.5 * a2 * (1.0 + 1.0 / q) - pp * (1.0 - _E2) * z2 / (q * (1.0 + q)) - 0.5 * pp * p2,
+            0.0,
+        )
+    )
+    t = p - _E2 * r0
+    u = np.sqrt(t * t + z2)
+    v = np.sqrt(t * t + (1.0 - _E2) * z2)
+    z0 = b2 * z / (_WGS84_A * v)
+    height = u * (1.0 - b2 / (_WGS84_A * v))
+    lat = np.degrees(np.arctan2(z + _EP2 * z0, p))
+    lon = np.degrees(np.arctan2(y, x))
+    return lat, lon, height
 
 
 @dataclass(frozen=True, slots=True)
@@ -59,12 +108,27 @@ class SiteOrigin:
             np.asarray(north_m, dtype=np.float64),
             np.asarray(up_m, dtype=np.float64),
         )
-        lat, lon, h = pymap3d.enu2geodetic(e, n, u, self.lat_deg, self.lon_deg, self.height_m)
+        x0, y0, z0, rot = self._frame()
+        x = x0 + rot[0][0] * e + rot[0][1] * n + rot[0][2] * u
+        y = y0 + rot[1][0] * e + rot[1][1] * n + rot[1][2] * u
+        z = z0 + rot[2][0] * e + rot[2][1] * n + rot[2][2] * u
+        lat, lon, h = _ecef_to_geodetic(x, y, z)
         return (
             np.asarray(lat, dtype=np.float64),
             np.asarray(lon, dtype=np.float64),
             np.asarray(h, dtype=np.float64),
         )
+
+    def _frame(self) -> tuple[float, float, float, tuple[tuple[float, float, float], ...]]:
+        """The origin in ECEF metres and the ENU → ECEF rotation (rows x, y, z)."""
+        phi, lam = math.radians(self.lat_deg), math.radians(self.lon_deg)
+        sp, cp, sl, cl = math.sin(phi), math.cos(phi), math.sin(lam), math.cos(lam)
+        n = _WGS84_A / math.sqrt(1.0 - _E2 * sp * sp)
+        x0 = (n + self.height_m) * cp * cl
+        y0 = (n + self.height_m) * cp * sl
+        z0 = (n * (1.0 - _E2) + self.height_m) * sp
+        rot = ((-sl, -sp * cl, cp * cl), (cl, -sp * sl, cp * sl), (0.0, cp, sp))
+        return x0, y0, z0, rot
 
     def to_local(
         self,

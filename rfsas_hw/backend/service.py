@@ -33,10 +33,15 @@ from typing import IO, Any, Protocol
 import numpy as np
 
 from rfsas_hw.backend.association import AssociationConfig, Associator
-from rfsas_hw.backend.encounter import EncounterConfig, assess_encounter
+from rfsas_hw.backend.encounter import (
+    Encounter,
+    EncounterConfig,
+    assess_encounter,
+    assess_encounters,
+)
 from rfsas_hw.backend.risk import Advisory
 from rfsas_hw.backend.site import SiteConfig, site_from_mapping
-from rfsas_hw.backend.tracking import Tracker, TrackerConfig
+from rfsas_hw.backend.tracking import Tracker, TrackerConfig, predict_tracks
 from rfsas_hw.backend.triangulation import (
     FixStatus,
     TriangulationOptions,
@@ -54,6 +59,8 @@ log = logging.getLogger(__name__)
 NS_PER_S = 1_000_000_000
 SMALL_BATCH = 8
 """Up to this many emitters per step are triangulated one by one (faster than the batch path)."""
+SMALL_ASSESS = 2
+"""Up to this many tracked emitters per step are judged one by one (faster than the batch path)."""
 
 __all__ = [
     "BackendConfig",
@@ -444,16 +451,34 @@ class BackendService:
     def _assess(self, now: int) -> list[Assessment]:
         vehicle = self._vehicle_at(now)
         alarm = bool(self.link_alarm()) if self.link_alarm is not None else False
-        out = []
         nan = math.nan
-        for emitter, fix in self.fixes.items():
-            track = self.tracker.tracks.get(emitter)
+        accel = self.config.tracker.accel_sigma_mps2
+        fixes = list(self.fixes.items())
+        tracks = [self.tracker.tracks.get(emitter) for emitter, _ in fixes]
+        live = [(i, t) for i, t in enumerate(tracks) if t is not None]
+        tracked = [i for i, _ in live]
+        states = np.full((len(fixes), 4), nan)
+        covs = np.full((len(fixes), 4, 4), nan)
+        if live:
+            states[tracked], covs[tracked] = predict_tracks([t for _, t in live], now, accel)
+        encounters: dict[int, Encounter] = {}
+        if vehicle is not None and tracked:
+            encounters = dict(
+                zip(
+                    tracked,
+                    self._encounters(vehicle, states, covs, fixes, tracked, alarm),
+                    strict=True,
+                )
+            )
+        out = []
+        for i, (_, fix) in enumerate(fixes):
+            track = tracks[i]
             if track is not None:
-                state, cov = track.predict(now, self.config.tracker.accel_sigma_mps2)
+                state, cov = states[i], covs[i]
                 age_s = (now - track.t_ns) / NS_PER_S
                 sensors = track.sensors
             else:
-                state, cov = np.array([fix.x_m, fix.y_m, nan, nan]), np.full((4, 4), nan)
+                state, cov = np.array([fix.x_m, fix.y_m, nan, nan]), covs[i]
                 age_s = (now - fix.t_ns) / NS_PER_S
                 sensors = fix.sensors
             risk: dict[str, Any] = {
@@ -466,16 +491,8 @@ class BackendService:
                 "advisory": "none",
                 "reasons": ("no vehicle state",),
             }
-            if vehicle is not None and track is not None:
-                enc = assess_encounter(
-                    vehicle,
-                    state,
-                    cov,
-                    self.config.encounter,
-                    fix_ok=fix.ok,
-                    fix_reason=fix.reason,
-                    link_alarm=alarm,
-                )
+            enc = encounters.get(i)
+            if enc is not None:
                 risk = {
                     "p_collision": enc.p_collision,
                     "t_closest_s": enc.t_closest_s,
@@ -514,6 +531,41 @@ class BackendService:
             )
         out.sort(key=lambda a: -a.risk if math.isfinite(a.risk) else 1.0)
         return out
+
+    def _encounters(
+        self,
+        vehicle: VehicleState,
+        states: np.ndarray,
+        covs: np.ndarray,
+        fixes: list[tuple[int, Fix]],
+        rows: list[int],
+        alarm: bool,
+    ) -> list[Encounter]:
+        """The encounter of each tracked emitter (``rows``) with the vehicle."""
+        cfg = self.config.encounter
+        if len(rows) <= SMALL_ASSESS:
+            # a few emitters: the scalar path avoids the batch path's fixed numpy cost
+            return [
+                assess_encounter(
+                    vehicle,
+                    states[i],
+                    covs[i],
+                    cfg,
+                    fix_ok=fixes[i][1].ok,
+                    fix_reason=fixes[i][1].reason,
+                    link_alarm=alarm,
+                )
+                for i in rows
+            ]
+        return assess_encounters(
+            vehicle,
+            states[rows],
+            covs[rows],
+            cfg,
+            fix_ok=[fixes[i][1].ok for i in rows],
+            fix_reason=[fixes[i][1].reason for i in rows],
+            link_alarm=alarm,
+        )
 
     def run(
         self,

@@ -420,17 +420,32 @@ def triangulate_batch(
             bad = ~np.isfinite(step).all(axis=1)
             step[bad] = 0.0
             cost0 = np.sum(w * r * r, axis=1)
-            alpha = np.ones(B)
+            limit = cost0 * (1 + 1e-12) + 1e-300
             accepted = np.zeros(B, bool) | ~active | bad
             cand = p.copy()
-            for _ in range(options.max_halvings + 1):
-                trial = p + alpha[:, None] * step
-                better = ~accepted & (_cost(trial, S, phi, w) <= cost0 * (1 + 1e-12) + 1e-300)
-                cand[better] = trial[better]
-                accepted |= better
-                if accepted.all():
-                    break
-                alpha = np.where(accepted, alpha, alpha / 2)
+            # the full step first; where it does not lower the cost, every halving
+            # 2^-1 … 2^-max_halvings at once, taking the first that does
+            trial = p + step
+            better = ~accepted & (_cost(trial, S, phi, w) <= limit)
+            cand[better] = trial[better]
+            accepted |= better
+            rest = np.flatnonzero(~accepted)
+            if len(rest) and options.max_halvings:
+                H = options.max_halvings
+                alpha = 0.5 ** np.arange(1, H + 1)
+                trials = p[rest, None, :] + alpha[None, :, None] * step[rest, None, :]
+                costs = _cost(
+                    trials.reshape(-1, 2),
+                    np.repeat(S[rest], H, axis=0),
+                    np.repeat(phi[rest], H, axis=0),
+                    np.repeat(w[rest], H, axis=0),
+                ).reshape(len(rest), H)
+                ok = costs <= limit[rest, None]
+                found = ok.any(axis=1)
+                first = np.argmax(ok, axis=1)
+                took = rest[found]
+                cand[took] = trials[found, first[found]]
+                accepted[took] = True
             moved = np.hypot(*(cand - p).T)
             p = np.where(active[:, None], cand, p)
             # a step that could not reduce the cost means we sit at the minimum

@@ -204,6 +204,13 @@ def render_table(service: BackendService, alarm: bool) -> Table:
     type=click.Path(dir_okay=False, path_type=Path),
     help="Tile plan (YAML): broker --listen URLs take the tiles of this backend's group.",
 )
+@click.option(
+    "--prior",
+    "prior_file",
+    type=click.Path(dir_okay=False, path_type=Path),
+    help="RF activity prior file (counts per tile and hour, no emitter ids): read, or "
+    "started when missing, counted with this run's fixes, written back when the run ends.",
+)
 @click.option("--no-table", is_flag=True, help="Do not draw the live table.")
 @ros2_options
 def backend(
@@ -228,6 +235,7 @@ def backend(
     cues_fallback: str | None,
     vehicle_id: str,
     tile_plan: Path | None,
+    prior_file: Path | None,
     no_table: bool,
     **ros2: Any,
 ) -> None:
@@ -293,6 +301,10 @@ def backend(
             feed = VehicleFeed.listen(vehicle)
         if out is not None and out.suffix.lower() != ".mcap":
             sinks.append(JsonlSink(out, origin=config.site.origin, bearings=True))
+        if prior_file is not None:
+            from rfsas_hw.backend.prior import PriorSink
+
+            sinks.append(PriorSink(prior_file))
         if cot is not None and config.site.origin is not None:
             from rfsas_hw.exports.tak import CotSender
 

@@ -246,11 +246,13 @@ def _fmt(x: float, digits: int = 3) -> str:
     return "—" if math.isnan(x) else f"{x:.{digits}f}"
 
 
-def _table(rows: list[EvalRow], per: dict[float, float], pooled: float, names: list[str]) -> Table:
+def _table(
+    rows: list[EvalRow], per: dict[float, float], pooled: float, names: list[str], reward: str
+) -> Table:
     table = Table(title="learned vs rule-based braking, by reaction distance")
     table.add_column("distance\n(m)", justify="right")
     for name in names:
-        for col in ("P(coll)", "P_f", "risk"):
+        for col in ("P(coll)", "P_f", "risk", "return"):
             table.add_column(f"{name}\n{col}", justify="right")
     table.add_column("risk\nreduction", justify="right")
     by = {(r.distance_m, r.policy): r for r in rows}
@@ -258,13 +260,19 @@ def _table(rows: list[EvalRow], per: dict[float, float], pooled: float, names: l
         cells = [f"{d:g}"]
         for name in names:
             r = by[(d, name)]
-            cells += [_fmt(r.p_collision, 2), _fmt(r.p_fatality), _fmt(r.risk, 4)]
+            cells += [
+                _fmt(r.p_collision, 2),
+                _fmt(r.p_fatality),
+                _fmt(r.risk, 4),
+                _fmt(r.mean_return, 2),
+            ]
         cells.append("—" if math.isnan(per.get(d, math.nan)) else f"{per[d]:+.0%}")
         table.add_row(*cells)
     total = "—" if math.isnan(pooled) else f"{pooled:+.0%}"
     table.caption = (
         f"risk reduction = 1 − risk(learned)/risk(rule); over all distances: {total}. "
-        "P_f is the mean fatality risk of the collisions."
+        f"P_f is the mean fatality risk of the collisions; return: mean episode return "
+        f"under the {reward} reward."
     )
     return table
 
@@ -317,6 +325,13 @@ def _table(rows: list[EvalRow], per: dict[float, float], pooled: float, names: l
     default=None,
     help="Draw the three measures against distance (PNG).",
 )
+@click.option(
+    "--reward",
+    type=click.Choice(["method", "risk-progress"]),
+    default=None,
+    help="Reward whose mean episode return is reported (default: the config's, method); "
+    "risk and collisions do not depend on it.",
+)
 @_seeds_option
 @_prior_option
 @_scenario_option
@@ -330,6 +345,7 @@ def evaluate(
     threshold: float | None,
     csv_path: Path | None,
     plot_path: Path | None,
+    reward: str | None,
     seeds: str | None,
     prior: str | None,
     scenario: str | None,
@@ -342,7 +358,7 @@ def evaluate(
     for target in (csv_path, plot_path):
         if target is not None:  # a result of an earlier run may be replaced, an input never
             check_output(target, [p for p in (model_path, config_path) if p], force=True)
-    config = _env_config(config_path, detail, prior=prior, scenario=scenario)
+    config = _env_config(config_path, detail, reward, prior=prior, scenario=scenario)
     dists = rl.parse_distances(distances)
     seed_list = _parse_seeds(seeds)
     if seed_list is not None:
@@ -363,7 +379,7 @@ def evaluate(
             progress=lambda done, total: bar.update(task, completed=done, total=total),
         )
     per, pooled = rl.risk_reduction(rows)
-    Console().print(_table(rows, per, pooled, ["learned", "rule"]))
+    Console().print(_table(rows, per, pooled, ["learned", "rule"], config.reward.kind))
     if csv_path is not None:
         rl.write_csv(rows, csv_path)
         click.echo(f"wrote {csv_path}")
@@ -434,6 +450,9 @@ def _evaluate_seeds(
         "± SE",
         "paired\np",
         "seeds\n≤ rule",
+        "learned\nreturn",
+        "rule\nreturn",
+        "learned\ntimeouts",
     ):
         table.add_column(col, justify="right")
     for r in rows:
@@ -446,6 +465,9 @@ def _evaluate_seeds(
             _fmt(r.baseline_se, 4),
             f"{r.p_value:.3g}",
             f"{r.seeds_at_or_below}/{r.seeds}",
+            _fmt(r.mean_return, 2),
+            _fmt(r.baseline_return, 2),
+            f"{r.timeouts:.0%}",
         )
     stop = [d for d in dists if protocol.cannot_stop(config, d)]
     ratio = protocol.pooled_ratio(rows, stop)
@@ -468,6 +490,8 @@ def _join(runs: list[Any]) -> Any:
         np.concatenate([r.risk for r in runs]),
         np.concatenate([r.collision for r in runs]),
         np.concatenate([r.time_s for r in runs]),
+        np.concatenate([r.crossed for r in runs]),
+        np.concatenate([r.returns for r in runs]),
     )
 
 

@@ -30,10 +30,13 @@ Reward: see :class:`~rfsas_hw.envs.envconfig.RewardConfig` (method.md §10 by
 default: +1 for braking while the estimated risk is above the threshold, +1
 for accelerating while it is not).
 
-The episode terminates when the front bumper reaches the intersection centre,
-(``end_y_m``, by default 5 m past it, when the car has cleared the cross
-street's near lane), when the car stops, or when it hits the cyclist; it is truncated after
-``max_steps``. ``reset(options={"reaction_distance_m": d})`` fixes the
+The episode terminates when the front bumper reaches ``end_y_m`` (by default
+5 m past the intersection centre, when the car has cleared the cross street's
+near lane) or when the car hits the cyclist; it is truncated after
+``max_steps`` (a *timeout*: the car never crossed). Stopping does not end the
+episode: a car that stops short of the crossing has to drive on (the cyclist
+keeps riding, and time passes while it waits), so a stop is never an exit
+that counts as safe. ``reset(options={"reaction_distance_m": d})`` fixes the
 warning: it arrives when a car holding its initial speed would be ``d``
 metres from the centre. Without it, ``reset`` places the warning from the
 time to first intercept of the phone plus the reaction delay, and never later
@@ -83,7 +86,7 @@ ACTION_NAMES = ("coast", "brake", "accelerate")
 """Names of the actions, by index."""
 OBS_SIZE = 6
 """Observation entries without the prior (one more with ``prior.observe``)."""
-_OPTIONS = ("reaction_distance_m", "corner", "crosser", "heard")
+_OPTIONS = ("reaction_distance_m", "corner", "crosser", "heard", "hour")
 _ABSENT_ARRIVAL_S = 1e6
 """Arrival time of a crosser that is not there: far beyond any episode."""
 _RISK_LOG_FLOOR = 1e-4
@@ -115,6 +118,8 @@ class Episode:
     """Whether the crosser's phone is heard (a warning comes)."""
     late: bool = True
     """Whether the crosser was drawn as late (``corners``; ``single``: always True)."""
+    hour: int | None = None
+    """UTC hour of day of the episode, for an hour-of-day prior (None: not used)."""
 
 
 class IntersectionEnv(gym.Env[ObsArray, np.int64]):
@@ -234,16 +239,18 @@ class IntersectionEnv(gym.Env[ObsArray, np.int64]):
 
     def _draw_corner(
         self, options: Mapping[str, Any], arrival: float
-    ) -> tuple[str, bool, bool, float]:
-        """Corner, crosser present, late, and the arrival time (``corners`` scenario)."""
+    ) -> tuple[str, bool, bool, float, bool]:
+        """Corner, crosser present, late, the arrival time and whether the crosser's phone
+        is heard (``corners`` scenario)."""
         sc = self.config.scenario
         if sc.kind == "single":
-            return "busy", True, True, arrival
+            return "busy", True, True, arrival, True
         rng = self.np_random
         # always the same draws, so that an option changes nothing else in the episode
         busy = bool(rng.uniform() < sc.busy_fraction)
         u_empty, u_late = float(rng.uniform()), float(rng.uniform())
         u_arrival = float(rng.uniform())
+        heard = float(rng.uniform()) < sc.heard_fraction
         corner = str(options.get("corner", "busy" if busy else "quiet"))
         if corner not in CORNERS:
             raise ConfigError(f"reset options: corner must be quiet or busy, got {corner!r}")
@@ -251,7 +258,7 @@ class IntersectionEnv(gym.Env[ObsArray, np.int64]):
         present = u_empty >= sc.empty_fraction[i]
         late = u_late < sc.late_fraction[i]
         lo, hi = sc.late_arrival_s if late else sc.early_arrival_s
-        return corner, present, late, lo + (hi - lo) * u_arrival
+        return corner, present, late, lo + (hi - lo) * u_arrival, heard
 
     def _draw_episode(self, options: Mapping[str, Any]) -> Episode:
         c = self.config
@@ -267,9 +274,11 @@ class IntersectionEnv(gym.Env[ObsArray, np.int64]):
         arrival = float(rng.uniform(*o.lane_arrival_s))
         intercept = float(rng.uniform(*c.sensing.intercept_s))
         d0 = c.vehicle.start_distance_m
-        corner, present, late, arrival = self._draw_corner(options, arrival)
+        corner, present, late, arrival, heard = self._draw_corner(options, arrival)
         present = bool(options.get("crosser", present))
-        heard = bool(options.get("heard", True)) and present
+        # a warning at a given distance is a heard phone, unless told otherwise
+        heard = heard or "reaction_distance_m" in options
+        heard = bool(options.get("heard", heard)) and present
         if not present:
             arrival = _ABSENT_ARRIVAL_S
         los = self._los_s(u0, speed, arrival)
@@ -290,7 +299,24 @@ class IntersectionEnv(gym.Env[ObsArray, np.int64]):
         reaction = min(max(d0 - u0 * warning, 0.0), d0)
         if not heard:
             warning, reaction = math.inf, math.nan
-        return Episode(u0, speed, arrival, warning, reaction, los, corner, present, heard, late)
+        hour = self._draw_hour(options)
+        return Episode(
+            u0, speed, arrival, warning, reaction, los, corner, present, heard, late, hour
+        )
+
+    def _draw_hour(self, options: Mapping[str, Any]) -> int | None:
+        """The episode's hour of day when the prior depends on it (drawn last, uniformly,
+        so that the other draws do not change), else None."""
+        if not any(p.hourly for p in self._profiles.values()):
+            return None
+        if "hour" in options:
+            h = options["hour"]
+            if isinstance(h, bool) or not isinstance(h, int | np.integer) or not 0 <= h < 24:
+                raise ConfigError(f"reset options: hour must be an integer 0–23, got {h!r}")
+            return int(h)
+        if self.config.prior.hour is not None:
+            return self.config.prior.hour
+        return int(self.np_random.integers(0, 24))
 
     def reset(
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
@@ -298,10 +324,13 @@ class IntersectionEnv(gym.Env[ObsArray, np.int64]):
         """Start an episode; ``options={"reaction_distance_m": d}`` fixes the warning.
 
         Other options: ``corner`` (``quiet``/``busy``, ``corners`` scenario only),
-        ``crosser`` (False: nobody crosses), ``heard`` (False: no warning).
+        ``crosser`` (False: nobody crosses), ``heard`` (False: no warning), ``hour``
+        (UTC hour of day 0–23 for a prior whose history is long enough to be per
+        hour; ignored otherwise).
 
         Raises:
-            ConfigError: unknown option, a negative distance or an unknown corner.
+            ConfigError: unknown option, a negative distance, an unknown corner or an
+                hour outside 0–23.
         """
         super().reset(seed=seed)
         self._reset_state()
@@ -364,8 +393,6 @@ class IntersectionEnv(gym.Env[ObsArray, np.int64]):
                 self.collided = True
                 self.impact_speed_mps = u1
                 break
-            if u1 == 0.0:
-                break
         return covered, self.collided
 
     def step(self, action: Any) -> tuple[ObsArray, SupportsFloat, bool, bool, dict[str, Any]]:
@@ -386,24 +413,24 @@ class IntersectionEnv(gym.Env[ObsArray, np.int64]):
         self.steps += 1
         self.last_action = a
         reached = self.front_y_m >= c.end_y_m
-        stopped = self.speed_mps <= 0.0
-        terminated = collided or reached or stopped
+        terminated = collided or reached
         truncated = not terminated and self.steps >= c.max_steps
         if not terminated:
             self._sense()
-        reward = self._reward(a, seen_risk, covered)
+        reward = self._reward(a, seen_risk, covered, timeout=truncated)
         if self.render_mode == "human":
             self.render()
         return self._observation(), reward, terminated, truncated, self._info()
 
-    def _reward(self, action: int, risk: float, covered_m: float) -> float:
+    def _reward(self, action: int, risk: float, covered_m: float, *, timeout: bool) -> float:
         r = self.config.reward
         if r.kind == "method":
             above = risk > self.config.risk_threshold
             return float((action == BRAKE and above) or (action == ACCELERATE and not above))
         progress = r.progress_weight * covered_m / self.config.vehicle.start_distance_m
         realised = self.realised_risk
-        return float(progress - r.risk_weight * realised)
+        cost = r.time_weight * self.config.dt_s + (r.timeout_weight if timeout else 0.0)
+        return float(progress - r.risk_weight * realised - cost)
 
     @property
     def realised_risk(self) -> float:
@@ -429,18 +456,17 @@ class IntersectionEnv(gym.Env[ObsArray, np.int64]):
             dtype=np.float32,
         )
         if self._profiles:
-            assert self.episode is not None
-            prior = self._profiles.get(self.episode.corner, self._profiles.get("busy"))
-            obs = np.append(obs, np.float32(prior(self.front_y_m) if prior else 0.0))
+            obs = np.append(obs, np.float32(self.prior_ahead))
         return np.clip(obs, 0.0, 1.0)
 
     @property
     def prior_ahead(self) -> float:
-        """The prior entry of the observation now (0 without ``prior.observe``)."""
+        """The prior entry of the observation now (0 without ``prior.observe``): the
+        episode's corner, at the episode's hour of day when the prior is hourly."""
         if not self._profiles or self.episode is None:
             return 0.0
         prior = self._profiles.get(self.episode.corner, self._profiles.get("busy"))
-        return prior(self.front_y_m) if prior else 0.0
+        return prior(self.front_y_m, self.episode.hour) if prior else 0.0
 
     def _info(self) -> dict[str, Any]:
         assert self.episode is not None
@@ -452,13 +478,16 @@ class IntersectionEnv(gym.Env[ObsArray, np.int64]):
             "risk": self.assessment.risk,
             "p_collision": self.assessment.p_collision,
             "collision": self.collided,
+            "crossed": self.front_y_m >= self.config.end_y_m,
             "impact_speed_mps": self.impact_speed_mps,
             "realised_risk": self.realised_risk,
-            "reaction_distance_m": self.episode.reaction_distance_m,
+            # None without a warning (NaN would not compare equal to itself)
+            "reaction_distance_m": self.episode.reaction_distance_m if self.episode.heard else None,
             "warning_s": self.episode.warning_s,
             "corner": self.episode.corner,
             "crosser": self.episode.crosser,
             "heard": self.episode.heard,
+            "hour": self.episode.hour,
         }
 
     # -- rendering -----------------------------------------------------------------------

@@ -162,7 +162,10 @@ class RewardConfig:
     above ``risk_threshold``, +1 for accelerating while it is not, 0 otherwise.
     ``risk-progress``: ``progress_weight`` times the fraction of the approach
     covered in the step, minus ``risk_weight`` times the realised risk
-    (``P_f`` of the impact speed) when a collision happens.
+    (``P_f`` of the impact speed) when a collision happens, minus
+    ``time_weight`` per second of the episode, minus ``timeout_weight`` when
+    the episode is truncated before the car crossed (stopping is not an exit:
+    waiting costs time, and never crossing costs more).
     """
 
     kind: RewardKind = "method"
@@ -171,6 +174,16 @@ class RewardConfig:
     """``risk-progress``: reward for covering the whole approach."""
     risk_weight: float = 10.0
     """``risk-progress``: penalty per unit of realised fatality risk."""
+    time_weight: float = 0.05
+    """``risk-progress``: penalty per second of the episode (a car holding 20 m/s pays
+    about 0.27 for the approach)."""
+    timeout_weight: float = 1.0
+    """``risk-progress``: penalty when the episode times out (``max_steps``) before the
+    car crossed."""
+
+    def __post_init__(self) -> None:
+        if min(self.progress_weight, self.risk_weight, self.time_weight, self.timeout_weight) < 0:
+            raise ValueError("reward weights must be >= 0")
 
 
 ScenarioKind = Literal["single", "corners"]
@@ -192,7 +205,8 @@ class ScenarioConfig:
     no crosser and so no warning) and more crossers are *late*
     (``late_fraction``: arriving at the car's lane in ``late_arrival_s``,
     when a car holding its speed is there); the others pass early
-    (``early_arrival_s``). Pairs are (quiet, busy).
+    (``early_arrival_s``). At either kind a crosser is heard (a warning comes)
+    with probability ``heard_fraction``. Pairs are (quiet, busy).
     """
 
     kind: ScenarioKind = "single"
@@ -209,14 +223,17 @@ class ScenarioConfig:
     """``corners``: probability of an episode without a crosser (quiet, busy)."""
     late_fraction: tuple[float, float] = (0.15, 0.75)
     """``corners``: probability that a crosser is late (quiet, busy)."""
+    heard_fraction: float = 0.75
+    """``corners``: probability that a crosser's phone is heard in time (the others carry
+    no phone, or one that stays silent: no warning comes). Independent of the corner."""
     late_arrival_s: tuple[float, float] = (4.4, 5.4)
     """Arrival time range of a late crosser at the car's lane, seconds after reset."""
     early_arrival_s: tuple[float, float] = (1.5, 3.5)
     """Arrival time range of an early crosser, seconds after reset."""
 
     def __post_init__(self) -> None:
-        if not 0 <= self.busy_fraction <= 1:
-            raise ValueError("busy_fraction must be in [0, 1]")
+        if not 0 <= self.busy_fraction <= 1 or not 0 <= self.heard_fraction <= 1:
+            raise ValueError("busy_fraction and heard_fraction must be in [0, 1]")
         for name in ("empty_fraction", "late_fraction"):
             if not all(0 <= p <= 1 for p in getattr(self, name)):
                 raise ValueError(f"{name} must be probabilities in [0, 1]")
@@ -252,10 +269,16 @@ class PriorObsConfig:
     """Density (road users per hour) at which the observation reaches 1 − 1/e."""
     tile_m: float = 5.0
     """Tile size of the prior built from the simulated history, metres."""
+    hour: int | None = None
+    """UTC hour of day (0–23) of every episode for a prior whose history is long enough
+    to be per hour (:attr:`ActivityPrior.hourly`); None: drawn uniformly per episode.
+    A pooled prior ignores it."""
 
     def __post_init__(self) -> None:
         if self.horizon_m <= 0 or self.corridor_m < 0 or self.scale_per_h <= 0:
             raise ValueError("horizon_m and scale_per_h must be > 0, corridor_m >= 0")
+        if self.hour is not None and not 0 <= self.hour < 24:
+            raise ValueError("hour must be in 0..23")
         if self.tile_m <= 0:
             raise ValueError("tile_m must be > 0")
 

@@ -66,7 +66,9 @@ def corner_history(config: EnvConfig, corner: CornerKind) -> ActivityPrior:
 
 
 class PriorProfile:
-    """The observation entry along the lane for one corner: a function of the car's front.
+    """The observation entry along the lane for one corner: a function of the car's front
+    and, once the prior's history is long enough (:attr:`ActivityPrior.hourly`), of the
+    hour of day.
 
     Args:
         prior: the activity prior of the site.
@@ -79,18 +81,30 @@ class PriorProfile:
         self.front_y = np.arange(
             -v.start_distance_m - 5.0, config.end_y_m + 5.0 + _PROFILE_STEP_M, _PROFILE_STEP_M
         )
+        self.hourly = prior.hourly
+        """Whether the profile depends on the hour of day (one row per hour)."""
+        hours: list[int | None] = [None, *range(24)] if self.hourly else [None]
         density = np.array(
             [
-                prior.density_ahead([[v.lane_x_m, y], [v.lane_x_m, y + p.horizon_m]], p.corridor_m)
-                for y in self.front_y
+                [
+                    prior.density_ahead(
+                        [[v.lane_x_m, y], [v.lane_x_m, y + p.horizon_m]], p.corridor_m, hour=h
+                    )
+                    for y in self.front_y
+                ]
+                for h in hours
             ]
         )
         self.density_per_h: Array = density
+        """Road users per hour ahead: (hours, positions); row 0 pooled over the hours,
+        rows 1–24 the hours of day 0–23 when :attr:`hourly`."""
         self.value: Array = 1.0 - np.exp(-density / p.scale_per_h)
 
-    def __call__(self, front_y_m: float) -> float:
-        """Observation entry (in [0, 1]) with the front bumper at ``front_y_m``."""
-        return float(np.interp(front_y_m, self.front_y, self.value))
+    def __call__(self, front_y_m: float, hour: int | None = None) -> float:
+        """Observation entry (in [0, 1]) with the front bumper at ``front_y_m`` at the UTC
+        ``hour`` of day (ignored, and may be None, unless :attr:`hourly`)."""
+        row = self.value[1 + hour % 24] if self.hourly and hour is not None else self.value[0]
+        return float(np.interp(front_y_m, self.front_y, row))
 
 
 @functools.lru_cache(maxsize=8)

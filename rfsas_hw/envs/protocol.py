@@ -111,6 +111,15 @@ class Outcomes:
     """Whether each episode ended in a collision."""
     time_s: Array
     """Duration of each episode, seconds."""
+    crossed: npt.NDArray[np.bool_]
+    """Whether the car crossed (False: a collision or a timeout)."""
+    returns: Array | None = None
+    """Undiscounted return of each episode under the environment's reward (None: not kept)."""
+
+    @property
+    def timeouts(self) -> npt.NDArray[np.bool_]:
+        """Episodes that ended at ``max_steps`` without a crossing or a collision."""
+        return ~self.crossed & ~self.collision
 
 
 def outcomes(
@@ -138,16 +147,20 @@ def outcomes(
     env = IntersectionEnv(config) if env is None else env
     shape = (len(distances_m), episodes)
     risk, hit, times = np.zeros(shape), np.zeros(shape, bool), np.zeros(shape)
+    crossed = np.zeros(shape, bool)
+    returns = np.zeros(shape)
     for i, d in enumerate(distances_m):
         for k in range(episodes):
             info = run_episode(env, policy, seed + k, d, dict(options or {}))
             risk[i, k] = info["realised_risk"]
             hit[i, k] = info["collision"]
             times[i, k] = info["t_s"]
+            crossed[i, k] = info["crossed"]
+            returns[i, k] = info["return"]
     if own:
         env.close()
     dists = tuple(math.nan if d is None else float(d) for d in distances_m)
-    return Outcomes(dists, risk, hit, times)
+    return Outcomes(dists, risk, hit, times, crossed, returns)
 
 
 @dataclass(frozen=True)
@@ -183,6 +196,12 @@ class PairedRow:
     """Mean episode duration of the learned policy, seconds."""
     baseline_time_s: float
     """Mean episode duration of the baseline, seconds."""
+    timeouts: float = 0.0
+    """Fraction of the learned policy's episodes (all seeds) that timed out uncrossed."""
+    mean_return: float = math.nan
+    """Mean episode return of the learned policy (all seeds; NaN: returns not kept)."""
+    baseline_return: float = math.nan
+    """Mean episode return of the baseline."""
 
 
 def _se(x: Array) -> float:
@@ -205,6 +224,9 @@ def compare(learned: Sequence[Outcomes], baseline: Outcomes) -> list[PairedRow]:
     stack = np.stack([o.risk for o in learned])  # (seeds, distances, episodes)
     hits = np.stack([o.collision for o in learned])
     times = np.stack([o.time_s for o in learned])
+    timeouts = np.stack([o.timeouts for o in learned])
+    kept = baseline.returns is not None and all(o.returns is not None for o in learned)
+    returns = np.stack([o.returns for o in learned]) if kept else None  # type: ignore[misc]
     rows = []
     for i, d in enumerate(baseline.distances_m):
         per_seed = stack[:, i, :].mean(axis=1)
@@ -228,6 +250,11 @@ def compare(learned: Sequence[Outcomes], baseline: Outcomes) -> list[PairedRow]:
                 p_value=p,
                 time_s=float(times[:, i, :].mean()),
                 baseline_time_s=float(baseline.time_s[i].mean()),
+                timeouts=float(timeouts[:, i, :].mean()),
+                mean_return=float(returns[:, i, :].mean()) if returns is not None else math.nan,
+                baseline_return=float(baseline.returns[i].mean())  # type: ignore[index]
+                if returns is not None
+                else math.nan,
             )
         )
     return rows
@@ -264,7 +291,7 @@ def speed_profiles(
 ) -> tuple[Array, Array]:
     """Mean speed (m/s) of ``policy`` against the distance to the centre (``grid_m``, metres,
     default 100 → 0 m every 2 m); an episode that ended before a grid point (a collision
-    or a stop) counts with its last speed there.
+    or a timeout) counts with its last speed there.
 
     Raises:
         ConfigError: ``episodes`` < 1.

@@ -264,6 +264,8 @@ class EvalRow:
     """Standard error of ``risk`` over the episodes."""
     mean_time_s: float
     """Mean episode duration, seconds (how much the policy slows the car down)."""
+    mean_return: float = math.nan
+    """Mean undiscounted episode return under the environment's reward."""
 
 
 def run_episode(
@@ -273,7 +275,8 @@ def run_episode(
     distance_m: float | None = None,
     options: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
-    """Run one episode; return the final ``info`` with the number of steps.
+    """Run one episode; return the final ``info`` with the number of steps, whether it
+    was truncated and its undiscounted ``return`` (sum of the rewards).
 
     ``options`` are further ``reset`` options (``corner``, ``crosser``, ``heard``).
     """
@@ -282,12 +285,14 @@ def run_episode(
         opts["reaction_distance_m"] = distance_m
     obs, info = env.reset(seed=seed, options=opts or None)
     steps = 0
+    total = 0.0
     while True:
-        obs, _, term, trunc, info = env.step(policy.act(obs))
+        obs, reward, term, trunc, info = env.step(policy.act(obs))
         steps += 1
+        total += float(reward)
         if term or trunc:
             break
-    return {**info, "steps": steps, "truncated": bool(trunc)}
+    return {**info, "steps": steps, "truncated": bool(trunc), "return": total}
 
 
 def evaluate(
@@ -319,12 +324,14 @@ def evaluate(
             realised = np.zeros(episodes)
             fatal: list[float] = []
             times = np.zeros(episodes)
+            returns = np.zeros(episodes)
             for k in range(episodes):
                 info = run_episode(env, policy, seed + k, d)
                 done += 1
                 if progress is not None:
                     progress(done, total)
                 times[k] = info["t_s"]
+                returns[k] = info["return"]
                 if info["collision"]:
                     fatal.append(info["realised_risk"])
                     realised[k] = info["realised_risk"]
@@ -342,6 +349,7 @@ def evaluate(
                     if episodes > 1
                     else math.nan,
                     mean_time_s=float(np.mean(times)),
+                    mean_return=float(np.mean(returns)),
                 )
             )
     env.close()

@@ -5,7 +5,11 @@ from __future__ import annotations
 
 import json
 import math
+import socket
+import threading
+import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -235,3 +239,76 @@ def test_a_prior_sink_keeps_the_file_across_backend_runs(tmp_path: Path) -> None
     path.write_text("{}")
     with pytest.raises(DataFormatError, match="site-prior"):
         PriorSink(path)
+
+
+def _send_signed(url: str, stores: dict[str, Any], emitter: int) -> None:
+    """Signed bearings of one emitter at (−6, 22) m from two sensors, 10 Hz for 2 s."""
+    from rfsas_hw.link import Publisher
+
+    time.sleep(0.3)
+    poses = {"rsu-n": Pose(-35.0, 10.0, 90.0), "rsu-s": Pose(25.0, -5.0, 0.0)}
+    pubs = {sid: Publisher.to_url(url, stores[sid].signer(), p) for sid, p in poses.items()}
+    try:
+        for _ in range(20):
+            now = time.time_ns()
+            for sid, pose in poses.items():
+                d = np.array([-6.0, 22.0]) - np.array([pose.x_m, pose.y_m])
+                az = float(math_rad_to_compass(np.arctan2(d[1], d[0])))
+                pubs[sid].on_bearings(
+                    BearingBatch(
+                        sid,
+                        np.array([now], np.int64),
+                        np.array([az]),
+                        np.array([1.0]),
+                        np.array([20.0]),
+                        np.array([11], np.int16),
+                        np.array([emitter], np.uint64),
+                    )
+                )
+            time.sleep(0.1)
+    finally:
+        for pub in pubs.values():
+            pub.close()
+
+
+def test_rfsas_backend_prior_keeps_a_file_across_runs(tmp_path: Path) -> None:
+    from click.testing import CliRunner
+
+    from rfsas_hw.cli.backend import backend
+    from rfsas_hw.link.keys import KeyStore
+
+    keys = KeyStore.create(tmp_path / "backend", "backend", "obu-1")
+    stores = {sid: KeyStore.create(tmp_path / sid, "sensor", sid) for sid in ("rsu-n", "rsu-s")}
+    for store in stores.values():
+        keys.trust.enroll(store.card)
+    prior_path = tmp_path / "site-prior.json"
+    emitter = 0xC0FF_EE00_0000_0042
+    totals = []
+    for _ in range(2):
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+            s.bind(("127.0.0.1", 0))
+            url = f"udp://127.0.0.1:{s.getsockname()[1]}"
+        sender = threading.Thread(target=_send_signed, args=(url, stores, emitter))
+        sender.start()
+        result = CliRunner().invoke(
+            backend,
+            ["--listen", url, "--keys", str(tmp_path / "backend"), "--prior", str(prior_path),
+             "--duration", "2.5", "--no-table"],
+        )  # fmt: skip
+        sender.join()
+        assert result.exit_code == 0, result.output
+        prior = ActivityPrior.load(prior_path)
+        tile = prior.tile_of(-6.0, 22.0)
+        totals.append(float(prior.visits(tile).sum()))
+    # one visit of the emitter's tile per run, kept and added to across the runs
+    assert totals[0] == pytest.approx(1.0, rel=1e-3)
+    assert totals[1] == pytest.approx(2.0, rel=1e-3)
+    text = prior_path.read_text()
+    assert f"{emitter:016x}" not in text and str(emitter) not in text
+    prior_path.write_text("not json")
+    bad = CliRunner().invoke(
+        backend,
+        ["--listen", "udp://127.0.0.1:9", "--keys", str(tmp_path / "backend"),
+         "--prior", str(prior_path), "--duration", "0.1", "--no-table"],
+    )  # fmt: skip
+    assert isinstance(bad.exception, DataFormatError) and "site-prior" in str(bad.exception)

@@ -62,7 +62,9 @@ def test_same_seed_same_trajectory_other_seed_differs(detail: str) -> None:
     assert first != other
 
 
-def test_speed_is_clamped_and_never_negative_and_a_stop_ends_the_episode() -> None:
+def test_speed_is_clamped_and_never_negative_and_a_stop_does_not_end_the_episode() -> None:
+    # A stop used to end the episode and count as safe: agents learned to stop short of
+    # busy corners. Now the car has to drive on, and time passes while it waits.
     env = IntersectionEnv({"vehicle": {"initial_speed_mps": [15.0, 15.0]}})
     env.reset(seed=3)
     speeds = []
@@ -73,16 +75,38 @@ def test_speed_is_clamped_and_never_negative_and_a_stop_ends_the_episode() -> No
             break
     assert max(speeds) == pytest.approx(20.0)
     assert speeds[0] == pytest.approx(15.2)
-    env.reset(seed=3)
+    env.reset(seed=3, options={"crosser": True})
     y0 = env.front_y_m
-    for _ in range(100):
+    for _ in range(60):
         _, _, term, trunc, info = env.step(BRAKE)
         assert info["speed_mps"] >= 0.0
-        if term or trunc:
-            break
-    assert term and info["speed_mps"] == 0.0 and not info["collision"]
+        assert not (term or trunc)
+    assert info["speed_mps"] == 0.0 and not info["collision"] and not info["crossed"]
+    assert env.t_s == pytest.approx(6.0)  # a stopped car's clock runs on
     # 15 m/s braking at 4.7 m/s² stops in 15²/(2·4.7) m
     assert env.front_y_m - y0 == pytest.approx(15.0**2 / (2 * 4.7), abs=1e-9)
+    for _ in range(200):
+        _, _, term, trunc, info = env.step(ACCELERATE)
+        if term or trunc:
+            break
+    # the cyclist has long passed: the car drives on and crosses
+    assert term and info["crossed"] and not info["collision"]
+
+
+def test_a_car_that_never_crosses_times_out_and_pays_for_it() -> None:
+    config = {"reward": {"kind": "risk-progress"}, "max_steps": 50}
+    env = IntersectionEnv(config)
+    env.reset(seed=0)
+    total = 0.0
+    for k in range(50):
+        _, r, term, trunc, info = env.step(BRAKE)
+        total += float(r)
+        assert not term
+        assert trunc == (k == 49)
+    assert not info["crossed"]
+    covered = (env.front_y_m + 100.0) / 100.0
+    # progress, minus 0.05 per second, minus 1 for the timeout
+    assert total == pytest.approx(covered - 0.05 * 5.0 - 1.0)
 
 
 def test_reaching_the_intersection_ends_the_episode() -> None:
@@ -167,7 +191,7 @@ def test_risk_progress_reward_pays_progress_and_charges_realised_risk() -> None:
             y0 = env.front_y_m
             _, r, term, trunc, info = env.step(COAST)
             done = term or trunc
-            expected = (env.front_y_m - y0) / 100.0
+            expected = (env.front_y_m - y0) / 100.0 - 0.05 * 0.1
             if info["collision"]:
                 expected -= 10.0 * fatality_risk(info["impact_speed_mps"])
             assert float(r) == pytest.approx(expected)

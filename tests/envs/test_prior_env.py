@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import numpy as np
@@ -54,6 +55,7 @@ def test_busy_corners_have_a_history_and_the_car_sees_it_ahead(env: Intersection
 def test_busy_corners_produce_more_late_crossers(env: IntersectionEnv) -> None:
     late: dict[str, list[bool]] = {"busy": [], "quiet": []}
     empty: dict[str, list[bool]] = {"busy": [], "quiet": []}
+    heard: dict[str, list[bool]] = {"busy": [], "quiet": []}
     for seed in range(400):
         env.reset(seed=seed)
         e = env.episode
@@ -61,6 +63,15 @@ def test_busy_corners_produce_more_late_crossers(env: IntersectionEnv) -> None:
         empty[e.corner].append(not e.crosser)
         if e.crosser:
             late[e.corner].append(e.late)
+            heard[e.corner].append(e.heard)
+            assert e.heard == math.isfinite(e.warning_s)
+        # a warning at a given distance is a heard phone
+        env.reset(seed=seed, options={"reaction_distance_m": 50.0})
+        assert env.episode is not None
+        assert env.episode.heard == env.episode.crosser
+    # a quarter of the crossers are never heard, at either kind of corner
+    assert np.mean(heard["busy"]) == pytest.approx(0.75, abs=0.1)
+    assert np.mean(heard["quiet"]) == pytest.approx(0.75, abs=0.1)
     assert 150 < len(empty["busy"]) < 250
     assert np.mean(late["busy"]) == pytest.approx(0.75, abs=0.08)
     assert np.mean(late["quiet"]) == pytest.approx(0.15, abs=0.08)
@@ -113,3 +124,41 @@ def test_the_env_with_the_prior_passes_the_checkers(env: IntersectionEnv) -> Non
         "stable_baselines3.common.env_checker", reason="stable-baselines3 is not installed"
     )
     sb3_checker.check_env(env, warn=True)
+
+
+def test_a_long_history_gives_an_hour_of_day_prior(tmp_path: Path) -> None:
+    # eight days observed every 30 s; crossers on the lane only between 08:00 and 09:00 UTC
+    prior = ActivityPrior()
+    t0 = 1_767_225_600  # 2026-01-01T00:00:00Z
+    for k in range(8 * 24 * 120):
+        t = t0 + 30 * k
+        if (t // 3600) % 24 == 8 and k % 4 == 0:
+            prior.add_fix(t * 10**9, 1.75, -3.5, f"e{k}")
+        prior.observe(t * 10**9)
+    assert prior.hourly
+    path = prior.save(tmp_path / "prior.json")
+    env = IntersectionEnv({"prior": {"observe": True, "path": str(path)}})
+    seen = {}
+    for hour in (8, 20):
+        env.reset(seed=0, options={"hour": hour})
+        assert env.episode is not None and env.episode.hour == hour
+        env.front_y_m = -20.0
+        seen[hour] = env.prior_ahead
+    # 30 visits an hour at 08 (one every two minutes), none at 20
+    assert seen[8] == pytest.approx(1 - np.exp(-30 / 20), abs=0.02) and seen[20] == 0.0
+    # without the option each episode draws its hour, after every other draw
+    hours = set()
+    for seed in range(40):
+        env.reset(seed=seed)
+        assert env.episode is not None and env.episode.hour is not None
+        hours.add(env.episode.hour)
+    assert len(hours) > 10
+    pinned = IntersectionEnv({"prior": {"observe": True, "path": str(path), "hour": 8}})
+    pinned.reset(seed=5)
+    assert pinned.episode is not None and pinned.episode.hour == 8
+    with pytest.raises(ConfigError, match="hour"):
+        env.reset(seed=1, options={"hour": 24})
+    # a one-day history is pooled: the hour is not drawn and changes nothing
+    short = IntersectionEnv({"prior": {"observe": True}})
+    short.reset(seed=0, options={"hour": 3})
+    assert short.episode is not None and short.episode.hour is None

@@ -41,7 +41,7 @@ def rfsas(*args: str) -> tuple[int, str]:
 
 def fake(risks: list[list[float]]) -> Outcomes:
     r = np.array(risks)
-    return Outcomes((40.0, 60.0)[: len(r)], r, r > 0, np.full(r.shape, 5.0))
+    return Outcomes((40.0, 60.0)[: len(r)], r, r > 0, np.full(r.shape, 5.0), r == 0)
 
 
 def test_compare_pairs_the_episodes_and_pools() -> None:

@@ -120,6 +120,17 @@ def test_evaluation_rule_beats_holding_speed_and_rows_are_consistent() -> None:
     assert by[(90.0, "rule")].risk <= by[(40.0, "rule")].risk
 
 
+def test_an_episode_reports_its_return() -> None:
+    env = IntersectionEnv({"reward": {"kind": "risk-progress"}})
+    for seed in range(6):
+        info = run_episode(env, HoldPolicy(), seed=seed, distance_m=50.0)
+        covered = (env.front_y_m + 100.0) / 100.0
+        expected = covered - 0.05 * 0.1 * info["steps"] - 10.0 * info["realised_risk"]
+        assert info["return"] == pytest.approx(expected)
+    rows = evaluate([HoldPolicy()], [50.0], 6, config=env.config, seed=0)
+    assert rows[0].mean_return < 1.05
+
+
 def test_same_episodes_for_every_policy() -> None:
     env = IntersectionEnv()
     a = run_episode(env, HoldPolicy(), seed=7, distance_m=50.0)
@@ -204,6 +215,10 @@ def test_cli_evaluate_and_render(
         ("80", "rule"),
     ]
     assert out_png.is_file()
+    # the return column follows --reward; risk and collisions do not depend on it
+    code, output = rfsas(*args, "--reward", "risk-progress")
+    assert code == 0, output
+    assert "return" in output and "risk-progress" in output
     gif = tmp_path / "ep.gif"
     code, output = rfsas("sim", "render", "--model", str(model), "--distance", "60", "-o", str(gif))
     assert code == 0, output

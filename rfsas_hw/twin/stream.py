@@ -47,30 +47,98 @@ Array = npt.NDArray[np.float64]
 __all__ = ["LiveTrack", "StreamTwin"]
 
 
-def _empty_tx() -> Transmissions:
-    return Transmissions(
-        np.empty(0), np.empty(0, np.int16), np.empty(0, np.uint8), np.empty(0, np.int32)
-    )
+_COLUMNS = ("t", "emitter", "channel", "kind", "seq")
 
 
-def _concat_window(window: list[Transmissions]) -> dict[str, npt.NDArray[Any]]:
-    """The window's frames of every emitter, concatenated in emitter order."""
-    parts = [(i, tx) for i, tx in enumerate(window) if len(tx)]
-    if not parts:
-        return {
-            "t": np.empty(0),
-            "emitter": np.empty(0, np.intp),
-            "channel": np.empty(0, np.int16),
-            "kind": np.empty(0, np.uint8),
-            "seq": np.empty(0, np.int32),
-        }
+def _no_frames() -> dict[str, npt.NDArray[Any]]:
     return {
-        "t": np.concatenate([tx.t_s for _, tx in parts]),
-        "emitter": np.concatenate([np.full(len(tx), i, np.intp) for i, tx in parts]),
-        "channel": np.concatenate([tx.channel for _, tx in parts]),
-        "kind": np.concatenate([tx.kind for _, tx in parts]),
-        "seq": np.concatenate([tx.seq for _, tx in parts]),
+        "t": np.empty(0),
+        "emitter": np.empty(0, np.intp),
+        "channel": np.empty(0, np.int16),
+        "kind": np.empty(0, np.uint8),
+        "seq": np.empty(0, np.int32),
     }
+
+
+def _merge_frames(
+    frames: dict[str, npt.NDArray[Any]], new: list[tuple[int, Transmissions]]
+) -> dict[str, npt.NDArray[Any]]:
+    """``frames`` plus each emitter's new frames, in time order (ties: emitter order).
+
+    Frames of one emitter at the same time keep the order its generator gave them.
+    """
+    parts = [(i, tx) for i, tx in new if len(tx)]
+    if not parts:
+        return frames
+    t = np.concatenate([frames["t"], *(tx.t_s for _, tx in parts)])
+    emitter = np.concatenate(
+        [frames["emitter"], *(np.full(len(tx), i, np.intp) for i, tx in parts)]
+    )
+    order = np.lexsort((emitter, t))
+    return {
+        "t": t[order],
+        "emitter": emitter[order],
+        "channel": np.concatenate([frames["channel"], *(tx.channel for _, tx in parts)])[order],
+        "kind": np.concatenate([frames["kind"], *(tx.kind for _, tx in parts)])[order],
+        "seq": np.concatenate([frames["seq"], *(tx.seq for _, tx in parts)])[order],
+    }
+
+
+_FEW_TRACKS = 4
+"""Up to this many tracks are interpolated one by one (faster than side by side)."""
+
+
+def _interp_tracks(
+    knots: list[tuple[Array, Array, Array]], track: npt.NDArray[np.intp], t: Array
+) -> Array:
+    """Positions at times ``t`` on tracks ``knots[track]`` (knot times, east, north), (n, 2).
+
+    Each row gives what ``np.interp`` gives on its own track, bit for bit: the
+    end values outside the knots, the knot's value on a knot, else
+    ``slope·(t − t_j) + y_j`` with ``slope = (y_{j+1} − y_j)/(t_{j+1} − t_j)``.
+    """
+    U = len(knots)
+    if U <= _FEW_TRACKS:
+        out = np.empty((len(t), 2))
+        for u, (ts, xs, ys) in enumerate(knots):
+            sel = track == u
+            out[sel, 0] = np.interp(t[sel], ts, xs)
+            out[sel, 1] = np.interp(t[sel], ts, ys)
+        return out
+    n_k = np.array([len(k[0]) for k in knots], np.intp)
+    K = int(n_k.max())
+    # every track's knots in one row, padded with +inf times and its last position
+    kt = np.full((U, K), np.inf)
+    kx = np.repeat(np.array([k[1][-1] for k in knots])[:, None], K, axis=1)
+    ky = np.repeat(np.array([k[2][-1] for k in knots])[:, None], K, axis=1)
+    rows_k = np.repeat(np.arange(U), n_k)
+    cols_k = np.arange(len(rows_k)) - np.repeat(np.cumsum(n_k) - n_k, n_k)
+    kt[rows_k, cols_k] = np.concatenate([k[0] for k in knots])
+    kx[rows_k, cols_k] = np.concatenate([k[1] for k in knots])
+    ky[rows_k, cols_k] = np.concatenate([k[2] for k in knots])
+    T = kt[track]
+    j = np.count_nonzero(T <= t[:, None], axis=1) - 1
+    last = n_k[track] - 1
+    rows = np.arange(len(t))
+    jj = np.clip(j, 0, max(K - 2, 0))
+    jn = np.minimum(jj + 1, K - 1)
+    t0, t1 = T[rows, jj], T[rows, jn]
+    out = np.empty((len(t), 2))
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        for axis, kv in enumerate((kx, ky)):
+            V = kv[track]
+            y0, y1 = V[rows, jj], V[rows, jn]
+            slope = (y1 - y0) / (t1 - t0)
+            value = slope * (t - t0) + y0
+            redo = np.isnan(value)
+            if redo.any():
+                other = slope * (t - t1) + y1
+                other = np.where(np.isnan(other) & (y0 == y1), y0, other)
+                value = np.where(redo, other, value)
+            value = np.where(t0 == t, y0, value)
+            value = np.where(j >= last, V[rows, last], value)
+            out[:, axis] = np.where(j < 0, V[:, 0], value)
+    return out
 
 
 class LiveTrack:
@@ -154,6 +222,17 @@ class LiveTrack:
         self._n = m
         self._cache = None
 
+    def knots(self) -> tuple[Array, Array, Array]:
+        """The knots so far: times (s), east and north (m); views, not to be written to.
+
+        Raises:
+            SimulationError: no knot yet.
+        """
+        if self._n == 0:
+            raise SimulationError("a live track has no knot yet")
+        n = self._n
+        return self._t[:n], self._x[:n], self._y[:n]
+
     def track(self) -> Track:
         """The knots so far as an offline :class:`Track`.
 
@@ -200,6 +279,9 @@ class StreamTwin(World):
         listening: per sensor, a channel schedule replacing its scan plan
             (as for :class:`World`).
         start_s: scenario time the first window starts at, seconds.
+        lookahead_s: traffic is generated this far beyond the window asked
+            for, in one go (the frames do not depend on it: each generator
+            gives the same frames however its time is cut up), seconds.
     """
 
     def __init__(
@@ -209,6 +291,7 @@ class StreamTwin(World):
         listening: Mapping[str, Listening] | None = None,
         *,
         start_s: float = 0.0,
+        lookahead_s: float = 1.0,
     ) -> None:
         short = dataclasses.replace(scenario.spec, duration_s=1e-9)
         super().__init__(
@@ -225,15 +308,24 @@ class StreamTwin(World):
             EmitterTraffic(e.traffic, traffic_streams(seed, e.id, len(e.traffic)), start_s)
             for e in scenario.spec.emitters
         ]
-        self._buffer: list[Transmissions] = [_empty_tx() for _ in scenario.spec.emitters]
+        self._frames = _no_frames()
+        """Generated frames of every emitter not yet heard by every sensor, in time order."""
+        self._fresh: list[int] = list(range(len(self.emitters)))
+        """Emitters whose traffic has not been generated up to the horizon yet."""
+        self.lookahead_s = float(lookahead_s)
+        """How far beyond a window traffic is generated in one go, seconds."""
+        self._horizon_s = float(start_s)
         self._rx = {s.id: ReceiverStreams(seed, s, self.detail) for s in scenario.spec.sensors}
         self.cursor_s: dict[str, float] = {s.id: float(start_s) for s in scenario.spec.sensors}
         """End of the last window computed for each sensor, seconds."""
         self.generated_s = float(start_s)
         """Frames before this time have been generated for every live emitter, seconds."""
         self._window_key: tuple[float, float, int] | None = None
+        self._n_frames_added = 0
         self._window: dict[str, npt.NDArray[Any]] = {}
         self._window_xy: Array | None = None
+        self._plans: dict[str, ScanPlan] = {}
+        self._hear_cache: dict[tuple[str, int], npt.NDArray[np.bool_]] = {}
 
     # -- entities -------------------------------------------------------------------
 
@@ -274,17 +366,17 @@ class StreamTwin(World):
         self.emitter_macs = np.append(self.emitter_macs, np.uint64(mac))
         streams = traffic_streams(self.scenario.seed, emitter.id, len(emitter.traffic))
         self._traffic.append(EmitterTraffic(emitter.traffic, streams, start))
-        self._buffer.append(_empty_tx())
+        self._fresh.append(len(self.emitters) - 1)
         return len(self.emitters) - 1
 
     def retire_emitter(self, index: int, t_s: float) -> None:
         """Emitter ``index`` sends nothing from ``t_s`` on (it left the simulation)."""
         self._traffic[index] = None
-        tx = self._buffer[index]
-        keep = tx.t_s < t_s
-        self._buffer[index] = Transmissions(
-            tx.t_s[keep], tx.channel[keep], tx.kind[keep], tx.seq[keep]
-        )
+        f = self._frames
+        keep = (f["emitter"] != index) | (f["t"] < t_s)
+        if not keep.all():
+            self._frames = {k: v[keep] for k, v in f.items()}
+            self._n_frames_added += 1
 
     def _set_emitters(self) -> None:
         """Keep the scenario's emitter list (read by the offline code) in step."""
@@ -319,17 +411,29 @@ class StreamTwin(World):
         w = self._window
         if not self._window_key or not len(w["t"]):
             return {k: v[:0] for k, v in w.items()} if w else super()._candidates(s)
-        hears = np.array([s.hears(e.tech) for e in self.emitters], bool)[w["emitter"]]
+        hears = self._hears(s)[w["emitter"]]
         listens = self.listening.get(s.id)
         if listens is not None:
             on = np.asarray(listens(w["t"], w["channel"]), bool)
         else:
-            on = ScanPlan.from_spec(s.scan).channel_at(w["t"]) == w["channel"]
+            plan = self._plans.get(s.id)
+            if plan is None:
+                plan = self._plans[s.id] = ScanPlan.from_spec(s.scan)
+            on = plan.channel_at(w["t"]) == w["channel"]
         sel = hears & on
         out = {k: v[sel] for k, v in w.items()}
         out["row"] = np.flatnonzero(sel)
         order = np.lexsort((out["emitter"], out["t"]))
         return {k: v[order] for k, v in out.items()}
+
+    def _hears(self, s: SensorSpec) -> npt.NDArray[np.bool_]:
+        """Whether sensor ``s`` hears each emitter's technology (kept while emitters stay)."""
+        key = (s.id, len(self.emitters))
+        hears = self._hear_cache.get(key)
+        if hears is None:
+            hears = np.array([s.hears(e.tech) for e in self.emitters], bool)
+            self._hear_cache[key] = hears
+        return hears
 
     def _frame_positions(self, c: dict[str, Any]) -> Array:
         """Positions of the candidate frames, from the window's positions.
@@ -342,12 +446,32 @@ class StreamTwin(World):
             return super()._frame_positions(c)
         if self._window_xy is None:
             w = self._window
-            xy = np.empty((len(w["t"]), 2))
-            for i in np.unique(w["emitter"]):
-                sel = w["emitter"] == i
-                xy[sel] = self.emitter_position(int(i), w["t"][sel])
-            self._window_xy = xy
+            self._window_xy = self._positions(w["emitter"], w["t"])
         return np.asarray(self._window_xy[rows], np.float64)
+
+    def _positions(self, emitter: npt.NDArray[np.intp], t_s: Array) -> Array:
+        """Where each frame's emitter was at its time, shape (n, 2), metres.
+
+        :meth:`emitter_position` for many emitters in one pass: the knots of
+        every carrier side by side, interpolated exactly as ``np.interp`` does
+        on one track (so the streamed frames keep the offline world's positions).
+
+        Raises:
+            SimulationError: a carrier has no knot yet.
+        """
+        if not len(t_s):
+            return np.empty((0, 2))
+        uniq, inverse = np.unique(emitter, return_inverse=True)
+        knots: list[tuple[Array, Array, Array]] = []
+        for i in uniq.tolist():
+            track = self._carrier(i)
+            if track is None:
+                pos = self.emitters[i].position
+                assert pos is not None
+                knots.append((np.zeros(1), np.array([pos[0]], float), np.array([pos[1]], float)))
+            else:
+                knots.append(track.knots())
+        return _interp_tracks(knots, inverse.reshape(-1), np.asarray(t_s, np.float64))
 
     def sensor_pose(self, sensor: SensorSpec | str, t_s: npt.ArrayLike) -> tuple[Array, Array]:
         """Position (n, 2) in metres and boresight compass heading (n,) of a sensor at ``t_s``.
@@ -366,32 +490,34 @@ class StreamTwin(World):
     # -- frames ---------------------------------------------------------------------
 
     def _generate(self, t_end_s: float) -> None:
-        """Generate every live emitter's frames up to ``t_end_s``."""
+        """Generate every live emitter's frames up to ``t_end_s`` (and on to the horizon)."""
         if t_end_s > self.generated_s:
-            for i, traffic in enumerate(self._traffic):
-                if traffic is None:
-                    continue
-                new = traffic.advance(t_end_s)
-                if len(new):
-                    old = self._buffer[i]
-                    self._buffer[i] = Transmissions(
-                        np.concatenate([old.t_s, new.t_s]),
-                        np.concatenate([old.channel, new.channel]),
-                        np.concatenate([old.kind, new.kind]),
-                        np.concatenate([old.seq, new.seq]),
-                    )
+            if t_end_s > self._horizon_s:
+                self._horizon_s = t_end_s + self.lookahead_s
+                todo = range(len(self._traffic))
+            else:
+                todo = self._fresh  # type: ignore[assignment]
+            new = []
+            for i in todo:
+                traffic = self._traffic[i]
+                if traffic is not None:
+                    new.append((i, traffic.advance(self._horizon_s)))
+            self._fresh = []
+            merged = _merge_frames(self._frames, new)
+            if merged is not self._frames:
+                self._frames = merged
+                self._n_frames_added += 1
             self.generated_s = t_end_s
             self._trim()
 
     def _trim(self) -> None:
         """Drop frames and knots every sensor is done with (once per new window end)."""
         done = min(self.cursor_s.values(), default=self.generated_s)
-        for i, tx in enumerate(self._buffer):
-            if len(tx) and tx.t_s[0] < done:
-                cut = int(np.searchsorted(tx.t_s, done, side="left"))
-                self._buffer[i] = Transmissions(
-                    tx.t_s[cut:], tx.channel[cut:], tx.kind[cut:], tx.seq[cut:]
-                )
+        f = self._frames
+        if len(f["t"]) and f["t"][0] < done:
+            cut = int(np.searchsorted(f["t"], done, side="left"))
+            self._frames = {k: v[cut:] for k, v in f.items()}
+            self._n_frames_added += 1
         for track in self.live.values():
             track.forget_before(done)
 
@@ -419,18 +545,13 @@ class StreamTwin(World):
         if not t1_s > t0_s:
             raise SimulationError(f"sensor {s.id!r}: window [{t0_s}, {t1_s}) is empty")
         self._generate(t1_s)
-        window: list[Transmissions] = []
-        for tx in self._buffer if self._window_key != (t0_s, t1_s, len(self._buffer)) else ():
-            lo = int(np.searchsorted(tx.t_s, t0_s, side="left"))
-            hi = int(np.searchsorted(tx.t_s, t1_s, side="left"))
-            window.append(
-                Transmissions(tx.t_s[lo:hi], tx.channel[lo:hi], tx.kind[lo:hi], tx.seq[lo:hi])
-            )
-        key = (t0_s, t1_s, len(self._buffer))
+        key = (t0_s, t1_s, self._n_frames_added)
         if self._window_key != key:
-            self.tx = window
+            f = self._frames
+            lo = int(np.searchsorted(f["t"], t0_s, side="left"))
+            hi = int(np.searchsorted(f["t"], t1_s, side="left"))
             self._window_key = key
-            self._window = _concat_window(window)
+            self._window = {k: v[lo:hi] for k, v in f.items()}
             self._window_xy = None
         rec = self._receive(s, self._candidates(s), self._rx[s.id])
         self.cursor_s[s.id] = t1_s

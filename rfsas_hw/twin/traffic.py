@@ -9,6 +9,7 @@ bursts are a few frames close together on one channel.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -46,6 +47,9 @@ _EMPTY = Transmissions(
     seq=np.empty(0, np.int32),
 )
 """No frames (shared; arrays of a frozen record are never written to)."""
+
+_NO_EVENTS = np.empty(0)
+"""No event starts (shared, never written to)."""
 
 _DRAW_BLOCK = 256
 """Random numbers are drawn this many at a time; how they are used never depends on it."""
@@ -123,6 +127,8 @@ class TrafficGenerator:
     def _new_events(self, t_end_s: float) -> npt.NDArray[np.float64]:
         """Start times of the events that may have frames before ``t_end_s``."""
         if self._ble:
+            if not self._next_ble_s < t_end_s:
+                return _NO_EVENTS
             # advDelay accumulates: each event is advInterval + advDelay after the previous one
             times: list[float] = []
             while self._next_ble_s < t_end_s:
@@ -131,8 +137,10 @@ class TrafficGenerator:
             self._events += len(times)
             return np.asarray(times, np.float64)
         # event k lies at or after first + k·interval (jitter is never negative)
-        n_total = max(int(np.ceil((t_end_s - self._first_s) / self.interval_s)), 0)
-        k = np.arange(self._events, max(n_total, self._events))
+        n_total = max(math.ceil((t_end_s - self._first_s) / self.interval_s), 0)
+        if n_total <= self._events:
+            return _NO_EVENTS
+        k = np.arange(self._events, n_total)
         self._events = max(n_total, self._events)
         base = self._first_s + self.interval_s * k
         return np.asarray(base + self.jitter_s * self._uniform(len(k)), np.float64)

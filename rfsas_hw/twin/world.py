@@ -64,6 +64,17 @@ Listening = Callable[[Array, npt.NDArray[np.int16]], npt.NDArray[np.bool_]]
 TECH_CODES = {"wifi": 0, "ble": 1}
 """``Receptions.tech`` values."""
 
+_FREQS: dict[int, int] = {}
+"""Centre frequency (MHz) by ``tech code · 65536 + channel``, filled as channels are met."""
+
+
+def _frequency(key: int) -> int:
+    """Centre frequency (MHz) of ``tech code · 65536 + channel``."""
+    freq = _FREQS.get(key)
+    if freq is None:
+        freq = _FREQS[key] = channel_to_freq_mhz(key % 65536, list(TECH_CODES)[key // 65536])
+    return freq
+
 
 @dataclass
 class Receptions:
@@ -251,6 +262,7 @@ class World:
             for s in spec.sensors
         }
         self._cache: dict[str, Receptions] = {}
+        self._tables: dict[tuple[str, int], tuple[npt.NDArray[np.uint8], Array, Array]] = {}
 
     # -- geometry -----------------------------------------------------------------
 
@@ -333,6 +345,34 @@ class World:
             exy[sel] = self.emitter_position(int(i), t[sel])
         return exy
 
+    def _emitter_table(self, s: SensorSpec) -> tuple[npt.NDArray[np.uint8], Array, Array]:
+        """Per emitter: tech code, radiated power (dBm) and sensor ``s``'s threshold (dBm).
+
+        Kept between calls: emitters are only ever appended, never changed.
+        """
+        emitters = self.scenario.spec.emitters
+        key = (s.id, len(emitters))
+        table = self._tables.get(key)
+        if table is None:
+            codes = np.array([TECH_CODES[e.tech] for e in emitters] or [0], np.uint8)
+            power = np.array([e.power_dbm() + e.antenna_gain_dbi for e in emitters] or [0.0])
+            threshold = np.array([s.threshold_for(e.tech) for e in emitters] or [0.0])
+            table = self._tables[key] = (codes, power, threshold)
+        return table
+
+    def _frequencies(
+        self, tech: npt.NDArray[np.uint8], channel: npt.NDArray[np.int16]
+    ) -> npt.NDArray[np.int32]:
+        """Centre frequency of each frame, MHz, from its tech code and channel."""
+        freq = np.zeros(len(tech), np.int32)
+        if not len(tech):
+            return freq
+        key = tech.astype(np.int64) * 65536 + channel.astype(np.int64)
+        uniq, inverse = np.unique(key, return_inverse=True)
+        table = np.array([_frequency(k) for k in uniq.tolist()], np.int32)
+        freq[:] = table[inverse.reshape(-1)]
+        return freq
+
     def _receive(self, s: SensorSpec, c: dict[str, Any], rx: ReceiverStreams) -> Receptions:
         """What sensor ``s`` makes of the candidate frames ``c`` (time-sorted).
 
@@ -343,14 +383,10 @@ class World:
         rf = spec.rf
         t = c["t"]
         n = len(t)
-        emitters = spec.emitters
         e_idx = c["emitter"]
-        tech_names = np.array([e.tech for e in emitters] or ["wifi"])
-        tech = np.array([TECH_CODES[str(x)] for x in tech_names[e_idx]], np.uint8)
-        freq = np.zeros(n, np.int32)
-        for code, name in enumerate(TECH_CODES):
-            for ch in np.unique(c["channel"][tech == code]):
-                freq[(tech == code) & (c["channel"] == ch)] = channel_to_freq_mhz(int(ch), name)
+        codes, power, thresholds = self._emitter_table(s)
+        tech = codes[e_idx]
+        freq = self._frequencies(tech, c["channel"])
         exy = self._frame_positions(c)
         sxy, heading = self.sensor_pose(s, t)
         delta = exy - sxy
@@ -359,8 +395,8 @@ class World:
         relative = wrap_deg_180(azimuth - heading)
         antenna = self.antennas[s.id]
         gains = antenna.gains_db(relative)
-        pt = np.array([e.power_dbm() + e.antenna_gain_dbi for e in emitters] or [0.0])[e_idx]
-        threshold = np.array([s.threshold_for(str(x)) for x in tech_names] or [0.0])[e_idx]
+        pt = power[e_idx]
+        threshold = thresholds[e_idx]
         pl = link_path_loss_db(dist, freq, rf)
         physical = self.detail == "high"
         if physical:

@@ -8,8 +8,15 @@ import numpy as np
 import pytest
 
 from rfsas_hw.errors import SimulationError
-from rfsas_hw.twin.scenario import EmitterSpec, TrafficSpec, load_scenario
-from rfsas_hw.twin.stream import LiveTrack, StreamTwin
+from rfsas_hw.twin.scenario import (
+    EmitterSpec,
+    MoverSpec,
+    Scenario,
+    TrafficSpec,
+    WaypointSpec,
+    load_scenario,
+)
+from rfsas_hw.twin.stream import LiveTrack, StreamTwin, _interp_tracks
 from rfsas_hw.twin.world import Receptions, World
 
 CROSSING = Path(__file__).resolve().parents[2] / "examples" / "crossing.yaml"
@@ -64,6 +71,84 @@ def test_streamed_windows_equal_the_offline_run(step_s: float) -> None:
         np.testing.assert_array_equal(obs_str.rssi_dbm, obs_off.rssi_dbm)
         np.testing.assert_array_equal(obs_str.t_ns, obs_off.t_ns)
         np.testing.assert_array_equal(obs_str.mac, obs_off.mac)
+
+
+def _crowded(n: int) -> Scenario:
+    """The crossing with ``n`` more walkers with phones (and a standing AP): many tracks at once."""
+    sc = load_scenario(CROSSING)
+    rng = np.random.default_rng(4)
+    movers = list(sc.spec.movers)
+    emitters = list(sc.spec.emitters)
+    for k in range(n):
+        a, b = rng.uniform(-25, 25, (2, 2))
+        movers.append(
+            MoverSpec(
+                id=f"w{k}",
+                kind="pedestrian",
+                start_s=float(rng.uniform(0, 1)),
+                waypoints=(
+                    WaypointSpec(float(a[0]), float(a[1]), float(rng.uniform(0.8, 2)), 0.3),
+                    WaypointSpec(float(b[0]), float(b[1])),
+                ),
+            )
+        )
+        emitters.append(
+            EmitterSpec(
+                id=f"phone{k}",
+                mac=f"02:00:00:00:01:{k:02x}",
+                tech="wifi",
+                tx_power_dbm=20.0,
+                carried_by=f"w{k}",
+                traffic=(TrafficSpec(model="data-bursts", channels=(6,), interval_s=0.1),),
+            )
+        )
+    spec = __import__("dataclasses").replace(
+        sc.spec, movers=tuple(movers), emitters=tuple(emitters)
+    )
+    return Scenario(spec=spec, source=sc.source, base_dir=sc.base_dir)
+
+
+def test_many_carriers_streamed_equal_the_offline_run() -> None:
+    # more carriers than the one-by-one interpolation handles: the side-by-side path
+    sc = _crowded(12)
+    world = World(sc)
+    twin = StreamTwin(sc, lookahead_s=0.35)
+    fed: dict[str, int] = {}
+    parts: dict[str, list[Receptions]] = {s.id: [] for s in sc.spec.sensors}
+    t0 = 0.0
+    while t0 < world.duration_s:
+        t1 = min(t0 + 0.1, world.duration_s)
+        _feed(twin, world, t1, fed)
+        for sid, rec in twin.step(t1).items():
+            parts[sid].append(rec)
+        t0 = t1
+    for s in sc.spec.sensors:
+        offline = world.receptions(s.id)
+        streamed = _concat(parts[s.id])
+        assert len(np.unique(offline.emitter)) > 8
+        for name, got in streamed.items():
+            np.testing.assert_array_equal(got, getattr(offline, name), err_msg=name)
+
+
+def test_side_by_side_interpolation_is_np_interp_bit_for_bit() -> None:
+    rng = np.random.default_rng(9)
+    knots = []
+    for k in range(9):
+        m = 1 + k % 4
+        ts = np.sort(rng.uniform(0, 2, m))
+        if m >= 3:
+            ts[1] = ts[2]  # a repeated knot time
+        knots.append((ts, rng.normal(0, 30, m), rng.normal(0, 30, m)))
+    knots.append((np.array([0.5, 1.0]), np.array([3.0, 3.0]), np.array([1e300, -1e300])))
+    track = rng.integers(0, len(knots), 3000)
+    t = rng.uniform(-0.5, 2.5, 3000)
+    on_knot = rng.random(3000) < 0.2
+    t[on_knot] = [knots[u][0][rng.integers(len(knots[u][0]))] for u in track[on_knot]]
+    got = _interp_tracks(knots, track, t)
+    for u, (ts, xs, ys) in enumerate(knots):
+        sel = track == u
+        np.testing.assert_array_equal(got[sel, 0], np.interp(t[sel], ts, xs))
+        np.testing.assert_array_equal(got[sel, 1], np.interp(t[sel], ts, ys))
 
 
 def test_other_seed_differs() -> None:

@@ -151,6 +151,16 @@ class CsiBlock:
         return CsiBlock(self.h[index], self.subcarrier)
 
 
+_NAN_COLUMNS = [np.full(n, np.nan) for n in range(17)]
+for _column in _NAN_COLUMNS:
+    _column.flags.writeable = False
+
+
+def _nan_column(n: int) -> npt.NDArray[np.float64]:
+    """A column of ``n`` NaN; shared and read-only for short ones."""
+    return _NAN_COLUMNS[n] if n < len(_NAN_COLUMNS) else np.full(n, np.nan)
+
+
 def _as(arr: Any, dtype: npt.DTypeLike, name: str, n: int | None) -> npt.NDArray[Any]:
     out = np.ascontiguousarray(arr, dtype=dtype)
     if n is not None and out.shape[0] != n:
@@ -378,6 +388,31 @@ class BearingBatch:
         if len(self.relative_deg) == 0 and n:
             self.relative_deg = np.full(n, np.nan)
         self.relative_deg = _as(self.relative_deg, np.float64, "relative_deg", n)
+
+    @classmethod
+    def from_columns(
+        cls,
+        sensor_id: str,
+        t_ns: npt.NDArray[np.int64],
+        azimuth_deg: npt.NDArray[np.float64],
+        sigma_deg: npt.NDArray[np.float64],
+        snr_db: npt.NDArray[np.float64],
+        channel: npt.NDArray[np.int16],
+        emitter: npt.NDArray[np.uint64],
+    ) -> BearingBatch:
+        """A batch of columns that already have the fields' dtypes and one length,
+        taken as they are: no conversion, copy or check (for a decoder that built
+        them so; the message decoder is one). ``relative_deg`` is NaN, read-only."""
+        batch = object.__new__(cls)
+        batch.sensor_id = sensor_id
+        batch.t_ns = t_ns
+        batch.azimuth_deg = azimuth_deg
+        batch.sigma_deg = sigma_deg
+        batch.snr_db = snr_db
+        batch.channel = channel
+        batch.emitter = emitter
+        batch.relative_deg = _nan_column(len(t_ns))
+        return batch
 
     @classmethod
     def empty(cls, sensor_id: str) -> BearingBatch:

@@ -422,14 +422,14 @@ def _few_bearings(datagram: bytes, at: int, head: Peeked) -> BearingBatch:
             table = np.array(rows, NATIVE_DTYPE)
             raise MessageFormatError("malformed", _bad_rows(table) or "bad bearing value")
     t_us_, emitter, az_, sigma_, snr_, channel_ = zip(*rows, strict=True)
-    return BearingBatch(
-        sensor_id=head.sender_id,
-        t_ns=np.array(t_us_, np.int64) * 1000,
-        azimuth_deg=np.array(az_, np.float64),
-        sigma_deg=np.array(sigma_, np.float64),
-        snr_db=np.array(snr_, np.float64),
-        channel=np.array(channel_, np.int16),
-        emitter=np.array(emitter, np.uint64),
+    return BearingBatch.from_columns(
+        head.sender_id,
+        np.array([t * 1000 for t in t_us_], np.int64),
+        np.array(az_, np.float64),
+        np.array(sigma_, np.float64),
+        np.array(snr_, np.float64),
+        np.array(channel_, np.int16),
+        np.array(emitter, np.uint64),
     )
 
 

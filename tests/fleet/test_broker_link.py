@@ -95,7 +95,7 @@ def test_topic_has_one_level_per_quadkey_digit(broker: Broker, deployment: Deplo
         pub.on_bearings(bearings_now("rsu-1"))
         got = rx.recv_from(5)
         for transport in (pub.transport, rx):
-            sock = transport._client.socket()  # type: ignore[attr-defined]
+            sock = transport.socket()  # type: ignore[attr-defined]
             assert sock.getsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY) != 0  # Nagle off
     finally:
         pub.close()

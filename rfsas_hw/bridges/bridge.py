@@ -480,6 +480,7 @@ class Bridge:
         self._now_ns = t_ns
         bearings: dict[str, BearingBatch] = {}
         if not first:
+            twin.prepare(t_s)  # every unit's window in one pass
             for sid, src in self._sources.items():
                 src.horizon_s = t_s
                 obs = src.read()

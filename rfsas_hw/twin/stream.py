@@ -325,6 +325,8 @@ class StreamTwin(World):
         self._window: dict[str, npt.NDArray[Any]] = {}
         self._window_xy: Array | None = None
         self._plans: dict[str, ScanPlan] = {}
+        self._ready: dict[str, tuple[float, float, Receptions]] = {}
+        """Windows computed ahead by :meth:`prepare`, by sensor id."""
         self._hear_cache: dict[tuple[str, int], npt.NDArray[np.bool_]] = {}
 
     # -- entities -------------------------------------------------------------------
@@ -370,10 +372,16 @@ class StreamTwin(World):
         return len(self.emitters) - 1
 
     def retire_emitter(self, index: int, t_s: float) -> None:
-        """Emitter ``index`` sends nothing from ``t_s`` on (it left the simulation)."""
+        """Emitter ``index`` sends nothing from ``t_s`` on (it left the simulation).
+
+        Nor does it send anything after :attr:`generated_s` (the end of the
+        windows asked for so far): a simulator reports an entity gone at the
+        first step it is missing, and after its last knot its position is
+        not known.
+        """
         self._traffic[index] = None
         f = self._frames
-        keep = (f["emitter"] != index) | (f["t"] < t_s)
+        keep = (f["emitter"] != index) | (f["t"] < min(t_s, self.generated_s))
         if not keep.all():
             self._frames = {k: v[keep] for k, v in f.items()}
             self._n_frames_added += 1
@@ -533,17 +541,38 @@ class StreamTwin(World):
         Raises:
             ConfigError: no such sensor.
             SimulationError: a window that does not start at the sensor's
-                cursor or does not move forward.
+                cursor or does not move forward, or not the one :meth:`prepare`
+                computed for the sensor.
         """
         s = self.scenario.sensor(sensor_id)
-        cursor = self.cursor_s[s.id]
+        self._check_window(s.id, t0_s, t1_s)
+        ready = self._ready.pop(s.id, None)
+        if ready is not None:
+            if ready[:2] != (t0_s, t1_s):
+                self._ready[s.id] = ready
+                raise SimulationError(
+                    f"sensor {s.id!r}: frames of [{ready[0]:.6f}, {ready[1]:.6f}) s were "
+                    f"prepared; ask for that window, not [{t0_s:.6f}, {t1_s:.6f})"
+                )
+            rec = ready[2]
+        else:
+            self._set_window(t0_s, t1_s)
+            rec = self._receive(s, self._candidates(s), self._rx[s.id])
+        self.cursor_s[s.id] = t1_s
+        return rec
+
+    def _check_window(self, sensor_id: str, t0_s: float, t1_s: float) -> None:
+        cursor = self.cursor_s[sensor_id]
         if t0_s != cursor:
             raise SimulationError(
-                f"sensor {s.id!r}: window starts at {t0_s:.6f} s, but the previous one "
+                f"sensor {sensor_id!r}: window starts at {t0_s:.6f} s, but the previous one "
                 f"ended at {cursor:.6f} s; windows must follow each other"
             )
         if not t1_s > t0_s:
-            raise SimulationError(f"sensor {s.id!r}: window [{t0_s}, {t1_s}) is empty")
+            raise SimulationError(f"sensor {sensor_id!r}: window [{t0_s}, {t1_s}) is empty")
+
+    def _set_window(self, t0_s: float, t1_s: float) -> None:
+        """Make ``[t0_s, t1_s)`` the current window (frames generated up to ``t1_s``)."""
         self._generate(t1_s)
         key = (t0_s, t1_s, self._n_frames_added)
         if self._window_key != key:
@@ -553,16 +582,36 @@ class StreamTwin(World):
             self._window_key = key
             self._window = {k: v[lo:hi] for k, v in f.items()}
             self._window_xy = None
-        rec = self._receive(s, self._candidates(s), self._rx[s.id])
-        self.cursor_s[s.id] = t1_s
-        return rec
+
+    def prepare(self, t1_s: float) -> None:
+        """Compute every sensor's frames from its cursor to ``t1_s`` in one pass.
+
+        :meth:`receptions_between` then hands each sensor its window without
+        computing it again; the frames are exactly those it would compute
+        alone. A sensor prepared for ``[cursor, t1_s)`` must be asked for that
+        window next (its random streams have moved on). Sensors already
+        prepared, or whose cursor is at or after ``t1_s``, are left alone.
+        Knots added after this call do not change the prepared frames.
+        """
+        due: dict[float, list[SensorSpec]] = {}
+        for sid, cursor in self.cursor_s.items():
+            if cursor < t1_s and sid not in self._ready:
+                due.setdefault(cursor, []).append(self.scenario.sensor(sid))
+        for t0_s, sensors in due.items():
+            self._set_window(t0_s, t1_s)
+            items = [(s, self._candidates(s), self._rx[s.id]) for s in sensors]
+            for s, rec in zip(sensors, self._receive_many(items), strict=True):
+                self._ready[s.id] = (t0_s, t1_s, rec)
 
     def step(self, t1_s: float) -> dict[str, Receptions]:
-        """Every sensor's frames from its cursor to ``t1_s``, by sensor id.
+        """Every sensor's frames from its cursor to ``t1_s``, by sensor id (in one pass).
 
         Raises:
             SimulationError: ``t1_s`` is not after some sensor's cursor.
         """
+        for sid, cursor in self.cursor_s.items():
+            self._check_window(sid, cursor, t1_s)
+        self.prepare(t1_s)
         return {
             sid: self.receptions_between(sid, cursor, t1_s)
             for sid, cursor in list(self.cursor_s.items())

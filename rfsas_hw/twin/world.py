@@ -21,7 +21,7 @@ Levels of detail (method.md §10):
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -379,101 +379,192 @@ class World:
         Every random draw comes from ``rx``'s per-purpose streams in frame
         order, so consecutive windows give exactly what one long window gives.
         """
+        return self._receive_many([(s, c, rx)])[0]
+
+    def _receive_many(
+        self, items: Sequence[tuple[SensorSpec, dict[str, Any], ReceiverStreams]]
+    ) -> list[Receptions]:
+        """:meth:`_receive` for several sensors at once, one :class:`Receptions` each.
+
+        The frames of all sensors go through the geometry and the link budget
+        as one array (one numpy call per stage instead of one per sensor);
+        each sensor's random streams are drawn for its own frames, in frame
+        order, so every sensor gets exactly what :meth:`_receive` gives it alone.
+        """
         spec = self.scenario.spec
         rf = spec.rf
-        t = c["t"]
+        sensors = [s for s, _, _ in items]
+        cands = [c for _, c, _ in items]
+        counts = [len(c["t"]) for c in cands]
+        bounds = np.concatenate([[0], np.cumsum(counts)]).tolist()
+        parts = [slice(bounds[k], bounds[k + 1]) for k in range(len(items))]
+
+        def cat(name: str) -> npt.NDArray[Any]:
+            return np.concatenate([c[name] for c in cands]) if len(cands) > 1 else cands[0][name]
+
+        def each(arrays: list[npt.NDArray[Any]]) -> npt.NDArray[Any]:
+            return np.concatenate(arrays) if len(arrays) > 1 else arrays[0]
+
+        t = cat("t")
         n = len(t)
-        e_idx = c["emitter"]
-        codes, power, thresholds = self._emitter_table(s)
+        e_idx = cat("emitter")
+        channel = cat("channel")
+        codes, power_e, _ = self._emitter_table(sensors[0])
         tech = codes[e_idx]
-        freq = self._frequencies(tech, c["channel"])
-        exy = self._frame_positions(c)
-        sxy, heading = self.sensor_pose(s, t)
+        freq = self._frequencies(tech, channel)
+        threshold = each(
+            [self._emitter_table(s)[2][c["emitter"]] for s, c in zip(sensors, cands, strict=True)]
+        )
+        exy = each([self._frame_positions(c) for c in cands])
+        poses = [self.sensor_pose(s, c["t"]) for s, c in zip(sensors, cands, strict=True)]
+        sxy = each([p[0] for p in poses])
+        heading = each([p[1] for p in poses])
         delta = exy - sxy
         dist = np.hypot(delta[:, 0], delta[:, 1])
         azimuth = math_rad_to_compass(np.arctan2(delta[:, 1], delta[:, 0]))
         relative = wrap_deg_180(azimuth - heading)
-        antenna = self.antennas[s.id]
-        gains = antenna.gains_db(relative)
-        pt = power[e_idx]
-        threshold = thresholds[e_idx]
+        gains = each(
+            [self.antennas[s.id].gains_db(relative[p]) for s, p in zip(sensors, parts, strict=True)]
+        )
+        pt = power_e[e_idx]
         pl = link_path_loss_db(dist, freq, rf)
         physical = self.detail == "high"
         if physical:
             block, blocked = blockage_db(sxy, exy, self.rects)
-            fade = fading_db(
-                n, rf.fading, rf.rician_k_db, rf.fading_correlation, rx.fade_common, rx.fade_own
+            fade = each(
+                [
+                    fading_db(
+                        k,
+                        rf.fading,
+                        rf.rician_k_db,
+                        rf.fading_correlation,
+                        rx.fade_common,
+                        rx.fade_own,
+                    )
+                    for k, (_, _, rx) in zip(counts, items, strict=True)
+                ]
             )
         else:
             block, blocked = np.zeros(n), np.zeros(n, dtype=bool)
             fade = np.zeros((n, 2))
         power = (pt - pl - rf.margin_db - block)[:, None] + gains + fade
         if physical:
-            power = power + np.asarray(s.antenna.chain_offsets_db)
+            offsets = np.array([s.antenna.chain_offsets_db for s in sensors], np.float64)
+            power = power + np.repeat(offsets, counts, axis=0)
         snr = power - threshold[:, None]
-        if self.detail == "high":
-            sigma = rssi_sigma_db(snr, s.driver.measurement_floor_db)
-        elif self.detail == "medium":
-            # noise that makes the monopulse bearing error equal σ_amp(SNR)
-            best = snr.max(axis=1) if n else np.empty(0)
-            sig_deg = sigma_monopulse_deg(best, beamwidth_deg=s.antenna.beamwidth_deg)
-            sig_db = np.asarray(sig_deg) * antenna.difference_slope_db_per_deg() / math.sqrt(2)
-            sigma = np.repeat(np.atleast_1d(sig_db)[:, None], 2, axis=1)
-        else:
-            sigma = np.zeros((n, 2))
-        reading = power + sigma * rx.noise.standard_normal((n, 2))
+        sigma = np.empty((n, 2))
+        for s, p in zip(sensors, parts, strict=True):
+            if self.detail == "high":
+                sigma[p] = rssi_sigma_db(snr[p], s.driver.measurement_floor_db)
+            elif self.detail == "medium":
+                # noise that makes the monopulse bearing error equal σ_amp(SNR)
+                best = snr[p].max(axis=1) if p.stop > p.start else np.empty(0)
+                sig_deg = sigma_monopulse_deg(best, beamwidth_deg=s.antenna.beamwidth_deg)
+                slope = self.antennas[s.id].difference_slope_db_per_deg()
+                sig_db = np.asarray(sig_deg) * slope / math.sqrt(2)
+                sigma[p] = np.repeat(np.atleast_1d(sig_db)[:, None], 2, axis=1)
+            else:
+                sigma[p] = 0.0
+        noise = each(
+            [rx.noise.standard_normal((k, 2)) for k, (_, _, rx) in zip(counts, items, strict=True)]
+        )
+        reading = power + sigma * noise
         if physical:
-            reading = quantise_db(reading, s.driver.step_db)
+            steps = {s.driver.step_db for s in sensors}
+            if len(steps) == 1:
+                reading = quantise_db(reading, steps.pop())
+            else:
+                for s, p in zip(sensors, parts, strict=True):
+                    reading[p] = quantise_db(reading[p], s.driver.step_db)
         reading = np.clip(reading, -127.0, 127.0)
         state = np.zeros((n, 2), np.uint8)
-        if physical and s.driver.chain_drop_prob > 0 and s.receiver != "two-single-chain-cards":
-            drop = rx.drop.random(n) < s.driver.chain_drop_prob
-            which = (rx.drop_chain.random(n) < 0.5).astype(np.intp)
-            lost = CHAIN_SENTINEL if s.driver.missing_chain == "sentinel" else CHAIN_OMITTED
-            state[drop, which[drop]] = lost
-        n_cards = s.n_cards
-        if n_cards == 2:
-            heard = power >= threshold[:, None]
-            state[~heard] = CHAIN_NOT_HEARD
-        else:
-            heard = (power.max(axis=1) >= threshold)[:, None] if n else np.zeros((0, 1), bool)
+        heard_any = np.empty(n, bool)
+        heard_by: list[npt.NDArray[np.bool_]] = []
+        for (s, _, rx), k, p in zip(items, counts, parts, strict=True):
+            st = state[p]
+            drv = s.driver
+            if physical and drv.chain_drop_prob > 0 and s.receiver != "two-single-chain-cards":
+                drop = rx.drop.random(k) < drv.chain_drop_prob
+                which = (rx.drop_chain.random(k) < 0.5).astype(np.intp)
+                lost = CHAIN_SENTINEL if drv.missing_chain == "sentinel" else CHAIN_OMITTED
+                st[drop, which[drop]] = lost
+            if s.n_cards == 2:
+                heard = power[p] >= threshold[p, None]
+                st[~heard] = CHAIN_NOT_HEARD
+            elif k:
+                heard = (power[p].max(axis=1) >= threshold[p])[:, None]
+            else:
+                heard = np.zeros((0, 1), bool)
+            heard_any[p] = heard.any(axis=1)
+            heard_by.append(heard)
         chain = np.where(state == CHAIN_PRESENT, reading, np.nan)
-        combined = combine_chains(chain, s.driver.combined)
+        combined = np.empty(n)
+        for how in {s.driver.combined for s in sensors}:
+            rows = [p for s, p in zip(sensors, parts, strict=True) if s.driver.combined == how]
+            if len(rows) == len(parts):
+                combined = combine_chains(chain, how)
+            else:
+                for p in rows:
+                    combined[p] = combine_chains(chain[p], how)
         if physical:
-            combined = quantise_db(combined, s.driver.step_db)
-        keep = heard.any(axis=1)
+            steps = {s.driver.step_db for s in sensors}
+            if len(steps) == 1:
+                combined = quantise_db(combined, steps.pop())
+            else:
+                for s, p in zip(sensors, parts, strict=True):
+                    combined[p] = quantise_db(combined[p], s.driver.step_db)
         t_ns = self.t0_ns + np.round(t * 1e9).astype(np.int64)
-        jitter_us = s.driver.delivery_jitter_us if physical else 0.0
-        delay_us = rx.jitter.uniform(0.0, jitter_us, (n, n_cards))
-        capture = t_ns[:, None] + np.round(delay_us * 1e3).astype(np.int64)
-        tsft = (rx.tsft0_us[None, :] + np.floor(t[:, None] * 1e6 * rx.drift[None, :])).astype(
-            np.uint64
-        )
-        rec = Receptions(
-            sensor_id=s.id,
-            n_cards=n_cards,
-            t_s=t,
-            t_ns=t_ns,
-            emitter=e_idx,
-            mac=self.emitter_macs[e_idx] if n else np.empty(0, np.uint64),
-            channel=c["channel"],
-            freq_mhz=freq,
-            kind=c["kind"],
-            seq=c["seq"],
-            tech=tech,
-            chain_dbm=chain,
-            chain_state=state,
-            combined_dbm=combined,
-            heard=heard,
-            capture_ns=capture,
-            tsft_us=tsft,
-            true_relative_deg=relative,
-            true_azimuth_deg=azimuth,
-            distance_m=dist,
-            snr_db=snr,
-            blocked=blocked,
-            sensor_xy=sxy,
-            sensor_heading_deg=heading,
-            emitter_xy=exy,
-        )
-        return rec.select(keep)
+        mac = self.emitter_macs[e_idx] if n else np.empty(0, np.uint64)
+        kept = np.flatnonzero(heard_any)
+        shared = {
+            "t_s": t,
+            "t_ns": t_ns,
+            "emitter": e_idx,
+            "mac": mac,
+            "channel": channel,
+            "freq_mhz": freq,
+            "kind": cat("kind"),
+            "seq": cat("seq"),
+            "tech": tech,
+            "chain_dbm": chain,
+            "chain_state": state,
+            "combined_dbm": combined,
+            "true_relative_deg": relative,
+            "true_azimuth_deg": azimuth,
+            "distance_m": dist,
+            "snr_db": snr,
+            "blocked": blocked,
+            "sensor_xy": sxy,
+            "sensor_heading_deg": heading,
+            "emitter_xy": exy,
+        }
+        if len(kept) < n:
+            shared = {name: v[kept] for name, v in shared.items()}
+        kept_bounds = np.searchsorted(kept, bounds).tolist()
+        jitter_us_all = [s.driver.delivery_jitter_us if physical else 0.0 for s in sensors]
+        out = []
+        for k, ((s, c, rx), heard) in enumerate(zip(items, heard_by, strict=True)):
+            n_cards = s.n_cards
+            lo, hi = kept_bounds[k], kept_bounds[k + 1]
+            view = {name: v[lo:hi] for name, v in shared.items()}
+            # drawn for every candidate frame, heard or not, as the streams require
+            delay_us = rx.jitter.uniform(0.0, jitter_us_all[k], (counts[k], n_cards))
+            tk = c["t"]
+            keep = heard_any[parts[k]]
+            capture = t_ns[parts[k], None] + np.round(delay_us * 1e3).astype(np.int64)
+            tsft = (rx.tsft0_us[None, :] + np.floor(tk[:, None] * 1e6 * rx.drift[None, :])).astype(
+                np.uint64
+            )
+            if not keep.all():
+                heard, capture, tsft = heard[keep], capture[keep], tsft[keep]
+            out.append(
+                Receptions(
+                    sensor_id=s.id,
+                    n_cards=n_cards,
+                    heard=heard,
+                    capture_ns=capture,
+                    tsft_us=tsft,
+                    **view,
+                )
+            )
+        return out

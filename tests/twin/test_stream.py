@@ -232,3 +232,52 @@ def test_live_track_headings_and_order() -> None:
     assert no_heading.heading_deg([0.5])[0] == pytest.approx(0.0)
     with pytest.raises(SimulationError, match="no knot"):
         LiveTrack().position([0.0])
+
+
+def test_prepared_windows_are_the_ones_computed_alone() -> None:
+    sc = load_scenario(CROSSING)
+    world = World(sc)
+    alone, together = StreamTwin(sc), StreamTwin(sc)
+    fed_a: dict[str, int] = {}
+    fed_b: dict[str, int] = {}
+    sids = [s.id for s in sc.spec.sensors]
+    for k in range(1, 30):
+        t0, t1 = (k - 1) * 0.2, k * 0.2
+        _feed(alone, world, t1, fed_a)
+        _feed(together, world, t1, fed_b)
+        together.prepare(t1)
+        for sid in reversed(sids):
+            a = alone.receptions_between(sid, t0, t1)
+            b = together.receptions_between(sid, t0, t1)
+            for name in Receptions.__dataclass_fields__:
+                if name not in ("sensor_id", "n_cards"):
+                    np.testing.assert_array_equal(getattr(a, name), getattr(b, name), err_msg=name)
+    end = together.cursor_s[sids[0]]
+    together.prepare(end + 0.4)
+    with pytest.raises(SimulationError, match="prepared"):
+        together.receptions_between(sids[0], end, end + 0.2)
+    together.receptions_between(sids[0], end, end + 0.4)
+    assert together.cursor_s[sids[0]] == end + 0.4
+
+
+def test_a_retired_emitter_sends_nothing_after_the_windows_asked_for() -> None:
+    sc = load_scenario(CROSSING)
+    twin = StreamTwin(sc)  # generates a second ahead
+    world = World(sc)
+    _feed(twin, world, 2.0, {})
+    walker = twin.add_mover("walker")
+    walker.extend(0.0, 0.0, -9.0)
+    phone = EmitterSpec(
+        id="walker-phone",
+        mac="02:11:22:33:44:55",
+        tech="wifi",
+        traffic=(TrafficSpec(model="data-bursts", channels=(6,), interval_s=0.02),),
+        carried_by="walker",
+    )
+    index = twin.add_emitter(phone, start_s=0.0)
+    first = twin.step(0.5)
+    assert any((rec.emitter == index).any() for rec in first.values())
+    # it left at 0.8 s, reported at the next step: its position after 0.5 s is unknown
+    twin.retire_emitter(index, 0.8)
+    later = twin.step(1.0)
+    assert not any((rec.emitter == index).any() for rec in later.values())

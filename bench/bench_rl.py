@@ -70,9 +70,8 @@ from rfsas_hw.envs.rl import HoldPolicy, LearnedPolicy, Policy, RulePolicy, trai
 
 REPO = Path(__file__).resolve().parent.parent
 DISTANCES = [30.0, 40.0, 50.0, 60.0, 70.0, 80.0, 90.0, 100.0]
-N_ENVS = 4
-TUNED = {"n_steps": 128, "batch_size": 128, "ent_coef": 0.01}
-METHOD = {"n_steps": 64, "batch_size": 64, "ent_coef": 0.0}
+N_ENVS = 8
+TUNED = {"n_steps": 128, "batch_size": 256, "ent_coef": 0.01}
 ARMS: dict[str, tuple[dict[str, Any], dict[str, Any]]] = {
     "rp+prior": (
         {"reward": {"kind": "risk-progress"}, "prior": {"observe": True}},
@@ -82,7 +81,7 @@ ARMS: dict[str, tuple[dict[str, Any], dict[str, Any]]] = {
         {"reward": {"kind": "risk-progress"}, "prior": {"observe": False}},
         TUNED,
     ),
-    "method+prior": ({"reward": {"kind": "method"}, "prior": {"observe": True}}, METHOD),
+    "method+prior": ({"reward": {"kind": "method"}, "prior": {"observe": True}}, TUNED),
 }
 
 
@@ -165,6 +164,12 @@ def per_seed(out: Path, seeds: list[int], arms: list[str], episodes: int) -> Non
             )
 
 
+def rule_return(arm: str, row: PairedRow) -> str:
+    """The rule's mean return, under the arm's reward (the rule ran the risk-progress one)."""
+    same = arm_config(arm).reward.kind == arm_config(ARMS_EVAL["rule"]).reward.kind
+    return f"{row.baseline_return:.3f}" if same else "—"
+
+
 def fmt(x: float, digits: int = 4) -> str:
     return "—" if math.isnan(x) else f"{x:.{digits}f}"
 
@@ -174,7 +179,7 @@ def print_table(arm: str, rows: list[PairedRow], start_m: float, stop: list[floa
     head = (
         f"{'d ctr':>5} {'d start':>7} | {'learned risk':>12} {'±SE seeds':>9} {'±SE eps':>8} "
         f"{'P(coll)':>7} | {'rule risk':>9} {'±SE':>7} {'P(coll)':>7} | {'p':>7} "
-        f"{'seeds≤':>6} | {'t lrn':>5} {'t rule':>6}"
+        f"{'seeds≤':>6} | {'t lrn':>5} {'t rule':>6} {'tmo':>4} | {'ret lrn':>7} {'ret rule':>8}"
     )
     print(head)
     print("-" * len(head))
@@ -184,7 +189,8 @@ def print_table(arm: str, rows: list[PairedRow], start_m: float, stop: list[floa
             f"{fmt(r.risk_se_seeds):>9} {fmt(r.risk_se_episodes):>8} {r.p_collision:7.3f} | "
             f"{r.baseline_risk:9.4f} {fmt(r.baseline_se):>7} {r.baseline_p_collision:7.3f} | "
             f"{r.p_value:7.3g} {r.seeds_at_or_below:>4}/{r.seeds} | "
-            f"{r.time_s:5.2f} {r.baseline_time_s:6.2f}"
+            f"{r.time_s:5.2f} {r.baseline_time_s:6.2f} {r.timeouts:4.0%} | "
+            f"{r.mean_return:7.3f} {rule_return(arm, r):>8}"
         )
     ratio = pooled_ratio(rows, stop)
     at_or_below = all(r.risk <= r.baseline_risk for r in rows)

@@ -10,7 +10,7 @@ on it locates the cyclist (at the configured level of detail,
 ``P_collision · P_f(v_impact)`` (Rosen's pedestrian curve stands in for any
 vulnerable road user).
 
-Observation (``float32``, shape (6,), every entry in [0, 1]):
+Observation (``float32``, shape (7,), every entry in [0, 1]):
 
 0. distance of the front bumper to the intersection centre / ``start_distance_m``
 1. speed / ``max_speed_mps``
@@ -18,7 +18,11 @@ Observation (``float32``, shape (6,), every entry in [0, 1]):
 3. ``(log10(max(risk, 1e-4)) + 4) / 4``: the risk on a log scale
 4. estimated collision probability
 5. 1 once the warning has arrived, else 0
-6. (only with ``prior.observe``) the RF activity prior ahead:
+6. the episode clock, ``t / (max_steps · dt_s)``: a car that has stopped sees time
+   pass (its other entries stay the same while it waits, and the estimated risk
+   of a car holding zero speed is 0 whether or not the crosser has passed), and
+   the time left before the episode is truncated is part of the state
+7. (only with ``prior.observe``) the RF activity prior ahead:
    ``1 − exp(−density/scale)`` of the expected RF-detected road users per hour
    along the next ``prior.horizon_m`` of the lane (:mod:`rfsas_hw.envs.history`)
 
@@ -84,7 +88,7 @@ ObsArray = npt.NDArray[np.float32]
 COAST, BRAKE, ACCELERATE = 0, 1, 2
 ACTION_NAMES = ("coast", "brake", "accelerate")
 """Names of the actions, by index."""
-OBS_SIZE = 6
+OBS_SIZE = 7
 """Observation entries without the prior (one more with ``prior.observe``)."""
 _OPTIONS = ("reaction_distance_m", "corner", "crosser", "heard", "hour")
 _ABSENT_ARRIVAL_S = 1e6
@@ -452,6 +456,7 @@ class IntersectionEnv(gym.Env[ObsArray, np.int64]):
                 (math.log10(max(risk, _RISK_LOG_FLOOR)) + 4.0) / 4.0,
                 self.assessment.p_collision,
                 float(self.warned),
+                self.steps / c.max_steps,
             ],
             dtype=np.float32,
         )

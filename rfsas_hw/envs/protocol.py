@@ -317,20 +317,37 @@ def speed_profiles(
 
 
 def plot_speed_profiles(curves: Mapping[str, tuple[Array, Array]], path: str | Path) -> None:
-    """Draw speed against distance to the centre for each named curve (PNG).
+    """Draw speed against distance to the centre for each curve (PNG).
+
+    Curves are named ``"policy, panel, case"`` (e.g. ``"rule, busy, no warning"``):
+    one panel per distinct second field, one colour per policy, a solid line for
+    cases without a warning and a dashed one otherwise. Names with fewer fields go
+    to a single panel.
 
     Raises:
         MissingDependencyError: matplotlib is not installed.
     """
     plt = pyplot()
-    fig, ax = plt.subplots(figsize=(7, 4), constrained_layout=True)
+    parts = {name: [*name.split(", ", 2), "", ""][:3] for name in curves}
+    panels = list(dict.fromkeys(p[1] for p in parts.values()))
+    policies = list(dict.fromkeys(p[0] for p in parts.values()))
+    colours = {name: f"C{i % 10}" for i, name in enumerate(policies)}
+    fig, axes = plt.subplots(
+        1, len(panels), figsize=(5 * len(panels), 4), sharey=True, constrained_layout=True
+    )
+    axes = np.atleast_1d(axes)
     for name, (grid, speed) in curves.items():
-        style = "--" if "rule" in name else "-"
-        ax.plot(grid, speed * 3.6, style, label=name)
-    ax.invert_xaxis()
-    ax.set_xlabel("distance of the front bumper to the centre (m)")
-    ax.set_ylabel("mean speed (km/h)")
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=8)
+        policy, panel, case = parts[name]
+        ax = axes[panels.index(panel)]
+        style = "-" if case in ("", "no warning") else "--"
+        label = f"{policy}, {case}" if case else policy
+        ax.plot(grid, speed * 3.6, style, color=colours[policy], label=label)
+    for ax, panel in zip(axes, panels, strict=True):
+        ax.invert_xaxis()
+        ax.set_title(panel)
+        ax.set_xlabel("distance of the front bumper to the centre (m)")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=7)
+    axes[0].set_ylabel("mean speed (km/h)")
     fig.savefig(str(path), dpi=110)
     plt.close(fig)

@@ -77,12 +77,16 @@ def test_speed_is_clamped_and_never_negative_and_a_stop_does_not_end_the_episode
     assert speeds[0] == pytest.approx(15.2)
     env.reset(seed=3, options={"crosser": True})
     y0 = env.front_y_m
+    clock = []
     for _ in range(60):
-        _, _, term, trunc, info = env.step(BRAKE)
+        obs, _, term, trunc, info = env.step(BRAKE)
         assert info["speed_mps"] >= 0.0
         assert not (term or trunc)
+        clock.append(float(obs[6]))
     assert info["speed_mps"] == 0.0 and not info["collision"] and not info["crossed"]
     assert env.t_s == pytest.approx(6.0)  # a stopped car's clock runs on
+    # and the car sees it: the episode clock is the one entry that changes while it waits
+    assert clock == pytest.approx([k / 600 for k in range(1, 61)])
     # 15 m/s braking at 4.7 m/s² stops in 15²/(2·4.7) m
     assert env.front_y_m - y0 == pytest.approx(15.0**2 / (2 * 4.7), abs=1e-9)
     for _ in range(200):

@@ -14,7 +14,7 @@ import pytest
 from scipy.stats import chisquare
 
 from rfsas_hw.cli.main import main
-from rfsas_hw.envs.env import ACCELERATE, BRAKE, IntersectionEnv
+from rfsas_hw.envs.env import ACCELERATE, BRAKE, OBS_SIZE, IntersectionEnv
 from rfsas_hw.envs.rl import (
     CSV_COLUMNS,
     EvalRow,
@@ -97,7 +97,7 @@ def test_short_training_gives_a_policy_that_is_not_random(model: Path) -> None:
 
 def test_rule_brakes_only_above_the_threshold() -> None:
     rule = RulePolicy(0.01)
-    obs = np.zeros(6, np.float32)
+    obs = np.zeros(OBS_SIZE, np.float32)
     obs[2] = 0.02
     assert rule.act(obs) == BRAKE
     obs[2] = 0.005

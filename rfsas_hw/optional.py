@@ -15,7 +15,6 @@ EXTRAS = {
     "PIL": "plot",
     "csiread": "csi",
     "aiohttp": "web",
-    "paho": "mqtt",
 }
 
 

@@ -408,7 +408,6 @@ class AdvisorySink:
 
         Raises:
             LinkError: not a broker URL, or no connection.
-            MissingDependencyError: paho-mqtt is not installed.
         """
         if not url.startswith(("mqtt://", "mqtts://")):
             raise LinkError(f"{url!r}: advisories are published to a broker (mqtt:// or mqtts://)")

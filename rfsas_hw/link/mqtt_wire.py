@@ -338,6 +338,8 @@ def _parse(first: int, body: bytes) -> Packet | None:
                 raise MqttProtocolError(f"PUBLISH at QoS {qos}: this client subscribes at 0 or 1")
             n = _U16.unpack_from(body, 0)[0]
             at = 2 + n
+            if at + 2 * qos > len(body):
+                raise MqttProtocolError("PUBLISH is truncated: its topic runs past the packet")
             topic = body[2:at].decode("utf-8")
             packet_id = 0
             if qos:

@@ -327,11 +327,10 @@ def _resolve(endpoint: UdpEndpoint) -> tuple[int, tuple[Any, ...]]:
 
 def open_transport(url: str, mode: Literal["send", "recv"]) -> Transport:
     """Open the transport a URL names, for sending or receiving: ``udp://`` here,
-    ``mqtt://`` and ``mqtts://`` in :mod:`rfsas_hw.link.mqtt` (the ``mqtt`` extra).
+    ``mqtt://`` and ``mqtts://`` in :mod:`rfsas_hw.link.mqtt`.
 
     Raises:
-        LinkError: bad URL or socket failure.
-        MissingDependencyError: an MQTT URL without paho-mqtt installed.
+        LinkError: bad URL, socket failure, or no broker connection.
     """
     if url.startswith(("mqtt://", "mqtts://")):
         from rfsas_hw.link.mqtt import open_mqtt
@@ -344,8 +343,8 @@ def open_transports(urls: Sequence[str], mode: Literal["send", "recv"]) -> Trans
     """One transport for one URL, a :class:`FanoutTransport` over several.
 
     Raises:
-        LinkError: no URL, a bad URL or socket failure (those already open are closed).
-        MissingDependencyError: an MQTT URL without paho-mqtt installed.
+        LinkError: no URL, a bad URL, socket failure or no broker connection (those
+            already open are closed).
     """
     if not urls:
         raise LinkError("no transport URL given")

@@ -327,6 +327,8 @@ class MqttTransport(Transport):
         self._next_id = 0
         self._pending: dict[int, threading.Event] = {}
         """QoS-1 publishes not yet acknowledged, by packet id (close waits for them)."""
+        self._receive_max = 0xFFFF
+        """QoS-1 publishes the broker takes unacknowledged (its CONNACK says)."""
         self._last_sent = time.monotonic()
         self._ping_sent = 0.0
         self._last_error = "no answer"
@@ -413,6 +415,8 @@ class MqttTransport(Transport):
             server_keepalive = ack.properties.get(wire.PROP_SERVER_KEEP_ALIVE)
             if isinstance(server_keepalive, int) and server_keepalive > 0:
                 self._keepalive_s = float(server_keepalive)
+            receive_max = ack.properties.get(wire.PROP_RECEIVE_MAXIMUM)
+            self._receive_max = receive_max if isinstance(receive_max, int) else 0xFFFF
             if self.subscriptions:
                 filters = [(t, 1 if "/nonce/" in t else 0) for t in self.subscriptions]
                 sock.sendall(subscribe_packet(self._packet_id(), filters))
@@ -638,6 +642,12 @@ class MqttTransport(Transport):
             )
         packet_id = 0
         if route.qos:
+            # the broker disconnects a client that has more unacknowledged than it allows
+            deadline = time.monotonic() + 2.0
+            while len(self._pending) >= self._receive_max and time.monotonic() < deadline:
+                oldest = next(iter(self._pending.values()), None)
+                if oldest is not None:
+                    oldest.wait(0.05)
             packet_id = self._packet_id()
             self._pending[packet_id] = threading.Event()
         packet = publish_packet(

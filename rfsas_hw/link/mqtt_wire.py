@@ -38,6 +38,7 @@ DISCONNECT_PACKET = b"\xe0\x00"
 PROP_MESSAGE_EXPIRY = 0x02
 PROP_SERVER_KEEP_ALIVE = 0x13
 PROP_REASON_STRING = 0x1F
+PROP_RECEIVE_MAXIMUM = 0x21
 
 # property id → value kind: b byte, h two-byte int, i four-byte int, v variable
 # byte integer, s UTF-8 string, d binary data, p UTF-8 string pair (standard 2.2.2.2)

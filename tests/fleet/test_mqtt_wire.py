@@ -211,3 +211,18 @@ def test_unreachable_broker_is_one_clear_error(tmp_path: Path) -> None:
 
     with pytest.raises(LinkError, match=r"mqtt://127\.0\.0\.1:1: no connection within 0\.5 s"):
         open_mqtt("mqtt://127.0.0.1:1?connect_s=0.5", "recv")
+
+
+def test_qos1_publishes_respect_the_brokers_receive_maximum(
+    broker: Broker, deployment: Deployment
+) -> None:
+    """mosquitto takes 100 unacknowledged QoS-1 publishes; 250 at once must all arrive."""
+    authority = open_mqtt(broker.url("auth-0"), "send")
+    try:
+        assert authority._receive_max < 250
+        for i in range(250):
+            authority.publish(Route(nonce_topic("be-a", i), 1, True, 30), b"e" * 60)
+    finally:
+        authority.close()
+    assert authority.stats.sent == 250 and authority.stats.disconnects == 0
+    assert not authority._pending

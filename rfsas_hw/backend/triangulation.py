@@ -402,43 +402,67 @@ def triangulate_batch(
         )
         # two lines that meet behind a sensor have no solution in front of both
         converged = ~solvable | (start_behind & (n_valid == 2))
-        for _ in range(options.max_iterations):
-            active = ~converged
-            if not active.any():
+        for done in range(options.max_iterations):
+            # only the rows still iterating: the others keep their solution
+            act = np.flatnonzero(~converged)
+            if not len(act):
                 break
-            iterations += active
-            phi0, d2, r, _ = _geometry(p, S, phi)
+            if len(act) <= _SCALAR_ROWS:
+                # the last few rows: the same iterations in plain floats (numpy's
+                # per-call cost would dominate), bit for bit what the arrays give
+                for i in act.tolist():
+                    row = _iterate_row(
+                        float(p[i, 0]),
+                        float(p[i, 1]),
+                        S[i, :, 0].tolist(),
+                        S[i, :, 1].tolist(),
+                        phi[i].tolist(),
+                        w[i].tolist(),
+                        options.max_iterations - done,
+                        options,
+                    )
+                    p[i] = row[0], row[1]
+                    iterations[i] += row[2]
+                    converged[i] = row[3]
+                break
+            iterations[act] += 1
+            pa, Sa, phia, wa = p[act], S[act], phi[act], w[act]
+            phi0, d2, r, _ = _geometry(pa, Sa, phia)
             d2 = np.maximum(d2, 1e-12)
-            mu, lam, nu = _information(phi0, d2, w)
-            det = mu * lam - nu * nu
             c, s = np.cos(phi0), np.sin(phi0)
+            wd = wa / d2
+            mu = np.sum(wd * c * c, axis=1)
+            lam = np.sum(wd * s * s, axis=1)
+            nu = np.sum(wd * s * c, axis=1)
+            det = mu * lam - nu * nu
             # gradient Gᵀ W r with G rows [−sin φ₀/D, cos φ₀/D]
-            g1 = np.sum(w * (-s) * r / np.sqrt(d2), axis=1)
-            g2 = np.sum(w * c * r / np.sqrt(d2), axis=1)
+            root = np.sqrt(d2)
+            g1 = np.sum(wa * (-s) * r / root, axis=1)
+            g2 = np.sum(wa * c * r / root, axis=1)
             det_safe = np.where(det > 0, det, np.nan)
             step = np.stack([(mu * g1 + nu * g2) / det_safe, (nu * g1 + lam * g2) / det_safe], -1)
             bad = ~np.isfinite(step).all(axis=1)
             step[bad] = 0.0
-            cost0 = np.sum(w * r * r, axis=1)
+            cost0 = np.sum(wa * r * r, axis=1)
             limit = cost0 * (1 + 1e-12) + 1e-300
-            accepted = np.zeros(B, bool) | ~active | bad
-            cand = p.copy()
+            accepted = bad.copy()
+            cand = pa.copy()
             # the full step first; where it does not lower the cost, every halving
             # 2^-1 … 2^-max_halvings at once, taking the first that does
-            trial = p + step
-            better = ~accepted & (_cost(trial, S, phi, w) <= limit)
+            trial = pa + step
+            better = ~accepted & (_cost(trial, Sa, phia, wa) <= limit)
             cand[better] = trial[better]
             accepted |= better
             rest = np.flatnonzero(~accepted)
             if len(rest) and options.max_halvings:
                 H = options.max_halvings
                 alpha = 0.5 ** np.arange(1, H + 1)
-                trials = p[rest, None, :] + alpha[None, :, None] * step[rest, None, :]
+                trials = pa[rest, None, :] + alpha[None, :, None] * step[rest, None, :]
                 costs = _cost(
                     trials.reshape(-1, 2),
-                    np.repeat(S[rest], H, axis=0),
-                    np.repeat(phi[rest], H, axis=0),
-                    np.repeat(w[rest], H, axis=0),
+                    np.repeat(Sa[rest], H, axis=0),
+                    np.repeat(phia[rest], H, axis=0),
+                    np.repeat(wa[rest], H, axis=0),
                 ).reshape(len(rest), H)
                 ok = costs <= limit[rest, None]
                 found = ok.any(axis=1)
@@ -446,10 +470,10 @@ def triangulate_batch(
                 took = rest[found]
                 cand[took] = trials[found, first[found]]
                 accepted[took] = True
-            moved = np.hypot(*(cand - p).T)
-            p = np.where(active[:, None], cand, p)
+            moved = np.hypot(*(cand - pa).T)
+            p[act] = cand
             # a step that could not reduce the cost means we sit at the minimum
-            converged |= active & ((moved < options.tolerance_m) | ~accepted | bad)
+            converged[act] = (moved < options.tolerance_m) | ~accepted | bad
 
         phi0, d2, r, _ = _geometry(p, S, phi)
         d2 = np.where(valid, np.maximum(d2, 1e-12), 1.0)
@@ -502,6 +526,103 @@ def triangulate_batch(
         max_residual_deg=np.where(solvable, max_residual_deg, np.nan),
         chi2_limit=chi2_limit,
     )
+
+
+_SCALAR_ROWS = 10
+"""When this few fixes are still iterating, :func:`triangulate_batch` finishes them in floats."""
+
+
+def _sum(values: list[float]) -> float:
+    """Sum in numpy's order for a short row (left to right from the first element)."""
+    total = values[0]
+    for v in values[1:]:
+        total += v
+    return total
+
+
+def _row_geometry(
+    px: float, py: float, xs: list[float], ys: list[float], phis: list[float]
+) -> tuple[list[float], list[float], list[float]]:
+    """:func:`_geometry` of one row in floats: predicted azimuth, squared range, residual."""
+    two_pi = 2 * np.pi
+    phi0, d2, r = [], [], []
+    for x, y, phi in zip(xs, ys, phis, strict=True):
+        dx, dy = px - x, py - y
+        p0 = math.atan2(dy, dx)
+        phi0.append(p0)
+        d2.append(dx * dx + dy * dy)
+        r.append(np.pi - ((np.pi - (phi - p0)) % two_pi))
+    return phi0, d2, r
+
+
+def _iterate_row(
+    px: float,
+    py: float,
+    xs: list[float],
+    ys: list[float],
+    phis: list[float],
+    ws: list[float],
+    passes: int,
+    options: TriangulationOptions,
+) -> tuple[float, float, int, bool]:
+    """Up to ``passes`` Gauss-Newton iterations of one row of :func:`triangulate_batch`.
+
+    The same operations in the same order as the batch loop (every column,
+    padded ones with weight 0; sums left to right as numpy sums a short row;
+    ``np.hypot`` for the step length), so the row ends exactly where the batch
+    path would have taken it. Returns the position, the iterations done and
+    whether it converged.
+    """
+    iterations = 0
+    converged = False
+    for _ in range(passes):
+        iterations += 1
+        phi0, d2, r = _row_geometry(px, py, xs, ys, phis)
+        d2 = [max(d, 1e-12) for d in d2]
+        c = [math.cos(v) for v in phi0]
+        s = [math.sin(v) for v in phi0]
+        wd = [w / d for w, d in zip(ws, d2, strict=True)]
+        mu = _sum([a * b * b for a, b in zip(wd, c, strict=True)])
+        lam = _sum([a * b * b for a, b in zip(wd, s, strict=True)])
+        nu = _sum([a * b * e for a, b, e in zip(wd, s, c, strict=True)])
+        det = mu * lam - nu * nu
+        root = [math.sqrt(d) for d in d2]
+        g1 = _sum([w * (-a) * v / q for w, a, v, q in zip(ws, s, r, root, strict=True)])
+        g2 = _sum([w * a * v / q for w, a, v, q in zip(ws, c, r, root, strict=True)])
+        det_safe = det if det > 0 else math.nan
+        sx, sy = (mu * g1 + nu * g2) / det_safe, (nu * g1 + lam * g2) / det_safe
+        bad = not (math.isfinite(sx) and math.isfinite(sy))
+        if bad:
+            sx = sy = 0.0
+        limit = _sum([w * v * v for w, v in zip(ws, r, strict=True)]) * (1 + 1e-12) + 1e-300
+        accepted = bad
+        cx, cy = px, py
+        if not accepted:
+            tx, ty = px + sx, py + sy
+            _, _, rt = _row_geometry(tx, ty, xs, ys, phis)
+            if _sum([w * v * v for w, v in zip(ws, rt, strict=True)]) <= limit:
+                cx, cy, accepted = tx, ty, True
+            elif options.max_halvings:
+                # every halving at once, as the batch path tries them
+                alpha = 0.5 ** np.arange(1, options.max_halvings + 1)
+                trials = np.stack([px + alpha * sx, py + alpha * sy], axis=-1)
+                H = len(alpha)
+                costs = _cost(
+                    trials,
+                    np.broadcast_to(np.stack([xs, ys], axis=-1), (H, len(xs), 2)),
+                    np.broadcast_to(np.asarray(phis), (H, len(phis))),
+                    np.broadcast_to(np.asarray(ws), (H, len(ws))),
+                )
+                ok = np.flatnonzero(costs <= limit)
+                if len(ok):
+                    cx, cy = float(trials[ok[0], 0]), float(trials[ok[0], 1])
+                    accepted = True
+        moved = float(np.hypot(cx - px, cy - py))
+        px, py = cx, cy
+        converged = moved < options.tolerance_m or not accepted or bad
+        if converged:
+            break
+    return px, py, iterations, converged
 
 
 def _wls_one(

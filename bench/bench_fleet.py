@@ -15,10 +15,13 @@ Needs ``mosquitto`` (Debian package) and the ``mqtt`` extra. Everything runs on
    Goal: p99 ≤ 10 ms through the broker.
 2. Sustained signed bearings through the broker into 1 and into 2 backend
    processes (the two own disjoint tile sets, as a tile plan assigns them):
-   8 sensor ids in 4 processes publish pre-signed version-2 messages at a
-   fixed total rate; each backend verifies what its tiles bring. Goal:
-   ≥ 10,000 messages/s verified with 0 lost, and 2 backends ≥ 1.7 × 1 when
-   one backend cannot keep up alone.
+   8 sensor ids in 2 load processes publish pre-signed version-2 messages at
+   a fixed total rate (a minimal MQTT publisher that writes many packets per
+   TLS record, standing in for sensors on other machines, so that the cores
+   go to what is measured); each backend verifies what its tiles bring.
+   Printed beside the rates: CPU µs per message of the backends, mosquitto and
+   the load. Goal: ≥ 10,000 messages/s verified with 0 lost, and 2 backends
+   ≥ 1.7 × 1 when neither keeps up (16,000/s offered).
 3. The receiver's time per forged datagram, in process: version 1 (an
    ECDSA verify each) against version 2 (one HMAC each).
 4. A forged flood at 50,000 datagrams/s on the backend's UDP port while a
@@ -595,7 +598,7 @@ def main() -> None:
             f"{'verified/s':>11}   CPU µs a message: {'backends':>8} {'broker':>6} {'load':>5}"
         )
         runs = {}
-        for rate in (4_000, 10_000):
+        for rate in (4_000, 10_000, 16_000):
             for k in (1, 2):
                 r = throughput(files, k, rate, seconds, broker.pid)
                 runs[(rate, k)] = r
@@ -604,8 +607,14 @@ def main() -> None:
                     f"{r['rate']:>11,.0f}   {'':>17} {r['backend_us']:>8.0f} "
                     f"{r['broker_us']:>6.0f} {r['load_us']:>5.0f}"
                 )
-        ratio = runs[(10_000, 2)]["rate"] / runs[(10_000, 1)]["rate"]
-        print(f"2 backends / 1 backend at 10,000/s offered: {ratio:.2f}×")
+        ratio = runs[(16_000, 2)]["rate"] / runs[(16_000, 1)]["rate"]
+        print(f"2 backends / 1 backend at 16,000/s offered (more than both take): {ratio:.2f}×")
+        r = runs[(16_000, 2)]
+        share = (r["broker_us"] + r["load_us"]) * r["rate"] / 1e6
+        print(
+            f"  at that rate the broker and the load use {share:.2f} of the 2 cores: "
+            f"the most 2 backends can have is {2 - share:.2f} cores against 1 core for one"
+        )
         print()
     finally:
         broker.terminate()

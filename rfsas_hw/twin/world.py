@@ -68,11 +68,21 @@ _FREQS: dict[int, int] = {}
 """Centre frequency (MHz) by ``tech code · 65536 + channel``, filled as channels are met."""
 
 
+_FREQ_TABLE = np.zeros(len(TECH_CODES) * 65536, np.int32)
+"""The same as an array (0: not met yet)."""
+
+
 def _frequency(key: int) -> int:
-    """Centre frequency (MHz) of ``tech code · 65536 + channel``."""
+    """Centre frequency (MHz) of ``tech code · 65536 + channel``.
+
+    Raises:
+        ConfigError: not a channel of that technology.
+    """
     freq = _FREQS.get(key)
     if freq is None:
         freq = _FREQS[key] = channel_to_freq_mhz(key % 65536, list(TECH_CODES)[key // 65536])
+        if 0 <= key < len(_FREQ_TABLE):
+            _FREQ_TABLE[key] = freq
     return freq
 
 
@@ -158,23 +168,22 @@ class Receptions:
         """
         if card is None:
             rows = self.heard.any(axis=1)
+            if rows.all():  # the usual case: no copies
+                rows = slice(None)  # type: ignore[assignment]
             rssi = self.chain_dbm[rows]
             state = self.chain_state[rows]
-            t_ns = self.capture_ns[rows].min(axis=1)
+            capture = self.capture_ns[rows]
+            t_ns = capture[:, 0] if self.n_cards == 1 else capture.min(axis=1)
         else:
             rows = self.heard[:, card]
             rssi = self.chain_dbm[rows][:, [card]]
             state = self.chain_state[rows][:, [card]]
             t_ns = self.capture_ns[rows, card]
-        flags = np.zeros(len(rssi), np.uint16)
-        flags |= np.where((state == CHAIN_SENTINEL).any(axis=1), ObsFlag.SENTINEL_CHAIN, 0).astype(
-            np.uint16
+        flags = np.where(
+            (state == CHAIN_SENTINEL).any(axis=1), np.uint16(ObsFlag.SENTINEL_CHAIN), np.uint16(0)
         )
-        flags |= np.where(
-            ((state == CHAIN_OMITTED) | (state == CHAIN_NOT_HEARD)).any(axis=1),
-            ObsFlag.MISSING_CHAIN,
-            0,
-        ).astype(np.uint16)
+        missing = state >= CHAIN_OMITTED  # omitted or not heard
+        flags |= np.where(missing.any(axis=1), np.uint16(ObsFlag.MISSING_CHAIN), np.uint16(0))
         if card is None and self.n_cards > 1:
             flags |= np.uint16(ObsFlag.PAIRED)
         return ObservationBatch(
@@ -283,7 +292,8 @@ class World:
         s = self.scenario.sensor(sensor) if isinstance(sensor, str) else sensor
         t = np.atleast_1d(np.asarray(t_s, dtype=np.float64))
         if s.pose is not None:
-            xy = np.tile([s.pose.x_m, s.pose.y_m], (len(t), 1)).astype(np.float64)
+            xy = np.empty((len(t), 2))
+            xy[:] = (s.pose.x_m, s.pose.y_m)
             return xy, np.full(len(t), s.pose.heading_deg % 360.0)
         assert s.mounted_on is not None
         track = self.tracks[s.mounted_on]
@@ -364,14 +374,16 @@ class World:
         self, tech: npt.NDArray[np.uint8], channel: npt.NDArray[np.int16]
     ) -> npt.NDArray[np.int32]:
         """Centre frequency of each frame, MHz, from its tech code and channel."""
-        freq = np.zeros(len(tech), np.int32)
         if not len(tech):
-            return freq
+            return np.zeros(0, np.int32)
         key = tech.astype(np.int64) * 65536 + channel.astype(np.int64)
+        if key.min() >= 0 and key.max() < len(_FREQ_TABLE):
+            freq = _FREQ_TABLE[key]
+            if freq.all():  # every channel met before
+                return freq
         uniq, inverse = np.unique(key, return_inverse=True)
         table = np.array([_frequency(k) for k in uniq.tolist()], np.int32)
-        freq[:] = table[inverse.reshape(-1)]
-        return freq
+        return np.asarray(table[inverse.reshape(-1)], np.int32)
 
     def _receive(self, s: SensorSpec, c: dict[str, Any], rx: ReceiverStreams) -> Receptions:
         """What sensor ``s`` makes of the candidate frames ``c`` (time-sorted).

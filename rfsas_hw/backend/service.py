@@ -410,34 +410,61 @@ class BackendService:
         opts = self.config.triangulation
         if len(groups) <= SMALL_BATCH:
             # a few emitters: the scalar path avoids the batch path's fixed numpy cost
-            tris = [
-                triangulate(groups.stations_xy[i], groups.azimuth_deg[i], groups.sigma_deg[i], opts)
-                for i in range(len(groups))
-            ]
-        else:
-            batch = triangulate_batch(
-                groups.stations_xy, groups.azimuth_deg, groups.sigma_deg, opts
-            )
-            tris = [batch[i] for i in range(len(groups))]
+            out = []
+            for i in range(len(groups)):
+                tri = triangulate(
+                    groups.stations_xy[i], groups.azimuth_deg[i], groups.sigma_deg[i], opts
+                )
+                emitter = int(groups.emitter[i])
+                fix = _fix_record(
+                    emitter,
+                    int(groups.t_ns[i]),
+                    groups.sensors[i],
+                    tri.position,
+                    tri.covariance,
+                    tri.status,
+                    tri.reason,
+                    tri.gdop,
+                    tri.condition,
+                )
+                self.stats.fixes[fix.status] += 1
+                self.fixes[emitter] = fix
+                out.append(fix)
+                if fix.ok:
+                    self.tracker.update(
+                        emitter, fix.t_ns, tri.position, tri.covariance, fix.sensors
+                    )
+            return out
+        batch = triangulate_batch(groups.stations_xy, groups.azimuth_deg, groups.sigma_deg, opts)
+        emitters = groups.emitter.tolist()
+        times = groups.t_ns.tolist()
+        gdop, condition = batch.gdop.tolist(), batch.condition.tolist()
         out = []
-        for i, tri in enumerate(tris):
-            emitter = int(groups.emitter[i])
+        for i, emitter in enumerate(emitters):
             fix = _fix_record(
                 emitter,
-                int(groups.t_ns[i]),
+                times[i],
                 groups.sensors[i],
-                tri.position,
-                tri.covariance,
-                tri.status,
-                tri.reason,
-                tri.gdop,
-                tri.condition,
+                batch.position[i],
+                batch.covariance[i],
+                FixStatus(int(batch.status[i])),
+                batch.reason(i),
+                gdop[i],
+                condition[i],
             )
             self.stats.fixes[fix.status] += 1
             self.fixes[emitter] = fix
             out.append(fix)
-            if fix.ok:
-                self.tracker.update(emitter, fix.t_ns, tri.position, tri.covariance, fix.sensors)
+        good = [i for i, fix in enumerate(out) if fix.ok]
+        if good:
+            # many emitters: their filter updates stacked
+            self.tracker.update_many(
+                [emitters[i] for i in good],
+                [times[i] for i in good],
+                batch.position[good],
+                batch.covariance[good],
+                [out[i].sensors for i in good],
+            )
         return out
 
     def _vehicle_at(self, now: int) -> VehicleState | None:

@@ -106,12 +106,20 @@ def predict_tracks(
 
     Equal to predicting each track on its own up to floating-point rounding.
     """
-    B = len(tracks)
-    if B == 0:
+    if not tracks:
         return np.empty((0, 4)), np.empty((0, 4, 4))
+    return _predict_each(tracks, [t_ns] * len(tracks), accel_sigma_mps2)
+
+
+def _predict_each(
+    tracks: Sequence[Track], t_ns: Sequence[int], accel_sigma_mps2: float
+) -> tuple[Array, Array]:
+    """Each track predicted to its own time: states (B, 4), covariances (B, 4, 4)."""
+    B = len(tracks)
     states = np.array([t.state for t in tracks], np.float64)
     covs = np.array([t.cov for t in tracks], np.float64)
-    dt = np.maximum(t_ns - np.array([t.t_ns for t in tracks], np.int64), 0) / NS_PER_S
+    then = np.array([t.t_ns for t in tracks], np.int64)
+    dt = np.maximum(np.asarray(t_ns, np.int64) - then, 0) / NS_PER_S
     F = np.broadcast_to(np.eye(4), (B, 4, 4)).copy()
     F[:, 0, 2] = F[:, 1, 3] = dt
     q = accel_sigma_mps2**2
@@ -119,7 +127,9 @@ def predict_tracks(
     Q[:, 0, 0] = Q[:, 1, 1] = q * dt**4 / 4
     Q[:, 0, 2] = Q[:, 2, 0] = Q[:, 1, 3] = Q[:, 3, 1] = q * dt**3 / 2
     Q[:, 2, 2] = Q[:, 3, 3] = q * dt**2
-    return (F @ states[:, :, None])[:, :, 0], F @ covs @ F.transpose(0, 2, 1) + Q
+    x: Array = (F @ states[:, :, None])[:, :, 0]
+    P: Array = F @ covs @ F.transpose(0, 2, 1) + Q
+    return x, P
 
 
 @dataclass(slots=True)
@@ -190,6 +200,71 @@ class Tracker:
         track.sensors = sensors
         self.stats.updated += 1
         return track
+
+    def update_many(
+        self,
+        emitters: Sequence[int],
+        t_ns: Sequence[int],
+        positions: Array,
+        covs: Array,
+        sensors: Sequence[tuple[str, ...]],
+    ) -> None:
+        """:meth:`update` with one fix of each of several emitters, the filter steps stacked.
+
+        Equal to updating one emitter after the other up to floating-point
+        rounding (an emitter given twice is updated one fix after the other).
+
+        Raises:
+            BackendError: a non-finite position or covariance (nothing is updated).
+        """
+        z = np.asarray(positions, np.float64).reshape(-1, 2)
+        R = np.asarray(covs, np.float64).reshape(-1, 2, 2)
+        if len(set(emitters)) < len(emitters):
+            for i, e in enumerate(emitters):
+                self.update(e, int(t_ns[i]), z[i], R[i], sensors[i])
+            return
+        finite = np.isfinite(z).all(axis=1) & np.isfinite(R).all(axis=(1, 2))
+        if not finite.all():
+            bad = emitters[int(np.flatnonzero(~finite)[0])]
+            raise BackendError(f"fix of emitter {bad:016x} is not a finite position/covariance")
+        rows: list[int] = []
+        tracks: list[Track] = []
+        for i, e in enumerate(emitters):
+            track = self.tracks.get(e)
+            if track is None:
+                self.stats.started += 1
+                self._start(e, int(t_ns[i]), z[i], R[i], sensors[i])
+            elif t_ns[i] < track.t_ns:
+                self.stats.out_of_order += 1
+            else:
+                rows.append(i)
+                tracks.append(track)
+        if not rows:
+            return
+        B = len(rows)
+        t_new = [int(t_ns[i]) for i in rows]
+        x, P = _predict_each(tracks, t_new, self.config.accel_sigma_mps2)
+        zr, Rr = z[rows], R[rows]
+        S = P[:, :2, :2] + Rr
+        innov = zr - x[:, :2]
+        sol = np.linalg.solve(S, innov[:, :, None])[:, :, 0]
+        d2 = innov[:, 0] * sol[:, 0] + innov[:, 1] * sol[:, 1]
+        K = P[:, :, :2] @ np.linalg.inv(S)
+        IKH = np.broadcast_to(np.eye(4), (B, 4, 4)).copy()
+        IKH[:, :, :2] -= K
+        cov = IKH @ P @ IKH.transpose(0, 2, 1) + K @ Rr @ K.transpose(0, 2, 1)
+        state = x + (K @ innov[:, :, None])[:, :, 0]
+        for k, (i, track) in enumerate(zip(rows, tracks, strict=True)):
+            if d2[k] > self.config.gate_chi2:
+                self.stats.restarted += 1
+                self._start(emitters[i], t_new[k], z[i], R[i], sensors[i])
+                continue
+            track.cov = cov[k]
+            track.state = state[k]
+            track.t_ns = t_new[k]
+            track.updates += 1
+            track.sensors = sensors[i]
+            self.stats.updated += 1
 
     def prune(self, now_ns: int) -> list[int]:
         """Drop tracks without a fix for ``drop_after_s``; return their emitter ids."""

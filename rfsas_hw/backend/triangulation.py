@@ -40,7 +40,7 @@ import numpy as np
 import numpy.typing as npt
 from scipy.special import chdtri
 
-from rfsas_hw.angles import compass_to_math_rad, wrap_rad_pi
+from rfsas_hw.angles import compass_to_math_rad
 from rfsas_hw.errors import BackendError
 
 Array = npt.NDArray[np.float64]
@@ -54,6 +54,11 @@ __all__ = [
     "triangulate",
     "triangulate_batch",
 ]
+
+
+_TWO_PI = 2 * np.pi
+_add = np.add.reduce
+"""``np.sum`` without its Python wrapper (the same reduction)."""
 
 
 class FixStatus(enum.IntEnum):
@@ -294,14 +299,16 @@ def _lines_wls(S: Array, phi: Array, w: Array) -> Array:
 def _geometry(p: Array, S: Array, phi: Array) -> tuple[Array, Array, Array, Array]:
     """Predicted azimuth (math rad), squared range, wrapped residual, offset (B, N, 2)."""
     d = p[:, None, :] - S
-    d2 = d[..., 0] ** 2 + d[..., 1] ** 2
-    phi0 = np.arctan2(d[..., 1], d[..., 0])
-    return phi0, d2, wrap_rad_pi(phi - phi0), d
+    dx, dy = d[..., 0], d[..., 1]
+    d2 = dx * dx + dy * dy
+    phi0 = np.arctan2(dy, dx)
+    # wrap_rad_pi, inlined: this runs every iteration
+    return phi0, d2, np.pi - np.mod(np.pi - (phi - phi0), _TWO_PI), d
 
 
 def _cost(p: Array, S: Array, phi: Array, w: Array) -> Array:
     _, _, r, _ = _geometry(p, S, phi)
-    cost: Array = np.sum(w * r * r, axis=1)
+    cost: Array = _add(w * r * r, axis=1)
     return cost
 
 
@@ -431,19 +438,19 @@ def triangulate_batch(
             d2 = np.maximum(d2, 1e-12)
             c, s = np.cos(phi0), np.sin(phi0)
             wd = wa / d2
-            mu = np.sum(wd * c * c, axis=1)
-            lam = np.sum(wd * s * s, axis=1)
-            nu = np.sum(wd * s * c, axis=1)
+            mu = _add(wd * c * c, axis=1)
+            lam = _add(wd * s * s, axis=1)
+            nu = _add(wd * s * c, axis=1)
             det = mu * lam - nu * nu
             # gradient Gᵀ W r with G rows [−sin φ₀/D, cos φ₀/D]
             root = np.sqrt(d2)
-            g1 = np.sum(wa * (-s) * r / root, axis=1)
-            g2 = np.sum(wa * c * r / root, axis=1)
+            g1 = _add(wa * (-s) * r / root, axis=1)
+            g2 = _add(wa * c * r / root, axis=1)
             det_safe = np.where(det > 0, det, np.nan)
             step = np.stack([(mu * g1 + nu * g2) / det_safe, (nu * g1 + lam * g2) / det_safe], -1)
             bad = ~np.isfinite(step).all(axis=1)
             step[bad] = 0.0
-            cost0 = np.sum(wa * r * r, axis=1)
+            cost0 = _add(wa * r * r, axis=1)
             limit = cost0 * (1 + 1e-12) + 1e-300
             accepted = bad.copy()
             cand = pa.copy()

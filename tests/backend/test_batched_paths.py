@@ -204,3 +204,46 @@ def test_triangulation_rows_finished_in_floats_equal_the_array_path(
     assert arrays.iterations.max() > 5  # some rows did iterate in floats
     for name in ("position", "covariance", "status", "iterations", "chi2", "condition"):
         np.testing.assert_array_equal(getattr(floats, name), getattr(arrays, name), err_msg=name)
+
+
+def test_stacked_filter_updates_equal_one_after_the_other() -> None:
+    from rfsas_hw.backend.tracking import Tracker, TrackerConfig
+
+    rng = np.random.default_rng(21)
+    cfg = TrackerConfig(accel_sigma_mps2=1.5)
+    one, many = Tracker(cfg), Tracker(cfg)
+    emitters = [int(e) for e in rng.integers(1, 2**62, 40)]
+    t = 1_000 * S
+    for step in range(12):
+        t += int(rng.uniform(0.05, 0.5) * S)
+        chosen = [e for e in emitters if rng.random() < 0.7]
+        times = [t - int(rng.uniform(0, 0.3) * S) for _ in chosen]
+        if step == 6:
+            times[0] -= 100 * S  # out of order
+        pos = rng.normal(0, 20, (len(chosen), 2)) + step * 1.3
+        pos[::5] += 200.0  # outside the gate: restarts
+        a = rng.normal(size=(len(chosen), 2, 2))
+        cov = a @ a.transpose(0, 2, 1) + 0.1 * np.eye(2)
+        sensors = [("a", "b")] * len(chosen)
+        for i, e in enumerate(chosen):
+            one.update(e, times[i], pos[i], cov[i], sensors[i])
+        many.update_many(chosen, times, pos, cov, sensors)
+    assert one.stats == many.stats and one.stats.restarted > 0 and one.stats.out_of_order > 0
+    assert one.tracks.keys() == many.tracks.keys()
+    for e, track in one.tracks.items():
+        other = many.tracks[e]
+        assert (track.t_ns, track.updates, track.sensors) == (
+            other.t_ns,
+            other.updates,
+            other.sensors,
+        )
+        np.testing.assert_allclose(other.state, track.state, rtol=1e-9, atol=1e-9)
+        np.testing.assert_allclose(other.cov, track.cov, rtol=1e-9, atol=1e-12)
+    with pytest.raises(BackendError, match="not a finite"):
+        many.update_many(
+            [1, 2],
+            [t, t],
+            np.array([[0.0, 0.0], [np.nan, 0.0]]),
+            np.eye(2)[None].repeat(2, 0),
+            [(), ()],
+        )

@@ -223,11 +223,11 @@ def plot_eval(results: dict[str, list[PairedRow]], path: Path) -> None:
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--steps", type=int, default=20_000, help="PPO steps per seed and arm")
+    ap.add_argument("--steps", type=int, default=150_000, help="PPO steps per seed and arm")
     ap.add_argument("--seeds", default="0,1,2,3,4", help="training seeds")
     ap.add_argument("--episodes", type=int, default=60, help="episodes per policy and distance")
     ap.add_argument("--ablation", type=int, default=30, help="episodes per corner, ablation")
-    ap.add_argument("--jobs", type=int, default=3, help="processes for training and evaluation")
+    ap.add_argument("--jobs", type=int, default=2, help="processes for training and evaluation")
     ap.add_argument("--arms", default=",".join(ARMS), help="arms to run")
     ap.add_argument("--out", type=Path, default=REPO / "out" / "rl", help="models, logs, JSON")
     ap.add_argument(
@@ -329,8 +329,25 @@ def main() -> int:
     print("\nmean speed (m/s) at distance to the centre")
     for name, at in summary["speed_at"].items():
         print(f"  {name:40s} " + " ".join(f"{d}m {v:5.2f}" for d, v in at.items()))
-    t2 = t1
-    summary["ablation_s"] = time.perf_counter() - t2
+    print("\nper seed: risk at each distance; speed 20 m before the centre without a warning")
+    per: dict[str, Any] = {}
+    for arm in arms:
+        for s in seeds:
+            ev = evals[(arm, s)]
+            v20 = {
+                corner: float(
+                    np.interp(20.0, *(x[::-1] for x in ev["speed"][f"{corner}, no warning"]))
+                )
+                for corner in ("busy", "quiet")
+            }
+            risks = [float(x) for x in ev["main"].risk.mean(axis=1)]
+            per[f"{arm}/{s}"] = {"risk": risks, "v20_no_warning": v20}
+            print(
+                f"  {arm:>13} seed {s}: risk "
+                + " ".join(f"{x:.4f}" for x in risks)
+                + f" | v(20 m) busy {v20['busy']:.1f} quiet {v20['quiet']:.1f} m/s"
+            )
+    summary["per_seed"] = per
     summary["total_s"] = time.perf_counter() - t0
     (args.out / "summary.json").write_text(json.dumps(summary, indent=1, default=float))
     print(f"\nwrote {args.out / 'summary.json'}; total {summary['total_s']:.0f} s")

@@ -172,11 +172,11 @@ class RewardConfig:
     """``method`` or ``risk-progress``."""
     progress_weight: float = 1.0
     """``risk-progress``: reward for covering the whole approach."""
-    risk_weight: float = 10.0
+    risk_weight: float = 20.0
     """``risk-progress``: penalty per unit of realised fatality risk."""
-    time_weight: float = 0.05
+    time_weight: float = 0.1
     """``risk-progress``: penalty per second of the episode (a car holding 20 m/s pays
-    about 0.27 for the approach)."""
+    about 0.53 for the approach)."""
     timeout_weight: float = 1.0
     """``risk-progress``: penalty when the episode times out (``max_steps``) before the
     car crossed."""

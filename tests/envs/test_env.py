@@ -109,8 +109,8 @@ def test_a_car_that_never_crosses_times_out_and_pays_for_it() -> None:
         assert trunc == (k == 49)
     assert not info["crossed"]
     covered = (env.front_y_m + 100.0) / 100.0
-    # progress, minus 0.05 per second, minus 1 for the timeout
-    assert total == pytest.approx(covered - 0.05 * 5.0 - 1.0)
+    # progress, minus 0.1 per second, minus 1 for the timeout
+    assert total == pytest.approx(covered - 0.1 * 5.0 - 1.0)
 
 
 def test_reaching_the_intersection_ends_the_episode() -> None:
@@ -195,7 +195,7 @@ def test_risk_progress_reward_pays_progress_and_charges_realised_risk() -> None:
             y0 = env.front_y_m
             _, r, term, trunc, info = env.step(COAST)
             done = term or trunc
-            expected = (env.front_y_m - y0) / 100.0 - 0.05 * 0.1
+            expected = (env.front_y_m - y0) / 100.0 - 0.1 * 0.1
             if info["collision"]:
                 expected -= 10.0 * fatality_risk(info["impact_speed_mps"])
             assert float(r) == pytest.approx(expected)

@@ -1,25 +1,23 @@
 """Learning to slow down where phones have been heard: the learned-vs-rule protocol.
 
-    python bench/bench_rl.py [--steps 20000] [--seeds 0,1,2,3,4] [--episodes 60]
-                             [--ablation 30] [--jobs 3] [--out out/rl] [--docs]
+    python bench/bench_rl.py [--steps 150000] [--seeds 0,1,2,3,4] [--episodes 60]
+                             [--ablation 30] [--jobs 2] [--out out/rl] [--docs]
 
-Run time: one run with the defaults took 1594 s (training 906 s, evaluation
-and ablation 687 s) on a shared 2-core machine with a load average of 2–8;
-the numbers are in docs/simulation.md §10.
+Run time: see docs/simulation.md §10 (the command, its wall time and the
+machine's load for the run whose numbers are there).
 
 The ``corners`` scenario of ``rfsas/Intersection-v0`` (quiet and busy blind
 corners; busy ones have a history of crossings and produce more late
-crossers) at the default (low) level of detail. Three arms, each trained
-with every seed on 4 vectorised environments:
+crossers; a quarter of the crossers are never heard) at the default (low)
+level of detail. Three arms, each trained with every seed on 8 vectorised
+environments with the same PPO settings (n_steps 128 per environment, batch
+256, ent_coef 0.01, lr 3e-4, 10 epochs) and the same number of steps:
 
-- ``rp+prior``: reward ``risk-progress`` (risk_weight 10), RF activity prior
-  in the observation; PPO batch 128, n_steps 128 per environment,
-  ent_coef 0.01 (tuned: with the method's n_steps 64 and ent_coef 0 it
-  learned nothing useful in the previous single-seed run);
+- ``rp+prior``: reward ``risk-progress`` (risk_weight 20, 0.1 per second, 1
+  for a timeout), RF activity prior in the observation;
 - ``rp-noprior``: the same without the prior;
 - ``method+prior``: the method's reward (+1 braking above the risk threshold,
-  +1 accelerating below) with the prior, the method's PPO settings
-  (batch 64, n_steps 64, ent_coef 0, lr 3e-4).
+  +1 accelerating below) with the prior.
 
 Then every model, the rule (brake while the estimated risk is above the
 threshold, else hold) and a car that ignores warnings drive the same
@@ -27,8 +25,10 @@ episodes (episode k has seed 10000 + k) at reaction distances 30–100 m from
 the centre (70–0 m from the start line, the method's convention). Per
 distance: mean risk, standard error over the seeds and over the episodes, a
 paired t-test over the episodes (seed-averaged learned risk against the
-rule's), seeds at or below the rule. Pooled ratio rule/learned over the
-distances where the rule cannot stop in time.
+rule's), seeds at or below the rule, episode time, timeouts, mean return.
+Pooled ratio rule/learned over the distances where the rule cannot stop in
+time. Per seed: the risk at every distance and the speed 20 m before the
+centre without a warning.
 
 Ablation: the same models on episodes without a warning (nobody crosses:
 duration; a crosser who is never heard: risk), and the mean speed along the
@@ -37,7 +37,7 @@ approach at a busy and a quiet corner with and without a warning (60 m).
 ``--jobs`` trainings run in parallel processes (each one torch thread).
 With ``--docs`` it writes ``docs/images/rl_eval.png`` and
 ``docs/images/rl_speed.png``. Needs the ``rl`` extra; without
-stable-baselines3 it says so and exits cleanly. Timings are from this one run
+stable-baselines3 it says so and exits cleanly. Timings are from one run
 on a machine that may be shared.
 """
 

@@ -145,6 +145,24 @@ def _env_config(
     show_default=True,
     help="Environments stepped side by side (vectorised, one process).",
 )
+@click.option(
+    "--n-steps",
+    type=click.IntRange(min=2),
+    default=None,
+    help="PPO rollout steps per environment [default: 64, the method's].",
+)
+@click.option(
+    "--batch-size",
+    type=click.IntRange(min=2),
+    default=None,
+    help="PPO minibatch size [default: 64, the method's].",
+)
+@click.option(
+    "--ent-coef",
+    type=click.FloatRange(min=0.0),
+    default=None,
+    help="PPO entropy coefficient [default: 0, the method's].",
+)
 @_seeds_option
 @_prior_option
 @_scenario_option
@@ -157,6 +175,9 @@ def train(
     seed: int,
     reward: str | None,
     n_envs: int,
+    n_steps: int | None,
+    batch_size: int | None,
+    ent_coef: float | None,
     seeds: str | None,
     prior: str | None,
     scenario: str | None,
@@ -169,9 +190,11 @@ def train(
     if config_path is not None:
         check_output(model_path, [config_path], force=True)
     config = _env_config(config_path, detail, reward, prior, scenario)
+    given = {"n_steps": n_steps, "batch_size": batch_size, "ent_coef": ent_coef}
+    ppo = {k: v for k, v in given.items() if v is not None}
     seed_list = _parse_seeds(seeds)
     if seed_list is not None:
-        _train_seeds(seed_list, steps, model_path, config, n_envs)
+        _train_seeds(seed_list, steps, model_path, config, n_envs, ppo)
         return
     logs = log_dir if log_dir is not None else model_path.with_name(model_path.stem + "-logs")
     columns = (
@@ -195,6 +218,7 @@ def train(
             log_dir=logs,
             progress=progress,
             n_envs=n_envs,
+            **ppo,
         )
     console = Console()
     console.print(
@@ -207,7 +231,12 @@ def train(
 
 
 def _train_seeds(
-    seeds: list[int], steps: int, model_path: Path, config: EnvConfig, n_envs: int
+    seeds: list[int],
+    steps: int,
+    model_path: Path,
+    config: EnvConfig,
+    n_envs: int,
+    ppo: dict[str, Any],
 ) -> None:
     from rfsas_hw.envs import protocol
 
@@ -229,7 +258,7 @@ def _train_seeds(
             return update
 
         results = protocol.train_seeds(
-            seeds, steps, model_path, config=config, n_envs=n_envs, progress=progress
+            seeds, steps, model_path, config=config, n_envs=n_envs, progress=progress, **ppo
         )
     for s, result in zip(seeds, results, strict=True):
         console.print(

@@ -111,11 +111,16 @@ def test_cli_trains_and_evaluates_several_seeds(tmp_path: Path) -> None:
     common = ("--prior", "on", "--scenario", "corners")
     code, out = rfsas(
         "sim", "train", "--steps", "64", "--seeds", "0,1", "--envs", "2",
-        "--reward", "risk-progress", "-o", str(model), *common,
+        "--reward", "risk-progress", "--n-steps", "32", "--batch-size", "32",
+        "--ent-coef", "0.01", "-o", str(model), *common,
     )  # fmt: skip
     assert code == 0, out
     assert "seed 0: trained" in out and "seed 1: trained" in out and "prior on" in out
     assert seed_model_path(model, 1).is_file()
+    from rfsas_hw.envs.rl import LearnedPolicy
+
+    ppo = LearnedPolicy.load(seed_model_path(model, 0)).model
+    assert (ppo.n_steps, ppo.batch_size, ppo.ent_coef) == (32, 32, 0.01)
     code, out = rfsas(
         "sim", "evaluate", "--model", str(model), "--seeds", "0,1",
         "--distances", "40,60", "--episodes", "3", *common,

@@ -83,7 +83,11 @@ def measure(n_extra: int, steps: int, *, all_devices: bool) -> dict[str, float]:
         _populate(sumo, n_extra)
         adapter = SumoAdapter(sumo, run.ego, origin=cfg.origin_m)
         bridge = Bridge(cfg, buildings=read_buildings(sumo, cfg.origin_m))
-        sumo_cpu, sumo_wall, br_cpu, br_wall, counts = [], [], [], [], []
+        sumo_cpu: list[float] = []
+        sumo_wall: list[float] = []
+        br_cpu: list[float] = []
+        br_wall: list[float] = []
+        counts: list[int] = []
         while len(br_cpu) < steps:
             c0, w0 = time.process_time(), time.perf_counter()
             sumo.simulationStep()
@@ -137,6 +141,13 @@ def main() -> None:
             f"{r['bridge_wall_ms']:8.2f} {ratio:11.0f} {r['bridge_cpu_ms'] / 100:10.1%}"
         )
     print("times: median CPU ms per step of this process (wall: bridge median wall time)")
+    (_, small), (_, big) = rows[0], rows[-1]
+    extra = max(big["entities"] - small["entities"], 1.0)
+    print(
+        f"growth from {small['entities']:.0f} to {big['entities']:.0f} entities: bridge "
+        f"+{(big['bridge_cpu_ms'] - small['bridge_cpu_ms']) / extra:.3f} ms, SUMO "
+        f"+{(big['sumo_cpu_ms'] - small['sumo_cpu_ms']) / extra:.4f} ms per extra entity"
+    )
 
 
 if __name__ == "__main__":

@@ -83,12 +83,6 @@ def link_path_loss_db(distance_m: Array, freq_mhz: npt.ArrayLike, rf: RfSpec) ->
     return out
 
 
-def _cn(rng: np.random.Generator, shape: tuple[int, ...]) -> npt.NDArray[np.complex128]:
-    """Circular complex Gaussian samples of unit mean power."""
-    z = rng.standard_normal((*shape, 2))
-    return np.asarray((z[..., 0] + 1j * z[..., 1]) / math.sqrt(2.0))
-
-
 def fading_db(
     n: int,
     model: Literal["none", "rayleigh", "rician"],
@@ -108,13 +102,34 @@ def fading_db(
     """
     if model == "none" or n == 0:
         return np.zeros((n, 2))
+    common, own = fading_normals(n, rng, rng_own)
+    return fading_from_normals(common, own, model, k_db, correlation)
 
-    def cn(shape: tuple[int, ...]) -> npt.NDArray[np.complex128]:
-        return _cn(rng, shape)
 
-    common = cn((n, 1))
-    own = cn((n, 2)) if rng_own is None else _cn(rng_own, (n, 2))
-    scatter = math.sqrt(correlation) * common + math.sqrt(1.0 - correlation) * own
+def fading_normals(
+    n: int, rng: np.random.Generator, rng_own: np.random.Generator | None = None
+) -> tuple[Array, Array]:
+    """The standard normals :func:`fading_db` draws for ``n`` frames: (n, 1, 2) and (n, 2, 2)."""
+    common = rng.standard_normal((n, 1, 2))
+    own = (rng if rng_own is None else rng_own).standard_normal((n, 2, 2))
+    return common, own
+
+
+def fading_from_normals(
+    common: Array,
+    own: Array,
+    model: Literal["none", "rayleigh", "rician"],
+    k_db: float,
+    correlation: float,
+) -> Array:
+    """:func:`fading_db` from its normals (:func:`fading_normals`; rows of several draws
+    may be stacked), dB, shape ``(n, 2)``."""
+    n = len(common)
+    if model == "none" or n == 0:
+        return np.zeros((n, 2))
+    c = (common[..., 0] + 1j * common[..., 1]) / math.sqrt(2.0)
+    u = (own[..., 0] + 1j * own[..., 1]) / math.sqrt(2.0)
+    scatter = math.sqrt(correlation) * c + math.sqrt(1.0 - correlation) * u
     if model == "rician":
         k = 10.0 ** (k_db / 10.0)
         h = math.sqrt(k / (k + 1.0)) + math.sqrt(1.0 / (k + 1.0)) * scatter

@@ -413,8 +413,9 @@ class StreamTwin(World):
     def _candidates(self, s: SensorSpec) -> dict[str, Any]:
         """The window's frames sensor ``s`` could hear by tech and channel.
 
-        The same selection as the offline world's, over all emitters at once
-        (the window's frames are gathered once for every sensor).
+        The same selection, in the same order, as the offline world's, over
+        all emitters at once (the window's frames are gathered once for every
+        sensor).
         """
         w = self._window
         if not self._window_key or not len(w["t"]):
@@ -428,11 +429,11 @@ class StreamTwin(World):
             if plan is None:
                 plan = self._plans[s.id] = ScanPlan.from_spec(s.scan)
             on = plan.channel_at(w["t"]) == w["channel"]
-        sel = hears & on
-        out = {k: v[sel] for k, v in w.items()}
-        out["row"] = np.flatnonzero(sel)
-        order = np.lexsort((out["emitter"], out["t"]))
-        return {k: v[order] for k, v in out.items()}
+        rows = np.flatnonzero(hears & on)
+        # the window is already in the offline order (time, then emitter)
+        out = {k: v[rows] for k, v in w.items()}
+        out["row"] = rows
+        return out
 
     def _hears(self, s: SensorSpec) -> npt.NDArray[np.bool_]:
         """Whether sensor ``s`` hears each emitter's technology (kept while emitters stay)."""

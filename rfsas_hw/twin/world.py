@@ -39,7 +39,8 @@ from rfsas_hw.twin.rfworld import (
     blockage_db,
     building_array,
     combine_chains,
-    fading_db,
+    fading_from_normals,
+    fading_normals,
     link_path_loss_db,
 )
 from rfsas_hw.twin.rng import stream
@@ -435,27 +436,31 @@ class World:
         dist = np.hypot(delta[:, 0], delta[:, 1])
         azimuth = math_rad_to_compass(np.arctan2(delta[:, 1], delta[:, 0]))
         relative = wrap_deg_180(azimuth - heading)
-        gains = each(
-            [self.antennas[s.id].gains_db(relative[p]) for s, p in zip(sensors, parts, strict=True)]
-        )
+        antennas = [self.antennas[s.id] for s in sensors]
+        if all(a == antennas[0] for a in antennas):  # units of one build
+            gains = antennas[0].gains_db(relative)
+        else:
+            gains = each([a.gains_db(relative[p]) for a, p in zip(antennas, parts, strict=True)])
         pt = power_e[e_idx]
         pl = link_path_loss_db(dist, freq, rf)
         physical = self.detail == "high"
         if physical:
             block, blocked = blockage_db(sxy, exy, self.rects)
-            fade = each(
-                [
-                    fading_db(
-                        k,
-                        rf.fading,
-                        rf.rician_k_db,
-                        rf.fading_correlation,
-                        rx.fade_common,
-                        rx.fade_own,
-                    )
+            if rf.fading == "none":
+                fade = np.zeros((n, 2))
+            else:
+                # each sensor's own draws, the arithmetic on all of them at once
+                normals = [
+                    fading_normals(k, rx.fade_common, rx.fade_own)
                     for k, (_, _, rx) in zip(counts, items, strict=True)
                 ]
-            )
+                fade = fading_from_normals(
+                    each([z[0] for z in normals]),
+                    each([z[1] for z in normals]),
+                    rf.fading,
+                    rf.rician_k_db,
+                    rf.fading_correlation,
+                )
         else:
             block, blocked = np.zeros(n), np.zeros(n, dtype=bool)
             fade = np.zeros((n, 2))
@@ -465,18 +470,22 @@ class World:
             power = power + np.repeat(offsets, counts, axis=0)
         snr = power - threshold[:, None]
         sigma = np.empty((n, 2))
-        for s, p in zip(sensors, parts, strict=True):
-            if self.detail == "high":
-                sigma[p] = rssi_sigma_db(snr[p], s.driver.measurement_floor_db)
-            elif self.detail == "medium":
-                # noise that makes the monopulse bearing error equal σ_amp(SNR)
-                best = snr[p].max(axis=1) if p.stop > p.start else np.empty(0)
-                sig_deg = sigma_monopulse_deg(best, beamwidth_deg=s.antenna.beamwidth_deg)
-                slope = self.antennas[s.id].difference_slope_db_per_deg()
-                sig_db = np.asarray(sig_deg) * slope / math.sqrt(2)
-                sigma[p] = np.repeat(np.atleast_1d(sig_db)[:, None], 2, axis=1)
-            else:
-                sigma[p] = 0.0
+        floors = {s.driver.measurement_floor_db for s in sensors}
+        if self.detail == "high" and len(floors) == 1:
+            sigma = rssi_sigma_db(snr, next(iter(floors)))
+        else:
+            for s, p in zip(sensors, parts, strict=True):
+                if self.detail == "high":
+                    sigma[p] = rssi_sigma_db(snr[p], s.driver.measurement_floor_db)
+                elif self.detail == "medium":
+                    # noise that makes the monopulse bearing error equal σ_amp(SNR)
+                    best = snr[p].max(axis=1) if p.stop > p.start else np.empty(0)
+                    sig_deg = sigma_monopulse_deg(best, beamwidth_deg=s.antenna.beamwidth_deg)
+                    slope = self.antennas[s.id].difference_slope_db_per_deg()
+                    sig_db = np.asarray(sig_deg) * slope / math.sqrt(2)
+                    sigma[p] = np.repeat(np.atleast_1d(sig_db)[:, None], 2, axis=1)
+                else:
+                    sigma[p] = 0.0
         noise = each(
             [rx.noise.standard_normal((k, 2)) for k, (_, _, rx) in zip(counts, items, strict=True)]
         )

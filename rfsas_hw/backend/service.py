@@ -486,8 +486,11 @@ class BackendService:
         tracked = [i for i, _ in live]
         states = np.full((len(fixes), 4), nan)
         covs = np.full((len(fixes), 4, 4), nan)
-        if live:
+        if len(live) > SMALL_ASSESS:
             states[tracked], covs[tracked] = predict_tracks([t for _, t in live], now, accel)
+        else:
+            for i, live_track in live:
+                states[i], covs[i] = live_track.predict(now, accel)
         encounters: dict[int, Encounter] = {}
         if vehicle is not None and tracked:
             encounters = dict(

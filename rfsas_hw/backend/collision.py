@@ -47,6 +47,7 @@ __all__ = [
     "collision_probability",
     "collision_probability_batch",
     "collision_probability_mc",
+    "exact_probability_of",
     "heading_covariance",
     "minkowski_octagon",
     "threat_box",
@@ -453,6 +454,39 @@ def _cov_one(value: Any, name: str) -> Array:
     if abs(b - c) > 1e-9 * (1 + abs(b)) or a < 0 or d < 0 or a * d - b * c < -1e-12 * scale**2:
         raise BackendError(f"{name} must be a symmetric positive semi-definite 2×2 matrix")
     return np.array([[a, b], [c, d]])
+
+
+def exact_probability_of(
+    vehicle_xy: Array,
+    vehicle_heading_deg: float,
+    vehicle_cov: Array,
+    vehicle_size: Size,
+    threat_xy: Array,
+    threat_heading_deg: float,
+    threat_cov: Array,
+    threat_size: Size,
+) -> float:
+    """:func:`collision_probability` (exact) for inputs a caller has already checked.
+
+    Positions, headings and sizes must be finite and valid and the vehicle
+    covariance a covariance (as a :class:`~rfsas_hw.backend.vehicle.VehicleState`
+    gives them); only the threat covariance is checked. The same number as
+    :func:`collision_probability` gives, without its per-argument conversions.
+
+    Raises:
+        BackendError: the threat covariance is not symmetric positive semi-definite.
+    """
+    mv, mt = vehicle_xy.tolist(), threat_xy.tolist()
+    return _exact_one(
+        (mv[0], mv[1]),
+        float(vehicle_heading_deg),
+        vehicle_cov,
+        (float(vehicle_size[0]), float(vehicle_size[1])),
+        (mt[0], mt[1]),
+        float(threat_heading_deg),
+        _cov_one(threat_cov, "threat_cov"),
+        (float(threat_size[0]), float(threat_size[1])),
+    )
 
 
 def collision_probability(

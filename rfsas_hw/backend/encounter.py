@@ -23,8 +23,8 @@ import numpy.typing as npt
 from rfsas_hw.angles import compass_to_math_rad, math_rad_to_compass
 from rfsas_hw.backend.collision import (
     Size,
-    collision_probability,
     collision_probability_batch,
+    exact_probability_of,
     threat_box,
 )
 from rfsas_hw.backend.risk import (
@@ -137,7 +137,8 @@ def assess_encounter(
     P = np.asarray(threat_cov, np.float64)
     if x.shape != (4,) or P.shape != (4, 4) or not (np.isfinite(x).all() and np.isfinite(P).all()):
         raise BackendError("threat state must be a finite [x, y, vx, vy] with a 4×4 covariance")
-    pv, vv = vehicle.position, vehicle.velocity
+    u_hat = vehicle.direction
+    pv, vv = vehicle.position, u_hat * vehicle.speed_mps
     r0, w = x[:2] - pv, x[2:] - vv
     ww = float(w @ w)
     t_star = 0.0 if ww == 0 else min(max(-float(r0 @ w) / ww, 0.0), cfg.horizon_s)
@@ -148,7 +149,7 @@ def assess_encounter(
     speed_t = math.hypot(x[2], x[3])
     threat_heading = math_rad_to_compass(math.atan2(x[3], x[2])) if speed_t > MOVING_MPS else 0.0
     size_t = cfg.threat_size
-    p_coll = collision_probability(
+    p_coll = exact_probability_of(
         pv + t_star * vv,
         vehicle.heading_deg,
         vehicle.covariance,
@@ -158,7 +159,6 @@ def assess_encounter(
         threat_pos_cov,
         size_t,
     )
-    u_hat = vehicle.direction
     a = compass_to_math_rad(threat_heading)
     ut = np.array([math.cos(a), math.sin(a)])
     nt = np.array([-ut[1], ut[0]])

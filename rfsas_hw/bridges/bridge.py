@@ -313,6 +313,8 @@ class Bridge:
         self._pipelines: dict[str, SensorPipeline] = {}
         self._publishers: dict[str, Any] = {}
         """Per unit, the publisher of signed messages (with :meth:`publish_to`)."""
+        self._mounted = {s.id for s in self.scenario.spec.sensors if s.mounted_on is not None}
+        """Units on a vehicle (their pose is looked up every step)."""
         self._devices: dict[str, _Device] = {}
         """Live devices by entity id."""
         self._retired: list[_Device] = []
@@ -497,9 +499,10 @@ class Bridge:
                 if obs is None or not len(obs):
                     bearings[sid] = BearingBatch.empty(sid)
                     continue
-                mid_s = (_median(obs.t_ns) - self.t0_ns) / NS_PER_S
-                xy, heading = twin.sensor_pose(sid, [mid_s])
-                pipe.pose = Pose(float(xy[0, 0]), float(xy[0, 1]), float(heading[0]))
+                if sid in self._mounted:  # a roadside unit's pose never changes
+                    mid_s = (_median(obs.t_ns) - self.t0_ns) / NS_PER_S
+                    xy, heading = twin.sensor_pose(sid, [mid_s])
+                    pipe.pose = Pose(float(xy[0, 0]), float(xy[0, 1]), float(heading[0]))
                 batch = pipe.process(obs)
                 bearings[sid] = batch
                 self.stats.frames[sid] = self.stats.frames.get(sid, 0) + len(obs)

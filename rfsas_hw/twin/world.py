@@ -501,6 +501,11 @@ class World:
         state = np.zeros((n, 2), np.uint8)
         heard_any = np.empty(n, bool)
         heard_by: list[npt.NDArray[np.bool_]] = []
+        # one capture card per sensor (the usual case): its columns for all sensors at once
+        one_card = all(s.n_cards == 1 for s in sensors)
+        if one_card:
+            heard_all = (power.max(axis=1) >= threshold)[:, None] if n else np.zeros((0, 1), bool)
+            heard_any = heard_all[:, 0]
         for (s, _, rx), k, p in zip(items, counts, parts, strict=True):
             st = state[p]
             drv = s.driver
@@ -509,6 +514,8 @@ class World:
                 which = (rx.drop_chain.random(k) < 0.5).astype(np.intp)
                 lost = CHAIN_SENTINEL if drv.missing_chain == "sentinel" else CHAIN_OMITTED
                 st[drop, which[drop]] = lost
+            if one_card:
+                continue
             if s.n_cards == 2:
                 heard = power[p] >= threshold[p, None]
                 st[~heard] = CHAIN_NOT_HEARD
@@ -563,6 +570,32 @@ class World:
             shared = {name: v[kept] for name, v in shared.items()}
         kept_bounds = np.searchsorted(kept, bounds).tolist()
         jitter_us_all = [s.driver.delivery_jitter_us if physical else 0.0 for s in sensors]
+        if one_card:
+            # drawn for every candidate frame, heard or not, as the streams require
+            delay_us = each(
+                [
+                    rx.jitter.uniform(0.0, jitter, (k, 1))
+                    for (_, _, rx), k, jitter in zip(items, counts, jitter_us_all, strict=True)
+                ]
+            )
+            clock0 = np.repeat([rx.tsft0_us[0] for _, _, rx in items], counts)[:, None]
+            rate = np.repeat([rx.drift[0] for _, _, rx in items], counts)[:, None]
+            cards = {
+                "heard": heard_all,
+                "capture_ns": t_ns[:, None] + np.round(delay_us * 1e3).astype(np.int64),
+                "tsft_us": (clock0 + np.floor(t[:, None] * 1e6 * rate)).astype(np.uint64),
+            }
+            if len(kept) < n:
+                cards = {name: v[kept] for name, v in cards.items()}
+            return [
+                Receptions(
+                    sensor_id=s.id,
+                    n_cards=1,
+                    **{name: v[lo:hi] for name, v in cards.items()},
+                    **{name: v[lo:hi] for name, v in shared.items()},
+                )
+                for s, lo, hi in zip(sensors, kept_bounds[:-1], kept_bounds[1:], strict=True)
+            ]
         out = []
         for k, ((s, c, rx), heard) in enumerate(zip(items, heard_by, strict=True)):
             n_cards = s.n_cards

@@ -298,21 +298,24 @@ def main() -> int:
 
     print(f"\nwithout a warning ({args.ablation} episodes per corner; mean over the seeds)")
     print(
-        f"{'arm':>13} {'corner':>6} | {'empty: t (s)':>12} | {'unheard: risk':>13} {'P(coll)':>7}"
+        f"{'arm':>13} {'corner':>6} | {'empty: t (s)':>12} {'tmo':>4} | "
+        f"{'unheard: risk':>13} {'P(coll)':>7}"
     )
     ablation: dict[str, Any] = {}
     for name in ["rule", *arms]:
         keys = [("rule", 0)] if name == "rule" else [(name, s) for s in seeds]
         for corner in ("busy", "quiet"):
             t_empty = float(np.mean([evals[k]["empty"][corner].time_s.mean() for k in keys]))
+            tmo = float(np.mean([evals[k]["empty"][corner].timeouts.mean() for k in keys]))
             r_un = float(np.mean([evals[k]["unheard"][corner].risk.mean() for k in keys]))
             c_un = float(np.mean([evals[k]["unheard"][corner].collision.mean() for k in keys]))
             ablation[f"{name}/{corner}"] = {
                 "empty_time_s": t_empty,
+                "empty_timeouts": tmo,
                 "unheard_risk": r_un,
                 "unheard_p_collision": c_un,
             }
-            print(f"{name:>13} {corner:>6} | {t_empty:12.2f} | {r_un:13.4f} {c_un:7.3f}")
+            print(f"{name:>13} {corner:>6} | {t_empty:12.2f} {tmo:4.0%} | {r_un:13.4f} {c_un:7.3f}")
     summary["ablation"] = ablation
 
     curves: dict[str, tuple[Any, Any]] = {}

@@ -172,7 +172,7 @@ class RewardConfig:
     """``method`` or ``risk-progress``."""
     progress_weight: float = 1.0
     """``risk-progress``: reward for covering the whole approach."""
-    risk_weight: float = 20.0
+    risk_weight: float = 50.0
     """``risk-progress``: penalty per unit of realised fatality risk."""
     time_weight: float = 0.1
     """``risk-progress``: penalty per second of the episode (a car holding 20 m/s pays

@@ -125,7 +125,7 @@ def test_an_episode_reports_its_return() -> None:
     for seed in range(6):
         info = run_episode(env, HoldPolicy(), seed=seed, distance_m=50.0)
         covered = (env.front_y_m + 100.0) / 100.0
-        expected = covered - 0.1 * 0.1 * info["steps"] - 20.0 * info["realised_risk"]
+        expected = covered - 0.1 * 0.1 * info["steps"] - 50.0 * info["realised_risk"]
         assert info["return"] == pytest.approx(expected)
     rows = evaluate([HoldPolicy()], [50.0], 6, config=env.config, seed=0)
     assert rows[0].mean_return < 1.05

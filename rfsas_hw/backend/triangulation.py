@@ -664,13 +664,6 @@ def _resid_one(
     return phi0, d2, r
 
 
-def _cost_one(
-    px: float, py: float, xs: list[float], ys: list[float], phis: list[float], ws: list[float]
-) -> float:
-    _, _, r = _resid_one(px, py, xs, ys, phis)
-    return sum(w * v * v for w, v in zip(ws, r, strict=True))
-
-
 def _info_one(phi0: list[float], d2: list[float], ws: list[float]) -> tuple[float, float, float]:
     mu = lam = nu = 0.0
     for p, dd, w in zip(phi0, d2, ws, strict=True):
@@ -728,7 +721,9 @@ def _triangulate_one(
             n,
         )
     px, py = start
-    _, _, r_start = _resid_one(px, py, xs, ys, phis)
+    # the geometry at the current point, kept from the accepted trial of the last step
+    geo = _resid_one(px, py, xs, ys, phis)
+    r_start = geo[2]
     start_resid_deg = math.degrees(max(abs(v) for v in r_start))
     start_behind = start_resid_deg > options.behind_deg
     converged = start_behind and n == 2
@@ -737,15 +732,19 @@ def _triangulate_one(
         if converged:
             break
         iterations += 1
-        phi0, d2, r = _resid_one(px, py, xs, ys, phis)
+        phi0, d2, r = geo
         d2 = [max(d, 1e-12) for d in d2]
-        mu, lam, nu = _info_one(phi0, d2, ws)
-        det = mu * lam - nu * nu
-        g1 = g2 = 0.0
+        mu = lam = nu = g1 = g2 = 0.0
         for p, dd, w, v in zip(phi0, d2, ws, r, strict=True):
+            c, sn = math.cos(p), math.sin(p)
+            wd = w / dd
+            mu += wd * c * c
+            lam += wd * sn * sn
+            nu += wd * sn * c
             root = math.sqrt(dd)
-            g1 += w * (-math.sin(p)) * v / root
-            g2 += w * math.cos(p) * v / root
+            g1 += w * (-sn) * v / root
+            g2 += w * c * v / root
+        det = mu * lam - nu * nu
         if det > 0:
             sx, sy = (mu * g1 + nu * g2) / det, (nu * g1 + lam * g2) / det
         else:
@@ -758,15 +757,19 @@ def _triangulate_one(
         accepted = False
         for _ in range(options.max_halvings + 1):
             tx, ty = px + alpha * sx, py + alpha * sy
-            if _cost_one(tx, ty, xs, ys, phis, ws) <= cost0 * (1 + 1e-12) + 1e-300:
+            trial = _resid_one(tx, ty, xs, ys, phis)
+            if sum(w * v * v for w, v in zip(ws, trial[2], strict=True)) <= (
+                cost0 * (1 + 1e-12) + 1e-300
+            ):
                 accepted = True
                 break
             alpha /= 2
         moved = math.hypot(tx - px, ty - py) if accepted else 0.0
         if accepted:
             px, py = tx, ty
+            geo = trial
         converged = moved < options.tolerance_m or not accepted
-    phi0, d2, r = _resid_one(px, py, xs, ys, phis)
+    phi0, d2, r = geo
     d2 = [max(d, 1e-12) for d in d2]
     mu, lam, nu = _info_one(phi0, d2, ws)
     det = mu * lam - nu * nu

@@ -500,15 +500,20 @@ class BackendService:
                     strict=True,
                 )
             )
+        for i, (_, fix) in enumerate(fixes):
+            if tracks[i] is None:  # not tracked: the fix's position, nothing else
+                states[i, 0], states[i, 1] = fix.x_m, fix.y_m
+        # plain floats once for all rows (the same values float() gives one by one)
+        state_rows = states.tolist()
+        cov_rows = covs[:, :2, :2].reshape(-1, 4).tolist()
         out = []
         for i, (_, fix) in enumerate(fixes):
             track = tracks[i]
+            state, cov = state_rows[i], cov_rows[i]
             if track is not None:
-                state, cov = states[i], covs[i]
                 age_s = (now - track.t_ns) / NS_PER_S
                 sensors = track.sensors
             else:
-                state, cov = np.array([fix.x_m, fix.y_m, nan, nan]), covs[i]
                 age_s = (now - fix.t_ns) / NS_PER_S
                 sensors = fix.sensors
             risk: dict[str, Any] = {
@@ -544,13 +549,13 @@ class BackendService:
                 Assessment(
                     t_ns=now,
                     emitter=fix.emitter,
-                    x_m=float(state[0]),
-                    y_m=float(state[1]),
-                    cov_xx_m2=float(cov[0, 0]),
-                    cov_xy_m2=float(cov[0, 1]),
-                    cov_yy_m2=float(cov[1, 1]),
-                    vx_mps=float(state[2]),
-                    vy_mps=float(state[3]),
+                    x_m=state[0],
+                    y_m=state[1],
+                    cov_xx_m2=cov[0],
+                    cov_xy_m2=cov[1],
+                    cov_yy_m2=cov[3],
+                    vx_mps=state[2],
+                    vy_mps=state[3],
                     age_s=age_s,
                     sensors=sensors,
                     fix_ok=fix.ok,

@@ -33,7 +33,6 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from rfsas_hw.angles import wrap_deg_180
 from rfsas_hw.errors import SimulationError
 from rfsas_hw.records import mac_to_int
 from rfsas_hw.twin.motion import Track
@@ -201,7 +200,8 @@ class LiveTrack:
             h = (
                 heading_deg % 360.0
                 if math.isnan(prev)
-                else prev + float(wrap_deg_180(heading_deg - prev))
+                # wrap_deg_180 in floats (Python's % is numpy's mod for floats)
+                else prev + (180.0 - (180.0 - (heading_deg - prev)) % 360.0)
             )
         i = self._n
         self._t[i], self._x[i], self._y[i], self._h[i] = t_s, x_m, y_m, h

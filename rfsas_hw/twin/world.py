@@ -65,25 +65,25 @@ Listening = Callable[[Array, npt.NDArray[np.int16]], npt.NDArray[np.bool_]]
 TECH_CODES = {"wifi": 0, "ble": 1}
 """``Receptions.tech`` values."""
 
-_FREQS: dict[int, int] = {}
-"""Centre frequency (MHz) by ``tech code · 65536 + channel``, filled as channels are met."""
+_FREQS: dict[tuple[int, int], int] = {}
+"""Centre frequency (MHz) by (tech code, channel), filled as channels are met."""
+
+_FREQ_TABLE = np.zeros((len(TECH_CODES), 256), np.int32)
+"""The same for channels 0–255 as an array (0: not met yet)."""
 
 
-_FREQ_TABLE = np.zeros(len(TECH_CODES) * 65536, np.int32)
-"""The same as an array (0: not met yet)."""
-
-
-def _frequency(key: int) -> int:
-    """Centre frequency (MHz) of ``tech code · 65536 + channel``.
+def _frequency(code: int, channel: int) -> int:
+    """Centre frequency (MHz) of ``channel`` of the technology with ``code``.
 
     Raises:
         ConfigError: not a channel of that technology.
     """
-    freq = _FREQS.get(key)
+    freq = _FREQS.get((code, channel))
     if freq is None:
-        freq = _FREQS[key] = channel_to_freq_mhz(key % 65536, list(TECH_CODES)[key // 65536])
-        if 0 <= key < len(_FREQ_TABLE):
-            _FREQ_TABLE[key] = freq
+        freq = channel_to_freq_mhz(channel, list(TECH_CODES)[code])
+        _FREQS[(code, channel)] = freq
+        if 0 <= channel < _FREQ_TABLE.shape[1]:
+            _FREQ_TABLE[code, channel] = freq
     return freq
 
 
@@ -377,13 +377,15 @@ class World:
         """Centre frequency of each frame, MHz, from its tech code and channel."""
         if not len(tech):
             return np.zeros(0, np.int32)
-        key = tech.astype(np.int64) * 65536 + channel.astype(np.int64)
-        if key.min() >= 0 and key.max() < len(_FREQ_TABLE):
-            freq = _FREQ_TABLE[key]
+        if channel.min() >= 0 and channel.max() < _FREQ_TABLE.shape[1]:
+            freq = _FREQ_TABLE[tech, channel]
             if freq.all():  # every channel met before
                 return freq
+        key = tech.astype(np.int64) * 65536 + channel.astype(np.int64) + 32768
         uniq, inverse = np.unique(key, return_inverse=True)
-        table = np.array([_frequency(k) for k in uniq.tolist()], np.int32)
+        table = np.array(
+            [_frequency(k // 65536, k % 65536 - 32768) for k in uniq.tolist()], np.int32
+        )
         return np.asarray(table[inverse.reshape(-1)], np.int32)
 
     def _receive(self, s: SensorSpec, c: dict[str, Any], rx: ReceiverStreams) -> Receptions:

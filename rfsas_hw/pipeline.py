@@ -137,24 +137,30 @@ class SensorPipeline:
         if self.calibration.phase is not None and batch.csi is not None:
             # a CSI receiver with a phase calibration: interferometer bearings
             result = phase_df_result(self.calibration, batch, result)
-        valid = result.flags == 0
-        if not valid.all():
+        n_bad = int(np.count_nonzero(result.flags))
+        if n_bad:
             for flag in DfFlag:
                 if flag is DfFlag.NONE or flag.name is None:
                     continue
                 count = int(np.count_nonzero(result.flags & np.uint8(flag)))
                 if count:
                     self.stats.rejected[flag.name.lower()] += count
-        if not valid.any():
-            return released if released is not None else BearingBatch.empty(self.sensor_id)
-        good = batch.select(valid)
+            if n_bad == n:
+                return released if released is not None else BearingBatch.empty(self.sensor_id)
+            valid = result.flags == 0
+            good = batch.select(valid)
+            angle = result.angle_deg[valid].astype(np.float64)
+            sigma, snr = result.sigma_deg[valid], result.snr_db[valid]
+        else:  # the usual case: every frame valid, nothing to pick
+            good = batch
+            angle = result.angle_deg.astype(np.float64)
+            sigma, snr = result.sigma_deg, result.snr_db
         parts = [released] if released is not None and len(released) else []
         epoch_ns = self.hasher.epoch_ns
-        first, last = int(good.t_ns.min()) // epoch_ns, int(good.t_ns.max()) // epoch_ns
+        times = good.t_ns.tolist()
+        first, last = min(times) // epoch_ns, max(times) // epoch_ns
         epochs = None if first == last else good.t_ns // epoch_ns
         distinct = [first] if epochs is None else np.unique(epochs).tolist()
-        angle = result.angle_deg[valid].astype(np.float64)
-        sigma, snr = result.sigma_deg[valid], result.snr_db[valid]
         for epoch in distinct:
             if epochs is None:  # the usual case: no copies
                 waiting = _Waiting(int(epoch), good, angle, sigma, snr)
@@ -217,7 +223,7 @@ class SensorPipeline:
                 self._hold(waiting)
                 self._raise_alarm(f"holding frames: {err}")
             return None
-        self.stats.emitters.update(np.unique(emitters).tolist())
+        self.stats.emitters.update(emitters.tolist())
         if self.alarm and ((holding and len(self._waiting) == 1) or not self._waiting):
             self.alarm = False
             log.warning(

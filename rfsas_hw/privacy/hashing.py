@@ -160,20 +160,28 @@ class MacHasher:
             NonceUnavailableError: no nonce for an epoch in the batch.
             DataFormatError: a MAC does not fit 48 bits, or the arrays differ in length.
         """
-        out = np.empty(len(macs), dtype=np.uint64)
-        if len(macs) == 0:
-            return out
-        if len(t_ns) != len(macs):
-            raise DataFormatError(f"{len(macs)} MACs but {len(t_ns)} capture times")
+        n = len(macs)
+        if n == 0:
+            return np.empty(0, dtype=np.uint64)
+        if len(t_ns) != n:
+            raise DataFormatError(f"{n} MACs but {len(t_ns)} capture times")
+        if n <= SMALL_BATCH:
+            # a live sensor's few frames: sorting costs more than it saves
+            mac_list = np.asarray(macs, dtype=np.uint64).tolist()
+            for i, mac in enumerate(mac_list):
+                if mac > MAC_MASK:
+                    # the row, not the value: the value is (part of) a MAC
+                    raise DataFormatError(f"MAC at row {i} does not fit 48 bits")
+            hash_one = self.hash_one
+            return np.array(
+                [hash_one(mac, t) for mac, t in zip(mac_list, t_ns.tolist(), strict=True)],
+                dtype=np.uint64,
+            )
+        out = np.empty(n, dtype=np.uint64)
         too_big = np.flatnonzero(np.asarray(macs, dtype=np.uint64) > np.uint64(MAC_MASK))
         if too_big.size:
             # the row, not the value: the value is (part of) a MAC
             raise DataFormatError(f"MAC at row {int(too_big[0])} does not fit 48 bits")
-        if len(macs) <= SMALL_BATCH:
-            # a live sensor's few frames: sorting costs more than it saves
-            for i, (mac, t) in enumerate(zip(macs.tolist(), t_ns.tolist(), strict=True)):
-                out[i] = self.hash_one(mac, t)
-            return out
         epochs = np.asarray(t_ns, dtype=np.int64) // self._epoch_ns
         for epoch in np.unique(epochs):
             sel = epochs == epoch

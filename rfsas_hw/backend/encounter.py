@@ -142,7 +142,8 @@ def assess_encounter(
     r0, w = x[:2] - pv, x[2:] - vv
     ww = float(w @ w)
     t_star = 0.0 if ww == 0 else min(max(-float(r0 @ w) / ww, 0.0), cfg.horizon_s)
-    J = np.hstack([np.eye(2), t_star * np.eye(2)])
+    z = t_star * 0.0  # what t_star·I has off its diagonal (-0.0 for t_star = -0.0)
+    J = np.array([[1.0, 0.0, t_star, z], [0.0, 1.0, z, t_star]])
     threat_xy = x[:2] + t_star * x[2:]
     threat_pos_cov = J @ P @ J.T
     threat_pos_cov = (threat_pos_cov + threat_pos_cov.T) / 2

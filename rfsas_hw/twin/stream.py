@@ -428,7 +428,10 @@ class StreamTwin(World):
             plan = self._plans.get(s.id)
             if plan is None:
                 plan = self._plans[s.id] = ScanPlan.from_spec(s.scan)
-            on = plan.channel_at(w["t"]) == w["channel"]
+            if plan.hopping:
+                on = plan.channel_at(w["t"]) == w["channel"]
+            else:  # one channel, listened to all the time (frame times are finite)
+                on = w["channel"] == plan.channels[0]
         rows = np.flatnonzero(hears & on)
         # the window is already in the offline order (time, then emitter)
         out = {k: v[rows] for k, v in w.items()}

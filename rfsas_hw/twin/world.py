@@ -180,11 +180,16 @@ class Receptions:
             rssi = self.chain_dbm[rows][:, [card]]
             state = self.chain_state[rows][:, [card]]
             t_ns = self.capture_ns[rows, card]
-        flags = np.where(
-            (state == CHAIN_SENTINEL).any(axis=1), np.uint16(ObsFlag.SENTINEL_CHAIN), np.uint16(0)
-        )
-        missing = state >= CHAIN_OMITTED  # omitted or not heard
-        flags |= np.where(missing.any(axis=1), np.uint16(ObsFlag.MISSING_CHAIN), np.uint16(0))
+        if not state.any():  # every chain present (CHAIN_PRESENT is 0): no flag to set
+            flags = np.zeros(len(state), np.uint16)
+        else:
+            flags = np.where(
+                (state == CHAIN_SENTINEL).any(axis=1),
+                np.uint16(ObsFlag.SENTINEL_CHAIN),
+                np.uint16(0),
+            )
+            missing = state >= CHAIN_OMITTED  # omitted or not heard
+            flags |= np.where(missing.any(axis=1), np.uint16(ObsFlag.MISSING_CHAIN), np.uint16(0))
         if card is None and self.n_cards > 1:
             flags |= np.uint16(ObsFlag.PAIRED)
         return ObservationBatch(

@@ -1,0 +1,46 @@
+"""The plain-float paths of stopping distance and impact speed equal the array paths bit for bit."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from rfsas_hw.backend.risk import BRAKE_DECEL_MPS2, impact_speed, stopping_distance
+from rfsas_hw.errors import BackendError
+
+
+def _same(a: float, b: float) -> bool:
+    return (a == b and math.copysign(1.0, a) == math.copysign(1.0, b)) or (
+        math.isnan(a) and math.isnan(b)
+    )
+
+
+def test_one_speed_in_floats_equals_the_array_path() -> None:
+    rng = np.random.default_rng(12)
+    edges = [(0.0, 0.0), (-0.0, -0.0), (1e-300, 1e-9), (13.9, -3.0), (30.0, 1e300), (5.0, 2.5)]
+    cases = edges + [(float(u), float(x)) for u, x in rng.uniform([0, -5], [40, 80], (3000, 2))]
+    for k, (u, x) in enumerate(cases):
+        decel = BRAKE_DECEL_MPS2 if k % 2 else float(rng.uniform(1.0, 9.0))
+        tau = (0.0, 0.2, 0.5, float(rng.uniform(0.0, 1.0)))[k % 4]
+        d = stopping_distance(u, decel, tau)
+        v = impact_speed(u, x, decel, tau)
+        assert type(d) is float and type(v) is float
+        assert _same(d, float(stopping_distance(np.array([u]), decel, tau)[0]))
+        assert _same(v, float(impact_speed(np.array([u]), np.array([x]), decel, tau)[0]))
+
+
+@pytest.mark.parametrize(
+    ("call", "message"),
+    [
+        (lambda: stopping_distance(-1.0), "speed must be"),
+        (lambda: impact_speed(math.nan, 1.0), "speed must be"),
+        (lambda: impact_speed(1.0, math.inf), "distance must be finite"),
+        (lambda: stopping_distance(1.0, 0.0), "braking deceleration"),
+        (lambda: impact_speed(1.0, 1.0, 2.0, -1.0), "reaction delay"),
+    ],
+)
+def test_one_speed_is_checked_as_an_array_is(call: object, message: str) -> None:
+    with pytest.raises(BackendError, match=message):
+        call()  # type: ignore[operator]

@@ -44,8 +44,8 @@ def segment_crossings(p0: Array, p1: Array, rects: Array) -> npt.NDArray[np.bool
         return np.zeros((n, m), dtype=bool)
     d = (p1 - p0)[:, None, :]
     o = p0[:, None, :]
-    lo = np.stack([rects[:, 0], rects[:, 2]], -1)[None, :, :]
-    hi = np.stack([rects[:, 1], rects[:, 3]], -1)[None, :, :]
+    lo = rects[None, :, [0, 2]]  # (1, m, 2): x_min, y_min
+    hi = rects[None, :, [1, 3]]
     with np.errstate(divide="ignore", invalid="ignore"):
         t1 = (lo - o) / d
         t2 = (hi - o) / d

@@ -85,6 +85,21 @@ def _merge_frames(
 
 _FEW_TRACKS = 4
 """Up to this many tracks are interpolated one by one (faster than side by side)."""
+_FEW_FRAMES = 32
+"""Up to this many frames, a window's emitters are told apart in plain integers."""
+
+
+def _unique_inverse(ids: npt.NDArray[np.intp]) -> tuple[list[int], npt.NDArray[np.intp]]:
+    """The distinct values of ``ids`` in increasing order and each row's index into
+    them: what ``np.unique(ids, return_inverse=True)`` gives, in plain integers for
+    a handful of rows (cheaper than its sort)."""
+    if len(ids) > _FEW_FRAMES:
+        uniq, inverse = np.unique(ids, return_inverse=True)
+        return uniq.tolist(), inverse.reshape(-1)
+    rows = ids.tolist()
+    uniq_ids = sorted(set(rows))
+    where = {e: k for k, e in enumerate(uniq_ids)}
+    return uniq_ids, np.array([where[e] for e in rows], np.intp)
 
 
 def _interp_tracks(
@@ -248,7 +263,16 @@ class LiveTrack:
 
     def position(self, t_s: npt.ArrayLike) -> Array:
         """Positions at times ``t_s``, shape ``(n, 2)`` (east, north), metres."""
-        return self.track().position(t_s)
+        n = self._n
+        if n < 2:
+            return self.track().position(t_s)
+        # what Track.position computes, on the knots themselves (no copy of them)
+        t = np.atleast_1d(np.asarray(t_s, dtype=np.float64))
+        ts = self._t[:n]
+        out = np.empty((len(t), 2))
+        out[:, 0] = np.interp(t, ts, self._x[:n])
+        out[:, 1] = np.interp(t, ts, self._y[:n])
+        return out
 
     def velocity(self, t_s: npt.ArrayLike) -> Array:
         """Velocities at times ``t_s``, shape ``(n, 2)``, m/s."""
@@ -473,9 +497,9 @@ class StreamTwin(World):
         """
         if not len(t_s):
             return np.empty((0, 2))
-        uniq, inverse = np.unique(emitter, return_inverse=True)
+        uniq_ids, inverse = _unique_inverse(emitter)
         knots: list[tuple[Array, Array, Array]] = []
-        for i in uniq.tolist():
+        for i in uniq_ids:
             track = self._carrier(i)
             if track is None:
                 pos = self.emitters[i].position

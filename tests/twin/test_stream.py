@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from rfsas_hw.errors import SimulationError
+from rfsas_hw.twin.motion import Track
 from rfsas_hw.twin.scenario import (
     EmitterSpec,
     MoverSpec,
@@ -16,7 +17,7 @@ from rfsas_hw.twin.scenario import (
     WaypointSpec,
     load_scenario,
 )
-from rfsas_hw.twin.stream import LiveTrack, StreamTwin, _interp_tracks
+from rfsas_hw.twin.stream import LiveTrack, StreamTwin, _interp_tracks, _unique_inverse
 from rfsas_hw.twin.world import Receptions, World
 
 CROSSING = Path(__file__).resolve().parents[2] / "examples" / "crossing.yaml"
@@ -149,6 +150,30 @@ def test_side_by_side_interpolation_is_np_interp_bit_for_bit() -> None:
         sel = track == u
         np.testing.assert_array_equal(got[sel, 0], np.interp(t[sel], ts, xs))
         np.testing.assert_array_equal(got[sel, 1], np.interp(t[sel], ts, ys))
+
+
+def test_few_frames_tell_emitters_apart_as_np_unique_does() -> None:
+    rng = np.random.default_rng(4)
+    for n in (0, 1, 2, 5, 32, 33, 200):
+        ids = rng.integers(0, 7, n).astype(np.intp)
+        uniq, inverse = _unique_inverse(ids)
+        want_u, want_inv = np.unique(ids, return_inverse=True)
+        assert uniq == want_u.tolist()
+        assert inverse.dtype == np.intp
+        np.testing.assert_array_equal(inverse, want_inv.reshape(-1))
+
+
+def test_live_track_positions_are_the_offline_tracks_bit_for_bit() -> None:
+    rng = np.random.default_rng(5)
+    live = LiveTrack()
+    ts = np.cumsum(rng.uniform(0.0, 0.2, 40))
+    ts[7] = ts[6]  # a repeated knot time
+    for k, t in enumerate(ts):
+        live.extend(float(t), float(rng.normal(0, 20)), float(rng.normal(0, 20)))
+        q = np.concatenate([rng.uniform(-0.5, t + 0.5, 50), ts[: k + 1]])
+        t_k, x_k, y_k = (a.copy() for a in live.knots())
+        np.testing.assert_array_equal(live.position(q), Track(t_k, x_k, y_k).position(q))
+    np.testing.assert_array_equal(live.position(1.0), Track(t_k, x_k, y_k).position(1.0))
 
 
 def test_other_seed_differs() -> None:

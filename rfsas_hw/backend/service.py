@@ -32,6 +32,7 @@ from typing import IO, Any, Protocol
 
 import numpy as np
 
+from rfsas_hw.angles import compass_to_math_rad
 from rfsas_hw.backend.association import AssociationConfig, Associator
 from rfsas_hw.backend.encounter import (
     Encounter,
@@ -472,8 +473,10 @@ class BackendService:
         if v is None or v.t_ns == 0:
             return v
         dt = max(now - v.t_ns, 0) / NS_PER_S
-        pos = v.position + v.velocity * dt
-        return replace(v, x_m=float(pos[0]), y_m=float(pos[1]), t_ns=now)
+        # position + velocity·dt, element by element in floats (the same operations)
+        a = compass_to_math_rad(v.heading_deg)
+        vx, vy = math.cos(a) * v.speed_mps, math.sin(a) * v.speed_mps
+        return replace(v, x_m=float(v.x_m + vx * dt), y_m=float(v.y_m + vy * dt), t_ns=now)
 
     def _assess(self, now: int) -> list[Assessment]:
         vehicle = self._vehicle_at(now)

@@ -66,7 +66,10 @@ class UniformLut:
         outside = ~((u >= 0.0) & (u <= np.float32(last)))
         cell = np.floor(u)
         frac = u - cell  # in [0, 1) for every finite input, inside the table or not
-        with np.errstate(invalid="ignore"):  # NaN inputs (flagged upstream) cast to garbage
+        if outside.any():
+            with np.errstate(invalid="ignore"):  # NaN inputs (flagged upstream) cast to garbage
+                i = cell.astype(np.int32)
+        else:  # every input inside the table: finite, nothing to silence
             i = cell.astype(np.int32)
         np.maximum(i, 0, out=i)
         np.minimum(i, last - 1, out=i)

@@ -275,11 +275,15 @@ class _LostError(Exception):
 class MqttTransport(Transport):
     """Sends and receives signed datagrams through an MQTT 5 broker.
 
-    One network thread per transport connects (and reconnects with backoff),
-    reads what the broker sends and keeps the connection alive; publishing
-    writes from the caller's thread, so a message leaves at once. Every socket
-    operation holds one lock, as a TLS connection must not be read and written
-    at the same time.
+    One network thread per transport connects (and reconnects with backoff) and
+    keeps the connection alive. A caller of :meth:`recv_from` reads the socket
+    itself (whole buffers, every packet in them), so a busy receiver does not
+    trade the interpreter lock with another thread for each message; the
+    network thread reads only while no caller has for :data:`CALLER_IDLE_S`
+    (acknowledgements, pings, and messages for a receiver busy elsewhere).
+    Publishing writes from the caller's thread, so a message leaves at once.
+    Every socket operation holds one lock, as a TLS connection must not be read
+    and written at the same time.
 
     Args:
         endpoint: the broker and options.
@@ -331,6 +335,10 @@ class MqttTransport(Transport):
         """QoS-1 publishes the broker takes unacknowledged (its CONNACK says)."""
         self._last_sent = time.monotonic()
         self._ping_sent = 0.0
+        self._caller_at = 0.0
+        """When a caller of recv_from last read or waited, monotonic seconds."""
+        self._lost_why = ""
+        """Set by a caller's read that found the connection lost, for the network thread."""
         self._last_error = "no answer"
         self._thread = threading.Thread(
             target=self._run, name=f"mqtt {endpoint.url()}", daemon=True
@@ -368,19 +376,27 @@ class MqttTransport(Transport):
                 delay = min(2.0 * delay, 8.0)
                 continue
             delay = 1.0
-            why = "closed"
             try:
                 self._serve()
             except _LostError as err:
-                why = str(err)
-                self._last_error = f"disconnected: {why}"
+                self._mark_lost(str(err) or "lost")
             finally:
                 self._drop()
             if not self._closed.is_set():
-                self.stats.disconnects += 1
-                if self.stats.disconnects == 1:
-                    log.warning("%s: lost the broker (%s); retrying", self.endpoint.url(), why)
                 self._closed.wait(delay)
+
+    def _mark_lost(self, why: str) -> None:
+        """Count and report a lost connection once, whichever thread found it."""
+        with self._ids:
+            if self._lost_why:
+                return
+            self._lost_why = why
+        self._connected.clear()
+        self._last_error = f"disconnected: {why}"
+        if not self._closed.is_set():
+            self.stats.disconnects += 1
+            if self.stats.disconnects == 1:
+                log.warning("%s: lost the broker (%s); retrying", self.endpoint.url(), why)
 
     def _open(self) -> None:
         """Connect, say CONNECT, wait for CONNACK and SUBACK (blocking, ``connect_s``).
@@ -427,6 +443,7 @@ class MqttTransport(Transport):
         sock.setblocking(False)
         with self._io:
             self._sock, self._reader = sock, reader
+            self._lost_why = ""
         self._last_sent = time.monotonic()
         self._ping_sent = 0.0
         self.stats.connects += 1
@@ -473,15 +490,32 @@ class MqttTransport(Transport):
         assert sock is not None
         pending = getattr(sock, "pending", None)
         while not self._closed.is_set():
+            if self._lost_why:
+                return
+            if time.monotonic() - self._caller_at < CALLER_IDLE_S:
+                # a caller is reading: stay out of its way (no lock trading per message)
+                self._closed.wait(CALLER_IDLE_S / 2)
+                self._keep_alive()
+                continue
             try:
-                ready, _, _ = select.select([sock], [], [], 0.25)
+                ready, _, _ = select.select([sock], [], [], CALLER_IDLE_S)
             except (OSError, ValueError) as err:  # closed under us
                 raise _LostError(str(err)) from None
             if ready or (pending is not None and pending()):
-                with self._io:
-                    packets = self._read_available(sock)
-                self._handle(packets)
+                self._read_and_handle(sock)
             self._keep_alive()
+
+    def _read_and_handle(self, sock: socket.socket) -> None:
+        """Read what the socket has and act on it (any thread).
+
+        Raises:
+            _LostError: the connection is lost.
+        """
+        with self._io:
+            if self._sock is not sock:
+                return
+            packets = self._read_available(sock)
+        self._handle(packets)
 
     def _read_available(self, sock: socket.socket) -> list[Packet]:
         out: list[Packet] = []
@@ -621,6 +655,16 @@ class MqttTransport(Transport):
         """A descriptor that is readable while received messages wait."""
         return self._wake_r.fileno()
 
+    def wait_fds(self) -> list[int]:
+        """The wake-up descriptor and, while connected, the broker socket: readable
+        when :meth:`recv_from` may have something."""
+        sock = self._sock
+        fds = [self._wake_r.fileno()]
+        if sock is not None:
+            with contextlib.suppress(OSError, ValueError):
+                fds.append(sock.fileno())
+        return [fd for fd in fds if fd >= 0]
+
     def send(self, datagram: bytes) -> None:
         """Publish ``datagram`` on the topic the contract gives it.
 
@@ -684,6 +728,7 @@ class MqttTransport(Transport):
                 if self._queue:
                     return self._queue.popleft()
             self._drain_wake()
+            self._caller_read()
             with self._qlock:
                 if self._queue:
                     return self._queue.popleft()
@@ -693,9 +738,28 @@ class MqttTransport(Transport):
             if not self._wait(left):
                 return None
 
+    def _caller_read(self) -> None:
+        """Read the socket from the caller's thread, if connected; a lost connection
+        is left to the network thread to notice and mend."""
+        self._caller_at = time.monotonic()
+        sock = self._sock
+        if sock is None:
+            return
+        try:
+            self._read_and_handle(sock)
+        except _LostError as err:
+            self._mark_lost(str(err) or "lost")
+            self._lose()
+
     def _wait(self, timeout: float | None) -> bool:
-        ready, _, _ = select.select([self._wake_r], [], [], timeout)
-        return bool(ready)
+        # wait in slices, so the network thread sees a caller present and stays away
+        fds = self.wait_fds()
+        slice_s = CALLER_IDLE_S / 2 if timeout is None else min(timeout, CALLER_IDLE_S / 2)
+        self._caller_at = time.monotonic()
+        ready, _, _ = select.select(fds, [], [], slice_s)
+        if ready:
+            return True
+        return timeout is None or timeout > slice_s
 
     def _drain_wake(self) -> None:
         with contextlib.suppress(OSError):
@@ -733,6 +797,9 @@ class MqttTransport(Transport):
 
 
 _NAMES = {wire.CONNACK: "CONNACK", wire.SUBACK: "SUBACK"}
+CALLER_IDLE_S = 0.1
+"""The network thread reads the socket only when no caller of ``recv_from`` has
+read or waited for this long, seconds."""
 
 
 def open_mqtt(url: str, mode: Literal["send", "recv"]) -> MqttTransport:

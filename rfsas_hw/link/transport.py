@@ -133,6 +133,11 @@ class Transport(ABC):
         """A descriptor that is readable while datagrams wait (for ``select``)."""
         raise LinkError(f"{type(self).__name__} cannot be waited on with select")
 
+    def wait_fds(self) -> list[int]:
+        """Every descriptor whose readability means :meth:`recv_from` may have
+        something (for ``select``); by default :meth:`fileno`."""
+        return [self.fileno()]
+
     def __enter__(self) -> Self:
         return self
 
@@ -290,7 +295,8 @@ class FanoutTransport(Transport):
             left = None if deadline is None else deadline - time.monotonic()
             if left is not None and left <= 0:
                 return None
-            ready, _, _ = select.select([t.fileno() for t in self._order], [], [], left)
+            fds = [fd for t in self._order for fd in t.wait_fds()]
+            ready, _, _ = select.select(fds, [], [], left)
             if not ready:
                 return None
 

@@ -17,12 +17,12 @@ machine counts as little as possible; wall time is printed too.
 
 Run: ``python bench/bench_bridge.py [STEPS]`` (needs the ``[sumo]`` extra).
 
-Measured with ``python bench/bench_bridge.py 60`` on a 2-core machine shared
-with two other jobs (load average 2.2): bundled crossing 2.78 ms per step
-(SUMO 0.014 ms), +100 entities 15.99 ms (SUMO 0.234 ms), about 0.14 ms more
-per extra entity. Before the batched backend and the one-pass twin the same
-command gave 5.41 ms and 97.6 ms (load average 0.2). docs/simulators.md §6
-has the table.
+Measured with ``python bench/bench_bridge.py 60`` on the 2-core development
+machine with nothing else running (load average 0.9): bundled crossing
+3.29 ms per step (SUMO 0.035 ms), +100 entities 24.86 ms (SUMO 0.238 ms),
+about 0.22 ms more per extra entity; over six runs in the same minutes
+3.0–4.3 ms and 24.9–29.0 ms, the goals not met. docs/simulators.md §6 has
+the table and an old-against-new comparison.
 """
 
 from __future__ import annotations

@@ -68,6 +68,7 @@ from rfsas_hw.link.keys import KeyStore
 from rfsas_hw.link.latency import LinkState
 from rfsas_hw.link.message import SafetyMessage
 from rfsas_hw.link.mqtt import open_mqtt
+from rfsas_hw.link.mqtt_wire import connect_packet, publish_packet
 from rfsas_hw.link.preauth import PreauthKeys, derive_key, seal
 from rfsas_hw.link.topics import Route, TopicRouter
 from rfsas_hw.link.transport import Transport, open_transport
@@ -216,23 +217,10 @@ def sensor_pose(i: int) -> Pose:
     return Pose(3000.0 * i, 0.0, 0.0)
 
 
-def _varint(n: int) -> bytes:
-    out = bytearray()
-    while True:
-        n, digit = n >> 7, n & 0x7F
-        out.append(digit | (0x80 if n else 0))
-        if not n:
-            return bytes(out)
-
-
-def _utf8(text: str) -> bytes:
-    raw = text.encode()
-    return len(raw).to_bytes(2, "big") + raw
-
-
 class LoadPublisher:
     """A load generator's MQTT 5 publisher: CONNECT over mutual TLS, then QoS-0
-    PUBLISH packets encoded once and written many per TLS record.
+    PUBLISH packets (the link client's encoder) encoded once and written many
+    per TLS record.
 
     Not a client for sensors (no reconnect, no keepalive, no reading): it stands in
     for sensors on other machines, so that the cores measured go to the broker and
@@ -248,9 +236,7 @@ class LoadPublisher:
         raw = socket.create_connection((files.host, files.port), timeout=10)
         raw.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
         self.sock = ctx.wrap_socket(raw, server_hostname=files.host)
-        body = b"\x00\x04MQTT\x05\x02" + (600).to_bytes(2, "big") + b"\x00"
-        body += _utf8(f"load-{ident}-{os.getpid()}")
-        self.sock.sendall(b"\x10" + _varint(len(body)) + body)
+        self.sock.sendall(connect_packet(f"load-{ident}-{os.getpid()}", 600))
         ack = self.sock.recv(64)
         if len(ack) < 4 or ack[0] != 0x20 or ack[3] != 0:
             raise RuntimeError(f"{ident}: broker refused the connection: {ack!r}")
@@ -258,8 +244,7 @@ class LoadPublisher:
     @staticmethod
     def packet(topic: str, payload: bytes) -> bytes:
         """One QoS-0 PUBLISH packet (no properties)."""
-        body = _utf8(topic) + b"\x00" + payload
-        return b"\x30" + _varint(len(body)) + body
+        return publish_packet(topic, payload)
 
     def write(self, packets: bytes) -> None:
         self.sock.sendall(packets)

@@ -39,7 +39,7 @@ from rfsas_hw.twin.motion import Track
 from rfsas_hw.twin.scan import ScanPlan
 from rfsas_hw.twin.scenario import Detail, EmitterSpec, Scenario, SensorSpec
 from rfsas_hw.twin.traffic import EmitterTraffic, Transmissions, traffic_streams
-from rfsas_hw.twin.world import Listening, ReceiverStreams, Receptions, World
+from rfsas_hw.twin.world import Listening, ReceiverStreams, Receptions, World, no_frames
 
 Array = npt.NDArray[np.float64]
 
@@ -47,16 +47,6 @@ __all__ = ["LiveTrack", "StreamTwin"]
 
 
 _COLUMNS = ("t", "emitter", "channel", "kind", "seq")
-
-
-def _no_frames() -> dict[str, npt.NDArray[Any]]:
-    return {
-        "t": np.empty(0),
-        "emitter": np.empty(0, np.intp),
-        "channel": np.empty(0, np.int16),
-        "kind": np.empty(0, np.uint8),
-        "seq": np.empty(0, np.int32),
-    }
 
 
 def _merge_frames(
@@ -332,7 +322,7 @@ class StreamTwin(World):
             EmitterTraffic(e.traffic, traffic_streams(seed, e.id, len(e.traffic)), start_s)
             for e in scenario.spec.emitters
         ]
-        self._frames = _no_frames()
+        self._frames = no_frames()
         """Generated frames of every emitter not yet heard by every sensor, in time order."""
         self._fresh: list[int] = list(range(len(self.emitters)))
         """Emitters whose traffic has not been generated up to the horizon yet."""

@@ -72,6 +72,30 @@ _FREQ_TABLE = np.zeros((len(TECH_CODES), 256), np.int32)
 """The same for channels 0–255 as an array (0: not met yet)."""
 
 
+def no_frames() -> dict[str, npt.NDArray[Any]]:
+    """The empty frame table (columns ``t``, ``emitter``, ``channel``, ``kind``, ``seq``)."""
+    return {
+        "t": np.empty(0),
+        "emitter": np.empty(0, np.intp),
+        "channel": np.empty(0, np.int16),
+        "kind": np.empty(0, np.uint8),
+        "seq": np.empty(0, np.int32),
+    }
+
+
+def _quantise_each(
+    values: npt.NDArray[np.float64], sensors: Sequence[SensorSpec], parts: Sequence[slice]
+) -> npt.NDArray[np.float64]:
+    """``values`` quantised to each sensor's driver step, sensor ``k`` owning rows
+    ``parts[k]``; in one call when every sensor has the same step."""
+    steps = {s.driver.step_db for s in sensors}
+    if len(steps) == 1:
+        return quantise_db(values, steps.pop())
+    for s, p in zip(sensors, parts, strict=True):
+        values[p] = quantise_db(values[p], s.driver.step_db)
+    return values
+
+
 def _frequency(code: int, channel: int) -> int:
     """Centre frequency (MHz) of ``channel`` of the technology with ``code``.
 
@@ -326,13 +350,7 @@ class World:
             parts["kind"].append(tx.kind[listening])
             parts["seq"].append(tx.seq[listening])
         if not parts["t"]:
-            return {
-                "t": np.empty(0),
-                "emitter": np.empty(0, np.intp),
-                "channel": np.empty(0, np.int16),
-                "kind": np.empty(0, np.uint8),
-                "seq": np.empty(0, np.int32),
-            }
+            return no_frames()
         out = {k: np.concatenate(v) for k, v in parts.items()}
         order = np.lexsort((out["emitter"], out["t"]))
         return {k: v[order] for k, v in out.items()}
@@ -498,12 +516,7 @@ class World:
         )
         reading = power + sigma * noise
         if physical:
-            steps = {s.driver.step_db for s in sensors}
-            if len(steps) == 1:
-                reading = quantise_db(reading, steps.pop())
-            else:
-                for s, p in zip(sensors, parts, strict=True):
-                    reading[p] = quantise_db(reading[p], s.driver.step_db)
+            reading = _quantise_each(reading, sensors, parts)
         reading = np.clip(reading, -127.0, 127.0)
         state = np.zeros((n, 2), np.uint8)
         heard_any = np.empty(n, bool)
@@ -542,12 +555,7 @@ class World:
                 for p in rows:
                     combined[p] = combine_chains(chain[p], how)
         if physical:
-            steps = {s.driver.step_db for s in sensors}
-            if len(steps) == 1:
-                combined = quantise_db(combined, steps.pop())
-            else:
-                for s, p in zip(sensors, parts, strict=True):
-                    combined[p] = quantise_db(combined[p], s.driver.step_db)
+            combined = _quantise_each(combined, sensors, parts)
         t_ns = self.t0_ns + np.round(t * 1e9).astype(np.int64)
         mac = self.emitter_macs[e_idx] if n else np.empty(0, np.uint64)
         kept = np.flatnonzero(heard_any)

@@ -756,7 +756,10 @@ class MqttTransport(Transport):
         fds = self.wait_fds()
         slice_s = CALLER_IDLE_S / 2 if timeout is None else min(timeout, CALLER_IDLE_S / 2)
         self._caller_at = time.monotonic()
-        ready, _, _ = select.select(fds, [], [], slice_s)
+        try:
+            ready, _, _ = select.select(fds, [], [], slice_s)
+        except (OSError, ValueError):  # the network thread closed the socket meanwhile
+            return True
         if ready:
             return True
         return timeout is None or timeout > slice_s

@@ -296,7 +296,10 @@ class FanoutTransport(Transport):
             if left is not None and left <= 0:
                 return None
             fds = [fd for t in self._order for fd in t.wait_fds()]
-            ready, _, _ = select.select(fds, [], [], left)
+            try:
+                ready, _, _ = select.select(fds, [], [], left)
+            except (OSError, ValueError):  # a broker socket closed while waiting: ask again
+                continue
             if not ready:
                 return None
 

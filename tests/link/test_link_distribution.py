@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import socket
 import threading
+import time
 from pathlib import Path
 
 import numpy as np
@@ -143,6 +144,13 @@ def test_cli_serve_and_listen(
     assert code == 2 and "not enrolled" in err
     code, _, err = run(capsys, "nonces", "serve", "--keys", auth_dir, "--to", url)
     assert code == 2 and "ID=udp://HOST:PORT" in err
+
+    # the listener holds the current and the next epoch's nonces; an epoch boundary
+    # during the next few seconds would add a third: start well inside an epoch
+    epoch_s = EpochSchedule().epoch_s
+    left_s = epoch_s - time.time() % epoch_s
+    if left_s < 5.0:
+        time.sleep(left_s + 0.1)
 
     # serve in the background while `listen` waits for its envelopes
     def serve() -> None:

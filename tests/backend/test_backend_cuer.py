@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from backendhelp import bearing_towards
 from click.testing import CliRunner
 from cryptography.hazmat.primitives.asymmetric import ec
 
@@ -154,19 +155,7 @@ def _late_rounds(url: str, stores: dict[str, KeyStore], age_s: float) -> None:
         for _ in range(20):
             now = time.time_ns() - shift
             for sid, pose in SENSORS.items():
-                d = TARGET - np.array([pose.x_m, pose.y_m])
-                az = math.degrees(math.atan2(d[0], d[1])) % 360.0
-                pubs[sid].on_bearings(
-                    BearingBatch(
-                        sid,
-                        np.array([now], np.int64),
-                        np.array([az]),
-                        np.array([1.0]),
-                        np.array([20.0]),
-                        np.array([11], np.int16),
-                        np.array([CLI_EMITTER], np.uint64),
-                    )
-                )
+                pubs[sid].on_bearings(bearing_towards(sid, pose, TARGET, CLI_EMITTER, now))
             time.sleep(0.1)
     finally:
         for pub in pubs.values():

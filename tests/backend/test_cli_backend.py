@@ -12,13 +12,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from backendhelp import bearing_towards
 from click.testing import CliRunner
 
-from rfsas_hw.angles import math_rad_to_compass
 from rfsas_hw.cli.backend import backend
 from rfsas_hw.link import Publisher, open_transport
 from rfsas_hw.link.keys import KeyStore
-from rfsas_hw.records import BearingBatch, Pose
+from rfsas_hw.records import Pose
 
 EMITTER = 0xC0FF_EE00_0000_0042
 TARGET = np.array([-6.0, 22.0])
@@ -48,19 +48,7 @@ def send_rounds(
             if feed is not None:
                 feed.send(VEHICLE_JSON)
             for sid, pose in SENSORS.items():
-                d = TARGET - np.array([pose.x_m, pose.y_m])
-                az = float(math_rad_to_compass(np.arctan2(d[1], d[0])))
-                pubs[sid].on_bearings(
-                    BearingBatch(
-                        sid,
-                        np.array([now], np.int64),
-                        np.array([az]),
-                        np.array([1.0]),
-                        np.array([20.0]),
-                        np.array([11], np.int16),
-                        np.array([EMITTER], np.uint64),
-                    )
-                )
+                pubs[sid].on_bearings(bearing_towards(sid, pose, TARGET, EMITTER, now))
             time.sleep(0.1)
     finally:
         for pub in pubs.values():

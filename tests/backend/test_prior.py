@@ -13,6 +13,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+from backendhelp import bearing_towards
 
 from rfsas_hw.angles import math_rad_to_compass
 from rfsas_hw.backend.prior import ActivityPrior, PriorConfig, PriorSink
@@ -252,19 +253,7 @@ def _send_signed(url: str, stores: dict[str, Any], emitter: int) -> None:
         for _ in range(20):
             now = time.time_ns()
             for sid, pose in poses.items():
-                d = np.array([-6.0, 22.0]) - np.array([pose.x_m, pose.y_m])
-                az = float(math_rad_to_compass(np.arctan2(d[1], d[0])))
-                pubs[sid].on_bearings(
-                    BearingBatch(
-                        sid,
-                        np.array([now], np.int64),
-                        np.array([az]),
-                        np.array([1.0]),
-                        np.array([20.0]),
-                        np.array([11], np.int16),
-                        np.array([emitter], np.uint64),
-                    )
-                )
+                pubs[sid].on_bearings(bearing_towards(sid, pose, (-6.0, 22.0), emitter, now))
             time.sleep(0.1)
     finally:
         for pub in pubs.values():

@@ -18,6 +18,7 @@ microseconds, and the tests hold it to pymap3d within 1e-9 degrees and 0.1 mm.
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -74,6 +75,22 @@ def _ecef_to_geodetic(
     return lat, lon, height
 
 
+@functools.lru_cache(maxsize=64)
+def _enu_frame(
+    lat_deg: float, lon_deg: float, height_m: float
+) -> tuple[float, float, float, tuple[tuple[float, float, float], ...]]:
+    """An origin in ECEF metres and its ENU → ECEF rotation (rows x, y, z), computed
+    once per origin."""
+    phi, lam = math.radians(lat_deg), math.radians(lon_deg)
+    sp, cp, sl, cl = math.sin(phi), math.cos(phi), math.sin(lam), math.cos(lam)
+    n = _WGS84_A / math.sqrt(1.0 - _E2 * sp * sp)
+    x0 = (n + height_m) * cp * cl
+    y0 = (n + height_m) * cp * sl
+    z0 = (n * (1.0 - _E2) + height_m) * sp
+    rot = ((-sl, -sp * cl, cp * cl), (cl, -sp * sl, cp * sl), (0.0, cp, sp))
+    return x0, y0, z0, rot
+
+
 @dataclass(frozen=True, slots=True)
 class SiteOrigin:
     """The geodetic point that local (0 m east, 0 m north, 0 m up) stands for."""
@@ -108,7 +125,7 @@ class SiteOrigin:
             np.asarray(north_m, dtype=np.float64),
             np.asarray(up_m, dtype=np.float64),
         )
-        x0, y0, z0, rot = self._frame()
+        x0, y0, z0, rot = _enu_frame(self.lat_deg, self.lon_deg, self.height_m)
         x = x0 + rot[0][0] * e + rot[0][1] * n + rot[0][2] * u
         y = y0 + rot[1][0] * e + rot[1][1] * n + rot[1][2] * u
         z = z0 + rot[2][0] * e + rot[2][1] * n + rot[2][2] * u
@@ -118,17 +135,6 @@ class SiteOrigin:
             np.asarray(lon, dtype=np.float64),
             np.asarray(h, dtype=np.float64),
         )
-
-    def _frame(self) -> tuple[float, float, float, tuple[tuple[float, float, float], ...]]:
-        """The origin in ECEF metres and the ENU → ECEF rotation (rows x, y, z)."""
-        phi, lam = math.radians(self.lat_deg), math.radians(self.lon_deg)
-        sp, cp, sl, cl = math.sin(phi), math.cos(phi), math.sin(lam), math.cos(lam)
-        n = _WGS84_A / math.sqrt(1.0 - _E2 * sp * sp)
-        x0 = (n + self.height_m) * cp * cl
-        y0 = (n + self.height_m) * cp * sl
-        z0 = (n * (1.0 - _E2) + self.height_m) * sp
-        rot = ((-sl, -sp * cl, cp * cl), (cl, -sp * sl, cp * sl), (0.0, cp, sp))
-        return x0, y0, z0, rot
 
     def to_local(
         self,

@@ -707,14 +707,16 @@ class MqttTransport(Transport):
         except OSError as err:
             self._pending.pop(packet_id, None)
             self.stats.send_errors += 1
-            self._lose()
+            self._lose(str(err))
             raise LinkError(
                 f"{self.endpoint.url()}: cannot publish to {route.topic}: {err}"
             ) from err
         self.stats.sent += 1
 
-    def _lose(self) -> None:
-        """After a failed write: shut the socket so the network thread reconnects."""
+    def _lose(self, why: str) -> None:
+        """A caller found the connection lost: count it, and shut the socket so the
+        network thread reconnects."""
+        self._mark_lost(why or "lost")
         with self._io:
             if self._sock is not None:
                 with contextlib.suppress(OSError):
@@ -748,8 +750,7 @@ class MqttTransport(Transport):
         try:
             self._read_and_handle(sock)
         except _LostError as err:
-            self._mark_lost(str(err) or "lost")
-            self._lose()
+            self._lose(str(err))
 
     def _wait(self, timeout: float | None) -> bool:
         # wait in slices, so the network thread sees a caller present and stays away

@@ -420,9 +420,11 @@ class Receiver:
             else:
                 # an enrolled sender's key for an accepted epoch: later datagrams of the
                 # same pair may be refused by the fast check in _fast_tag
-                if len(self._tag_keys) >= 4096:
-                    self._tag_keys.clear()
-                self._tag_keys[(head.sender_id.encode("ascii"), epoch)] = key
+                pair = (head.sender_id.encode("ascii"), epoch)
+                if pair not in self._tag_keys:
+                    if len(self._tag_keys) >= 4096:
+                        self._tag_keys.clear()
+                    self._tag_keys[pair] = key
                 if not tag_checked and not tag_ok(key, datagram):
                     raise _RejectError("bad_preauth", head.sender_id)
         elif not self.config.accept_v1:

@@ -175,6 +175,8 @@ def test_live_outputs_leak_no_mac(tmp_path: Path) -> None:
         reader.join(timeout=5)
     finally:
         ws.close()
+        # close() leaves the socket open once the server's close frame has been read
+        ws.shutdown()
         server.close()
         publisher.close()
     assert pipeline.stats.bearings > 500

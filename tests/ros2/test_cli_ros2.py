@@ -109,6 +109,8 @@ def foxglove_client(port: int, frames: list[tuple[str, bytes]], stop: threading.
                 frames.append((channels[sub], bytes(data[13:])))
     finally:
         ws.close()
+        # close() leaves the socket open once the server's close frame has been read
+        ws.shutdown()
 
 
 def test_backend_records_mcap_and_rosbag2_and_serves_foxglove(tmp_path: Path) -> None:

@@ -79,6 +79,8 @@ class Client:
         if self._thread is not None:
             self._thread.join(timeout=5)
         self.ws.close()
+        # close() leaves the socket open once the server's close frame has been read
+        self.ws.shutdown()
 
 
 class KeepOpen:

@@ -740,6 +740,35 @@ class MqttTransport(Transport):
             if not self._wait(left):
                 return None
 
+    def recv_many(
+        self, timeout: float | None = None, limit: int = 4096
+    ) -> list[tuple[bytes, str | None]]:
+        """Every queued message and its topic (at most ``limit``, in arrival order),
+        taken under one lock; waits up to ``timeout`` seconds for the first."""
+        deadline = None if timeout is None else time.monotonic() + timeout
+        while True:
+            out = self._take(limit)
+            if out:
+                return out
+            self._drain_wake()
+            self._caller_read()
+            out = self._take(limit)
+            if out:
+                return out
+            left = None if deadline is None else deadline - time.monotonic()
+            if (left is not None and left <= 0) or not self._wait(left):
+                return []
+
+    def _take(self, limit: int) -> list[tuple[bytes, str | None]]:
+        with self._qlock:
+            queue = self._queue
+            if len(queue) <= limit:
+                out: list[tuple[bytes, str | None]] = list(queue)
+                queue.clear()
+            else:
+                out = [queue.popleft() for _ in range(limit)]
+        return out
+
     def _caller_read(self) -> None:
         """Read the socket from the caller's thread, if connected; a lost connection
         is left to the network thread to notice and mend."""

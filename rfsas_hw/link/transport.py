@@ -129,6 +129,21 @@ class Transport(ABC):
         datagram = self.recv(timeout)
         return None if datagram is None else (datagram, None)
 
+    def recv_many(
+        self, timeout: float | None = None, limit: int = 4096
+    ) -> list[tuple[bytes, str | None]]:
+        """Everything queued, at most ``limit`` (datagram, topic) pairs in arrival
+        order, waiting up to ``timeout`` seconds for the first; empty after the
+        timeout. By default :meth:`recv_from` until it has nothing more."""
+        out: list[tuple[bytes, str | None]] = []
+        got = self.recv_from(timeout)
+        while got is not None:
+            out.append(got)
+            if len(out) >= limit:
+                break
+            got = self.recv_from(0)
+        return out
+
     def fileno(self) -> int:
         """A descriptor that is readable while datagrams wait (for ``select``)."""
         raise LinkError(f"{type(self).__name__} cannot be waited on with select")

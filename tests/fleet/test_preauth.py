@@ -133,7 +133,8 @@ def test_fast_refusal_gives_the_same_answers(signer: Signer, trust: TrustedKeys)
     assert r.feed(v2(signer, seq=1), NOW_NS) is not None  # the key of (rsu-1, epoch) is known
     forged = v2(signer, seq=2)[:-8] + bytes(8)
     assert r._fast_tag(forged, NOW_NS) is False
-    assert r._fast_tag(v2(signer, seq=3), NOW_NS) is True  # checked once, not again
+    # checked once, not again: the answer is the cached state of (sender, epoch)
+    assert r._fast_tag(v2(signer, seq=3), NOW_NS) not in (None, False)
     assert r.feed(forged, NOW_NS) is None
     assert r.feed(v2(signer, seq=3), NOW_NS) is not None
     # another epoch, another sender, a bad length: the full checks decide

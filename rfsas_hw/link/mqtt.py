@@ -75,6 +75,7 @@ from rfsas_hw.link.mqtt_wire import (
     reason_text,
     subscribe_packet,
 )
+from rfsas_hw.link.tls_stream import TlsStream
 from rfsas_hw.link.topics import (
     Route,
     TopicRouter,
@@ -318,7 +319,7 @@ class MqttTransport(Transport):
         self._keepalive_s = float(endpoint.keepalive_s)
         self._io = threading.Lock()
         """Held for every read and write of the socket."""
-        self._sock: socket.socket | None = None
+        self._sock: socket.socket | TlsStream | None = None
         self._reader = PacketReader()
         self._queue: deque[tuple[bytes, str]] = deque()
         self._qlock = threading.Lock()
@@ -408,10 +409,11 @@ class MqttTransport(Transport):
         """
         ep = self.endpoint
         raw = socket.create_connection((ep.host, ep.port), timeout=ep.connect_s)
+        sock: socket.socket | TlsStream
         try:
             # without this, a small message waits for the previous one's ACK (tens of ms)
             raw.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-            sock = raw if self._tls is None else self._tls.wrap_socket(raw, server_hostname=ep.host)
+            sock = raw if self._tls is None else TlsStream(raw, self._tls, ep.host, ep.connect_s)
         except BaseException:
             raw.close()
             raise
@@ -419,9 +421,7 @@ class MqttTransport(Transport):
             reader = PacketReader()
             deadline = time.monotonic() + ep.connect_s
             sock.sendall(connect_packet(self._client_id, int(self._keepalive_s)))
-            early = self._await(sock, reader, wire.CONNACK, deadline)
-            ack = early.pop()
-            assert isinstance(ack, Ack)
+            ack, early = self._await(sock, reader, wire.CONNACK, deadline)
             if ack.failed:
                 why = ack.properties.get(wire.PROP_REASON_STRING)
                 raise LinkError(
@@ -436,7 +436,7 @@ class MqttTransport(Transport):
             if self.subscriptions:
                 filters = [(t, 1 if "/nonce/" in t else 0) for t in self.subscriptions]
                 sock.sendall(subscribe_packet(self._packet_id(), filters))
-                early += self._await(sock, reader, wire.SUBACK, deadline)
+                early += self._await(sock, reader, wire.SUBACK, deadline)[1]
         except BaseException:
             sock.close()
             raise
@@ -451,16 +451,19 @@ class MqttTransport(Transport):
         self._connected.set()
 
     def _await(
-        self, sock: socket.socket, reader: PacketReader, kind: int, deadline: float
-    ) -> list[Packet]:
-        """Read until a packet of ``kind`` arrives; every packet so far, it last.
+        self, sock: socket.socket | TlsStream, reader: PacketReader, kind: int, deadline: float
+    ) -> tuple[Ack, list[Packet]]:
+        """Read until a packet of ``kind`` arrives: it, and every other packet read
+        meanwhile (before it, and after it in the same read, as retained messages
+        right behind a SUBACK), in order.
 
         Raises:
             LinkError: the broker closed the connection, sent nonsense, or took
                 longer than ``deadline``.
         """
         got: list[Packet] = []
-        while True:
+        found: Ack | None = None
+        while found is None:
             left = deadline - time.monotonic()
             if left <= 0:
                 raise LinkError(f"no {_NAMES[kind]} within {self.endpoint.connect_s:g} s")
@@ -472,13 +475,15 @@ class MqttTransport(Transport):
             if not data:
                 raise LinkError(f"the broker closed the connection before {_NAMES[kind]}")
             for packet in reader.feed(data):
-                if isinstance(packet, Ack) and packet.kind == kind:
+                if found is None and isinstance(packet, Ack) and packet.kind == kind:
                     if kind == wire.SUBACK:
                         self._count_suback(packet)
-                    return [*got, packet]
-                if isinstance(packet, Ack) and packet.kind == wire.DISCONNECT:
+                    found = packet
+                elif isinstance(packet, Ack) and packet.kind == wire.DISCONNECT:
                     raise LinkError(f"the broker disconnected: {reason_text(packet.reasons[0])}")
-                got.append(packet)
+                else:
+                    got.append(packet)
+        return found, got
 
     def _serve(self) -> None:
         """Read and keep alive until the connection is lost or the transport closed.
@@ -505,7 +510,7 @@ class MqttTransport(Transport):
                 self._read_and_handle(sock)
             self._keep_alive()
 
-    def _read_and_handle(self, sock: socket.socket) -> None:
+    def _read_and_handle(self, sock: socket.socket | TlsStream) -> None:
         """Read what the socket has and act on it (any thread).
 
         Raises:
@@ -517,7 +522,7 @@ class MqttTransport(Transport):
             packets = self._read_available(sock)
         self._handle(packets)
 
-    def _read_available(self, sock: socket.socket) -> list[Packet]:
+    def _read_available(self, sock: socket.socket | TlsStream) -> list[Packet]:
         out: list[Packet] = []
         for _ in range(64):  # then let writers in
             try:
@@ -648,8 +653,9 @@ class MqttTransport(Transport):
         return self._connected.is_set()
 
     def socket(self) -> socket.socket | None:
-        """The socket to the broker while connected (for inspection; do not read it)."""
-        return self._sock
+        """The TCP socket to the broker while connected (for inspection; do not read it)."""
+        sock = self._sock
+        return sock.raw if isinstance(sock, TlsStream) else sock
 
     def fileno(self) -> int:
         """A descriptor that is readable while received messages wait."""
@@ -743,16 +749,24 @@ class MqttTransport(Transport):
     def recv_many(
         self, timeout: float | None = None, limit: int = 4096
     ) -> list[tuple[bytes, str | None]]:
-        """Every queued message and its topic (at most ``limit``, in arrival order),
-        taken under one lock; waits up to ``timeout`` seconds for the first."""
+        """Every queued message and what the socket holds now, with topics (at most
+        ``limit``, in arrival order); waits up to ``timeout`` seconds for the first.
+
+        Reading the socket here, not only when the queue is empty, keeps the
+        broker's queue for this client short while the caller is busy checking a
+        batch (the network thread, which gets the interpreter lock only between
+        the caller's time slices, cannot keep up with a fast stream; a broker drops
+        messages for a client whose queue grows past its limit)."""
         deadline = None if timeout is None else time.monotonic() + timeout
         while True:
             out = self._take(limit)
-            if out:
-                return out
             self._drain_wake()
-            self._caller_read()
-            out = self._take(limit)
+            while len(out) < limit:
+                self._caller_read()
+                more = self._take(limit - len(out))
+                if not more:
+                    break
+                out += more
             if out:
                 return out
             left = None if deadline is None else deadline - time.monotonic()

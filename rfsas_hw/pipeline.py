@@ -25,7 +25,7 @@ import numpy as np
 import numpy.typing as npt
 
 from rfsas_hw.df.calibration import Calibration
-from rfsas_hw.df.estimate import DfFlag, estimate
+from rfsas_hw.df.estimate import DfFlag, DfResult, estimate
 from rfsas_hw.df.hybrid import phase_df_result
 from rfsas_hw.privacy.hashing import MacHasher, NonceExpiredError, NonceUnavailableError
 from rfsas_hw.records import BearingBatch, ObservationBatch, Pose
@@ -34,6 +34,10 @@ log = logging.getLogger(__name__)
 
 DEFAULT_HOLD_MAX = 200_000
 """Frames a pipeline holds at most while it waits for a nonce (about 10 MB)."""
+DF_MEMO_ROWS = 8
+"""Batches of at most this many frames look their DF results up reading pair by pair."""
+DF_MEMO_MAX = 1 << 14
+"""Reading pairs a pipeline remembers at most (then it starts over)."""
 
 
 @dataclass
@@ -76,6 +80,85 @@ def _to_compass(relative_deg: npt.NDArray[np.float64], boresight_deg: float) -> 
     operations, without its conversions)."""
     out = np.mod(relative_deg + boresight_deg, 360.0)
     return np.where(out >= 360.0, 0.0, out)
+
+
+class _DfMemo:
+    """DF results of single RSSI pairs, kept by (RSSI 1, RSSI 2, channel, one channel).
+
+    A driver reports RSSI in whole or half dB, so a sensor sees the same few
+    thousand pairs again and again, and :func:`estimate` works element by
+    element, so a pair's result is reused instead of running a few dozen
+    numpy calls on a handful of frames. What a pair gets can still depend on
+    its batch in one way: with one channel in the batch, ``db`` mode gives σ in
+    float64, with several the columns are float32 — so whether the batch had
+    one channel is part of the key, and each row keeps its columns' dtypes.
+    Pairs with a NaN are never kept. Pipelines of one calibration (the units of
+    one build) share a memo: :func:`_df_memo`.
+    """
+
+    def __init__(self, calibration: Calibration, min_snr_db: float | None) -> None:
+        self.calibration = calibration
+        self.min_snr_db = min_snr_db
+        self.channel_free = len(calibration.tables) == 1 and calibration.tables[0].channel is None
+        """One table for every channel: the channel never matters."""
+        self.rows: dict[tuple[float, float, int, bool], tuple[float, float, float, int, Any]] = {}
+        self._dtypes: dict[tuple[Any, ...], tuple[Any, ...]] = {}
+        """One tuple object per combination of column dtypes (compared by identity)."""
+
+    def estimate(self, batch: ObservationBatch) -> DfResult:
+        """:func:`estimate` of the batch's first two chains, bit for bit."""
+        rssi = batch.rssi_dbm
+        channels = batch.channel.tolist()
+        one = self.channel_free or min(channels) == max(channels)
+        keys = [(r[0], r[1], c, one) for r, c in zip(rssi.tolist(), channels, strict=True)]
+        rows = self.rows
+        got = [rows.get(k) for k in keys]
+        if any(g is None for g in got) or any(g[4] is not got[0][4] for g in got):  # type: ignore[index]
+            result = estimate(
+                self.calibration, rssi[:, 0], rssi[:, 1], batch.channel, min_snr_db=self.min_snr_db
+            )
+            if len(rows) + len(keys) > DF_MEMO_MAX:
+                rows.clear()
+            dtypes = (
+                result.angle_deg.dtype,
+                result.sigma_deg.dtype,
+                result.snr_db.dtype,
+                result.flags.dtype,
+            )
+            dtypes = self._dtypes.setdefault(dtypes, dtypes)
+            for k, a, s, q, f in zip(
+                keys,
+                result.angle_deg.tolist(),
+                result.sigma_deg.tolist(),
+                result.snr_db.tolist(),
+                result.flags.tolist(),
+                strict=True,
+            ):
+                if k[0] == k[0] and k[1] == k[1]:  # NaN never matches a key
+                    rows[k] = (a, s, q, f, dtypes)
+            return result
+        dtypes = got[0][4]  # type: ignore[index]
+        return DfResult(
+            np.array([g[0] for g in got], dtypes[0]),  # type: ignore[index]
+            np.array([g[1] for g in got], dtypes[1]),  # type: ignore[index]
+            np.array([g[2] for g in got], dtypes[2]),  # type: ignore[index]
+            np.array([g[3] for g in got], dtypes[3]),  # type: ignore[index]
+        )
+
+
+_MEMOS: dict[tuple[int, float | None], _DfMemo] = {}
+_MEMOS_MAX = 32
+
+
+def _df_memo(calibration: Calibration, min_snr_db: float | None) -> _DfMemo:
+    """The memo shared by pipelines with this calibration object and SNR floor."""
+    key = (id(calibration), min_snr_db)
+    memo = _MEMOS.get(key)
+    if memo is None or memo.calibration is not calibration:
+        if len(_MEMOS) >= _MEMOS_MAX:
+            _MEMOS.clear()
+        memo = _MEMOS[key] = _DfMemo(calibration, min_snr_db)
+    return memo
 
 
 @dataclass(slots=True)
@@ -125,6 +208,23 @@ class SensorPipeline:
         self.end_wait_s = 0.0
         """How long :meth:`finish` waits for missing nonces when the input ends, seconds."""
         self.alarm_reason = ""
+        self._memo: _DfMemo | None = None
+
+    def _estimate(self, batch: ObservationBatch) -> DfResult:
+        """DF of the batch's first two chains (a few frames through the memo)."""
+        rssi = batch.rssi_dbm
+        if len(batch) > DF_MEMO_ROWS:
+            return estimate(
+                self.calibration, rssi[:, 0], rssi[:, 1], batch.channel, min_snr_db=self.min_snr_db
+            )
+        memo = self._memo
+        if (
+            memo is None
+            or memo.calibration is not self.calibration
+            or memo.min_snr_db != self.min_snr_db
+        ):
+            memo = self._memo = _df_memo(self.calibration, self.min_snr_db)
+        return memo.estimate(batch)
 
     def process(self, batch: ObservationBatch) -> BearingBatch:
         """Valid bearings of ``batch``, in order, after any held frames whose nonce has
@@ -138,10 +238,7 @@ class SensorPipeline:
             if n:
                 self.stats.rejected["missing_chain"] += n
             return released if released is not None else BearingBatch.empty(self.sensor_id)
-        rssi = batch.rssi_dbm
-        result = estimate(
-            self.calibration, rssi[:, 0], rssi[:, 1], batch.channel, min_snr_db=self.min_snr_db
-        )
+        result = self._estimate(batch)
         if self.calibration.phase is not None and batch.csi is not None:
             # a CSI receiver with a phase calibration: interferometer bearings
             result = phase_df_result(self.calibration, batch, result)

@@ -342,6 +342,8 @@ class StreamTwin(World):
         self._ready: dict[str, tuple[float, float, Receptions]] = {}
         """Windows computed ahead by :meth:`prepare`, by sensor id."""
         self._hear_cache: dict[tuple[str, int], npt.NDArray[np.bool_]] = {}
+        self._trimmed_s = -math.inf
+        """Where the frames and knots were last trimmed, seconds."""
 
     # -- entities -------------------------------------------------------------------
 
@@ -452,6 +454,18 @@ class StreamTwin(World):
         out["row"] = rows
         return out
 
+    def _candidates_key(self, s: SensorSpec) -> tuple[bytes, int] | None:
+        """What :meth:`_candidates` of ``s`` depends on, when it is the technologies heard
+        and one fixed channel (sensors with equal keys get the same frames); else None."""
+        if s.id in self.listening:
+            return None
+        plan = self._plans.get(s.id)
+        if plan is None:
+            plan = self._plans[s.id] = ScanPlan.from_spec(s.scan)
+        if plan.hopping:
+            return None
+        return self._hears(s).tobytes(), int(plan.channels[0])
+
     def _hears(self, s: SensorSpec) -> npt.NDArray[np.bool_]:
         """Whether sensor ``s`` hears each emitter's technology (kept while emitters stay)."""
         key = (s.id, len(self.emitters))
@@ -537,8 +551,17 @@ class StreamTwin(World):
             self._trim()
 
     def _trim(self) -> None:
-        """Drop frames and knots every sensor is done with (once per new window end)."""
+        """Drop frames and knots every sensor is done with.
+
+        Only once the sensors have moved on by ``lookahead_s`` since the last
+        trim (at most that much more is kept): trimming every window cost a
+        copy of every frame column and of every track's knots per step, and
+        what is kept beyond the windows changes no frame.
+        """
         done = min(self.cursor_s.values(), default=self.generated_s)
+        if done < self._trimmed_s + self.lookahead_s:
+            return
+        self._trimmed_s = done
         f = self._frames
         if len(f["t"]) and f["t"][0] < done:
             cut = int(np.searchsorted(f["t"], done, side="left"))
@@ -617,7 +640,16 @@ class StreamTwin(World):
                 due.setdefault(cursor, []).append(self.scenario.sensor(sid))
         for t0_s, sensors in due.items():
             self._set_window(t0_s, t1_s)
-            items = [(s, self._candidates(s), self._rx[s.id]) for s in sensors]
+            shared: dict[tuple[bytes, int], dict[str, Any]] = {}
+            items = []
+            for s in sensors:
+                key = self._candidates_key(s)
+                c = shared.get(key) if key is not None else None
+                if c is None:
+                    c = self._candidates(s)
+                    if key is not None:
+                        shared[key] = c
+                items.append((s, c, self._rx[s.id]))
             for s, rec in zip(sensors, self._receive_many(items), strict=True):
                 self._ready[s.id] = (t0_s, t1_s, rec)
 

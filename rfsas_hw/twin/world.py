@@ -411,6 +411,40 @@ class World:
         )
         return np.asarray(table[inverse.reshape(-1)], np.int32)
 
+    def _sensor_poses(
+        self,
+        sensors: list[SensorSpec],
+        cands: list[dict[str, Any]],
+        counts: list[int],
+        parts: list[slice],
+    ) -> tuple[Array, Array]:
+        """:meth:`sensor_pose` of every sensor at its candidates' times, stacked.
+
+        Standing sensors' rows are repeated from one small table (the values
+        :meth:`sensor_pose` gives), so only sensors on a vehicle cost a lookup.
+        """
+        if len(sensors) == 1:
+            return self.sensor_pose(sensors[0], cands[0]["t"])
+        xy = np.repeat(
+            np.array(
+                [(s.pose.x_m, s.pose.y_m) if s.pose is not None else (0.0, 0.0) for s in sensors],
+                np.float64,
+            ),
+            counts,
+            axis=0,
+        )
+        heading = np.repeat(
+            np.array(
+                [s.pose.heading_deg % 360.0 if s.pose is not None else 0.0 for s in sensors],
+                np.float64,
+            ),
+            counts,
+        )
+        for s, c, p in zip(sensors, cands, parts, strict=True):
+            if s.pose is None:
+                xy[p], heading[p] = self.sensor_pose(s, c["t"])
+        return xy, heading
+
     def _receive(self, s: SensorSpec, c: dict[str, Any], rx: ReceiverStreams) -> Receptions:
         """What sensor ``s`` makes of the candidate frames ``c`` (time-sorted).
 
@@ -453,10 +487,12 @@ class World:
         threshold = each(
             [self._emitter_table(s)[2][c["emitter"]] for s, c in zip(sensors, cands, strict=True)]
         )
-        exy = each([self._frame_positions(c) for c in cands])
-        poses = [self.sensor_pose(s, c["t"]) for s, c in zip(sensors, cands, strict=True)]
-        sxy = each([p[0] for p in poses])
-        heading = each([p[1] for p in poses])
+        positions: dict[int, Array] = {}  # sensors with the same candidates share them
+        for c in cands:
+            if id(c) not in positions:
+                positions[id(c)] = self._frame_positions(c)
+        exy = each([positions[id(c)] for c in cands])
+        sxy, heading = self._sensor_poses(sensors, cands, counts, parts)
         delta = exy - sxy
         dist = np.hypot(delta[:, 0], delta[:, 1])
         azimuth = math_rad_to_compass(np.arctan2(delta[:, 1], delta[:, 0]))

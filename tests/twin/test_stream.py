@@ -306,3 +306,83 @@ def test_a_retired_emitter_sends_nothing_after_the_windows_asked_for() -> None:
     twin.retire_emitter(index, 0.8)
     later = twin.step(1.0)
     assert not any((rec.emitter == index).any() for rec in later.values())
+
+
+def _more_units() -> Scenario:
+    """The crossing with three more roadside units: two on channel 6 (they hear the same
+    frames as rsu-nw), one on channel 1 and one hopping (frames of their own)."""
+    import dataclasses
+
+    from rfsas_hw.twin.scenario import PoseSpec, ScanSpec
+
+    sc = load_scenario(CROSSING)
+    base = sc.sensor("rsu-nw")
+    extra = (
+        dataclasses.replace(base, id="rsu-se", pose=PoseSpec(9.0, -9.0, 320.0)),
+        dataclasses.replace(base, id="rsu-ne", pose=PoseSpec(9, 9, 220)),  # integer pose
+        dataclasses.replace(base, id="rsu-ch1", scan=ScanSpec(channels=(1,))),
+        dataclasses.replace(base, id="rsu-hop", scan=ScanSpec(channels=(1, 6), dwell_ms=50.0)),
+    )
+    spec = dataclasses.replace(sc.spec, sensors=(*sc.spec.sensors, *extra))
+    return Scenario(spec=spec, source=sc.source, base_dir=sc.base_dir)
+
+
+def test_units_that_hear_the_same_frames_share_them_and_get_what_they_get_alone(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    sc = _more_units()
+    world = World(sc)
+    alone, together = StreamTwin(sc), StreamTwin(sc)
+    calls: list[str] = []
+    original = StreamTwin._candidates
+
+    def counted(self: StreamTwin, s):  # type: ignore[no-untyped-def]
+        if self is together:
+            calls.append(s.id)
+        return original(self, s)
+
+    monkeypatch.setattr(StreamTwin, "_candidates", counted)
+    fed_a: dict[str, int] = {}
+    fed_b: dict[str, int] = {}
+    sids = [s.id for s in sc.spec.sensors]
+    heard = dict.fromkeys(sids, 0)
+    for k in range(1, 40):
+        t0, t1 = (k - 1) * 0.2, k * 0.2
+        _feed(alone, world, t1, fed_a)
+        _feed(together, world, t1, fed_b)
+        together.prepare(t1)
+        for sid in sids:
+            a = alone.receptions_between(sid, t0, t1)
+            b = together.receptions_between(sid, t0, t1)
+            heard[sid] += len(a)
+            for name in Receptions.__dataclass_fields__:
+                if name not in ("sensor_id", "n_cards"):
+                    got, want = getattr(b, name), getattr(a, name)
+                    assert got.dtype == want.dtype, name
+                    np.testing.assert_array_equal(got, want, err_msg=name)
+    assert all(v > 0 for v in heard.values()), heard
+    # per window: one selection for the three channel-6 units and the on-board unit
+    # (same technologies, same channel), one for channel 1, one for the hopping unit
+    assert set(calls) == {"rsu-nw", "rsu-ch1", "rsu-hop"}
+    assert len(calls) == 3 * 39
+
+
+@pytest.mark.parametrize("lookahead_s", [0.0, 0.35, 1.0])
+def test_frames_and_knots_are_trimmed_at_most_a_lookahead_behind(lookahead_s: float) -> None:
+    sc = load_scenario(CROSSING)
+    world = World(sc)
+    twin = StreamTwin(sc, lookahead_s=lookahead_s)
+    fed: dict[str, int] = {}
+    t1 = 0.0
+    while t1 < 8.0:
+        t1 = round(t1 + 0.1, 9)
+        _feed(twin, world, t1, fed)
+        twin.step(t1)
+        done = min(twin.cursor_s.values())
+        frames_t = twin._frames["t"]
+        if len(frames_t):
+            assert frames_t[0] >= done - lookahead_s - 0.1 - 1e-9
+        for live in twin.live.values():
+            if len(live) > 1:
+                # one knot before the trim time is kept
+                assert live.knots()[0][1] >= done - lookahead_s - 0.1 - 1e-9

@@ -14,6 +14,7 @@ positions of a moving emitter over a long stretch of time.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -139,9 +140,11 @@ class Associator:
         rows = order[last]
         self.stats.superseded += n - len(rows)
         sensor = batch.sensor_id
+        emitters, times = batch.emitter.tolist(), batch.t_ns.tolist()
+        azimuths, sigmas = batch.azimuth_deg.tolist(), batch.sigma_deg.tolist()
         for i in rows.tolist():
-            emitter = int(batch.emitter[i])
-            t_ns = int(batch.t_ns[i])
+            emitter = emitters[i]
+            t_ns = times[i]
             per_sensor = self._latest.setdefault(emitter, {})
             old = per_sensor.get(sensor)
             if old is not None:
@@ -150,8 +153,8 @@ class Associator:
                     continue
             per_sensor[sensor] = _Latest(
                 t_ns,
-                float(batch.azimuth_deg[i]),
-                float(batch.sigma_deg[i]),
+                azimuths[i],
+                sigmas[i],
                 pose.x_m,
                 pose.y_m,
             )
@@ -197,16 +200,18 @@ class Associator:
         self.stats.groups += len(chosen)
         B = len(chosen)
         N = max((len(m) for _, _, m in chosen), default=self.config.min_sensors)
-        stations = np.zeros((B, N, 2))
-        az = np.full((B, N), np.nan)
-        sig = np.ones((B, N))
-        bt = np.zeros((B, N), np.int64)
-        for r, (_, _, members) in enumerate(chosen):
-            for c, (_, b) in enumerate(members):
-                stations[r, c] = (b.x_m, b.y_m)
-                az[r, c] = b.azimuth_deg
-                sig[r, c] = b.sigma_deg
-                bt[r, c] = b.t_ns
+        # rows as lists, padded (station 0, 0; azimuth NaN; sigma 1; time 0), one array each
+        xy_rows, az_rows, sig_rows, t_rows = [], [], [], []
+        for _, _, members in chosen:
+            pad = N - len(members)
+            xy_rows.append([(b.x_m, b.y_m) for _, b in members] + [(0.0, 0.0)] * pad)
+            az_rows.append([b.azimuth_deg for _, b in members] + [math.nan] * pad)
+            sig_rows.append([b.sigma_deg for _, b in members] + [1.0] * pad)
+            t_rows.append([b.t_ns for _, b in members] + [0] * pad)
+        stations = np.array(xy_rows, np.float64).reshape(B, N, 2)
+        az = np.array(az_rows, np.float64).reshape(B, N)
+        sig = np.array(sig_rows, np.float64).reshape(B, N)
+        bt = np.array(t_rows, np.int64).reshape(B, N)
         return BearingGroups(
             emitter=np.array([e for e, _, _ in chosen], np.uint64),
             t_ns=np.array([t for _, t, _ in chosen], np.int64),

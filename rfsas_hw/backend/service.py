@@ -440,18 +440,26 @@ class BackendService:
         emitters = groups.emitter.tolist()
         times = groups.t_ns.tolist()
         gdop, condition = batch.gdop.tolist(), batch.condition.tolist()
+        # every column as Python numbers once (the values float() gives row by row)
+        positions, covs = batch.position.tolist(), batch.covariance.tolist()
+        statuses, reasons = batch.statuses(), batch.reasons()
         out = []
         for i, emitter in enumerate(emitters):
-            fix = _fix_record(
-                emitter,
-                times[i],
-                groups.sensors[i],
-                batch.position[i],
-                batch.covariance[i],
-                FixStatus(int(batch.status[i])),
-                batch.reason(i),
-                gdop[i],
-                condition[i],
+            cov = covs[i]
+            fix = Fix(
+                t_ns=times[i],
+                emitter=emitter_hex(emitter),
+                x_m=positions[i][0],
+                y_m=positions[i][1],
+                cov_xx_m2=cov[0][0],
+                cov_xy_m2=cov[0][1],
+                cov_yy_m2=cov[1][1],
+                ok=statuses[i] is FixStatus.OK,
+                status=statuses[i].name.lower(),
+                reason=reasons[i],
+                sensors=groups.sensors[i],
+                gdop=gdop[i],
+                condition=condition[i],
             )
             self.stats.fixes[fix.status] += 1
             self.fixes[emitter] = fix

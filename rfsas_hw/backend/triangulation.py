@@ -77,6 +77,10 @@ class FixStatus(enum.IntEnum):
     """Gauss-Newton hit its iteration cap before the step became small."""
 
 
+_STATUSES = {int(v): v for v in FixStatus}
+"""Each status by its number."""
+
+
 @dataclass(frozen=True, slots=True)
 class TriangulationOptions:
     """Tuning of :func:`triangulate_batch`.
@@ -206,6 +210,28 @@ class TriangulationBatch:
             float(self.chi2_limit[i]),
             int(self.iterations[i]),
         )
+
+    def statuses(self) -> list[FixStatus]:
+        """Every row's status as a :class:`FixStatus`."""
+        return [_STATUSES[v] for v in self.status.tolist()]
+
+    def reasons(self) -> list[str]:
+        """:meth:`reason` of every row (the columns turned into Python numbers once)."""
+        return [
+            _reason(_STATUSES[st], n, g, c, rf, res, chi2, lim, it)
+            for st, n, g, c, rf, res, chi2, lim, it in zip(
+                self.status.tolist(),
+                self.n_bearings.tolist(),
+                self.gdop.tolist(),
+                self.condition.tolist(),
+                self.range_fraction.tolist(),
+                self.max_residual_deg.tolist(),
+                self.chi2.tolist(),
+                self.chi2_limit.tolist(),
+                self.iterations.tolist(),
+                strict=True,
+            )
+        ]
 
     def __getitem__(self, i: int) -> Triangulation:
         status = FixStatus(int(self.status[i]))
@@ -539,8 +565,14 @@ _SCALAR_ROWS = 10
 """When this few fixes are still iterating, :func:`triangulate_batch` finishes them in floats."""
 
 
+_SHORT_ROW = 8
+"""Rows shorter than this are summed by numpy left to right from the first element (from
+eight elements on, its pairwise summation adds in eight lanes)."""
+
+
 def _sum(values: list[float]) -> float:
-    """Sum in numpy's order for a short row (left to right from the first element)."""
+    """Sum in numpy's order for a short row (left to right from the first element; rows of
+    :data:`_SHORT_ROW` or more elements can differ from numpy's sum in the last bit)."""
     total = values[0]
     for v in values[1:]:
         total += v
@@ -560,6 +592,22 @@ def _row_geometry(
         d2.append(dx * dx + dy * dy)
         r.append(np.pi - ((np.pi - (phi - p0)) % two_pi))
     return phi0, d2, r
+
+
+def _row_cost(
+    px: float, py: float, xs: list[float], ys: list[float], phis: list[float], ws: list[float]
+) -> float:
+    """:func:`_cost` of one row in floats: ``_sum`` of w·r² with :func:`_row_geometry`'s r."""
+    two_pi = 2 * np.pi
+    total = 0.0
+    first = True
+    for x, y, phi, w in zip(xs, ys, phis, ws, strict=True):
+        v = np.pi - ((np.pi - (phi - math.atan2(py - y, px - x))) % two_pi)
+        if first:
+            total, first = w * v * v, False
+        else:
+            total += w * v * v
+    return total
 
 
 def _iterate_row(
@@ -609,11 +657,21 @@ def _iterate_row(
             _, _, rt = _row_geometry(tx, ty, xs, ys, phis)
             if _sum([w * v * v for w, v in zip(ws, rt, strict=True)]) <= limit:
                 cx, cy, accepted = tx, ty, True
+            elif len(xs) < _SHORT_ROW:
+                # the halvings the batch path tries at once, in its order: the first
+                # that lowers the cost wins (the same trial points, 2^-k exact)
+                for k in range(1, options.max_halvings + 1):
+                    alpha = 0.5**k
+                    tx, ty = px + alpha * sx, py + alpha * sy
+                    if _row_cost(tx, ty, xs, ys, phis, ws) <= limit:
+                        cx, cy, accepted = tx, ty, True
+                        break
             elif options.max_halvings:
-                # every halving at once, as the batch path tries them
-                alpha = 0.5 ** np.arange(1, options.max_halvings + 1)
-                trials = np.stack([px + alpha * sx, py + alpha * sy], axis=-1)
-                H = len(alpha)
+                # a long row: numpy sums it in another order than _sum, so its costs
+                # come from the array code itself
+                alphas = 0.5 ** np.arange(1, options.max_halvings + 1)
+                trials = np.stack([px + alphas * sx, py + alphas * sy], axis=-1)
+                H = len(alphas)
                 costs = _cost(
                     trials,
                     np.broadcast_to(np.stack([xs, ys], axis=-1), (H, len(xs), 2)),
@@ -662,6 +720,18 @@ def _resid_one(
     # same wrap as wrap_rad_pi: into (−π, π]
     r = [math.pi - ((math.pi - (p - q)) % two_pi) for p, q in zip(phis, phi0, strict=True)]
     return phi0, d2, r
+
+
+def _trial_cost(
+    px: float, py: float, xs: list[float], ys: list[float], phis: list[float], ws: list[float]
+) -> float:
+    """``sum(w·r²)`` with :func:`_resid_one`'s residuals, without its lists."""
+    two_pi = 2 * math.pi
+    total = 0.0
+    for x, y, phi, w in zip(xs, ys, phis, ws, strict=True):
+        v = math.pi - ((math.pi - (phi - math.atan2(py - y, px - x))) % two_pi)
+        total += w * v * v
+    return total
 
 
 def _info_one(phi0: list[float], d2: list[float], ws: list[float]) -> tuple[float, float, float]:
@@ -755,19 +825,17 @@ def _triangulate_one(
         cost0 = sum(w * v * v for w, v in zip(ws, r, strict=True))
         alpha = 1.0
         accepted = False
+        limit = cost0 * (1 + 1e-12) + 1e-300
         for _ in range(options.max_halvings + 1):
             tx, ty = px + alpha * sx, py + alpha * sy
-            trial = _resid_one(tx, ty, xs, ys, phis)
-            if sum(w * v * v for w, v in zip(ws, trial[2], strict=True)) <= (
-                cost0 * (1 + 1e-12) + 1e-300
-            ):
+            if _trial_cost(tx, ty, xs, ys, phis, ws) <= limit:
                 accepted = True
                 break
             alpha /= 2
         moved = math.hypot(tx - px, ty - py) if accepted else 0.0
         if accepted:
             px, py = tx, ty
-            geo = trial
+            geo = _resid_one(tx, ty, xs, ys, phis)  # the same numbers the trial had
         converged = moved < options.tolerance_m or not accepted
     phi0, d2, r = geo
     d2 = [max(d, 1e-12) for d in d2]

@@ -98,7 +98,9 @@ class TlsStream:
                 data = self._tls.read(_READ)
             except ssl.SSLWantReadError:
                 break
-            except ssl.SSLZeroReturnError:  # the peer's close_notify
+            except (ssl.SSLZeroReturnError, ssl.SSLEOFError):
+                # the peer's close_notify, or the connection closed without one (read
+                # as the end, like SSLSocket's default suppress_ragged_eofs)
                 self._eof = True
                 break
             if not data:

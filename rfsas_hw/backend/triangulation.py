@@ -630,9 +630,12 @@ def _iterate_row(
     """
     iterations = 0
     converged = False
+    # the geometry at the current point: an accepted full step's trial geometry is kept
+    geo: tuple[list[float], list[float], list[float]] | None = None
     for _ in range(passes):
         iterations += 1
-        phi0, d2, r = _row_geometry(px, py, xs, ys, phis)
+        phi0, d2, r = geo if geo is not None else _row_geometry(px, py, xs, ys, phis)
+        geo = None
         d2 = [max(d, 1e-12) for d in d2]
         c = [math.cos(v) for v in phi0]
         s = [math.sin(v) for v in phi0]
@@ -654,9 +657,10 @@ def _iterate_row(
         cx, cy = px, py
         if not accepted:
             tx, ty = px + sx, py + sy
-            _, _, rt = _row_geometry(tx, ty, xs, ys, phis)
-            if _sum([w * v * v for w, v in zip(ws, rt, strict=True)]) <= limit:
+            trial = _row_geometry(tx, ty, xs, ys, phis)
+            if _sum([w * v * v for w, v in zip(ws, trial[2], strict=True)]) <= limit:
                 cx, cy, accepted = tx, ty, True
+                geo = trial
             elif len(xs) < _SHORT_ROW:
                 # the halvings the batch path tries at once, in its order: the first
                 # that lowers the cost wins (the same trial points, 2^-k exact)

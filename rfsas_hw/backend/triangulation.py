@@ -636,23 +636,31 @@ def _iterate_row(
         iterations += 1
         phi0, d2, r = geo if geo is not None else _row_geometry(px, py, xs, ys, phis)
         geo = None
-        d2 = [max(d, 1e-12) for d in d2]
-        c = [math.cos(v) for v in phi0]
-        s = [math.sin(v) for v in phi0]
-        wd = [w / d for w, d in zip(ws, d2, strict=True)]
-        mu = _sum([a * b * b for a, b in zip(wd, c, strict=True)])
-        lam = _sum([a * b * b for a, b in zip(wd, s, strict=True)])
-        nu = _sum([a * b * e for a, b, e in zip(wd, s, c, strict=True)])
+        # μ, λ, ν, the gradient and the cost in one pass, each summed as _sum sums
+        # (left to right from the first column), term by term as the arrays have it
+        mu = lam = nu = g1 = g2 = cost = 0.0
+        for k, (p0, dd, v, w) in enumerate(zip(phi0, d2, r, ws, strict=True)):
+            dd = max(dd, 1e-12)
+            c, s = math.cos(p0), math.sin(p0)
+            wd = w / dd
+            q = math.sqrt(dd)
+            if k:
+                mu += wd * c * c
+                lam += wd * s * s
+                nu += wd * s * c
+                g1 += w * (-s) * v / q
+                g2 += w * c * v / q
+                cost += w * v * v
+            else:
+                mu, lam, nu = wd * c * c, wd * s * s, wd * s * c
+                g1, g2, cost = w * (-s) * v / q, w * c * v / q, w * v * v
         det = mu * lam - nu * nu
-        root = [math.sqrt(d) for d in d2]
-        g1 = _sum([w * (-a) * v / q for w, a, v, q in zip(ws, s, r, root, strict=True)])
-        g2 = _sum([w * a * v / q for w, a, v, q in zip(ws, c, r, root, strict=True)])
         det_safe = det if det > 0 else math.nan
         sx, sy = (mu * g1 + nu * g2) / det_safe, (nu * g1 + lam * g2) / det_safe
         bad = not (math.isfinite(sx) and math.isfinite(sy))
         if bad:
             sx = sy = 0.0
-        limit = _sum([w * v * v for w, v in zip(ws, r, strict=True)]) * (1 + 1e-12) + 1e-300
+        limit = cost * (1 + 1e-12) + 1e-300
         accepted = bad
         cx, cy = px, py
         if not accepted:

@@ -259,6 +259,34 @@ def _names_other(topic: str, sender_id: str) -> bool:
     return named is not None and named != sender_id
 
 
+class _Pending:
+    """A message that passed every check before its signature."""
+
+    __slots__ = ("datagram", "head", "key")
+
+    def __init__(self, datagram: bytes, head: Peeked, key: ec.EllipticCurvePublicKey) -> None:
+        self.datagram = datagram
+        self.head = head
+        self.key = key
+
+
+class _Deferred:
+    """A copy of a message admitted earlier in the same batch: checked in full once
+    that one is settled, so that it meets the replay checks as it would one by one."""
+
+
+DEFERRED = _Deferred()
+
+
+class _DeferError(Exception):
+    pass
+
+
+_BATCH = 64
+"""Messages admitted before their signatures are checked together: the CPU's caches
+then hold the signature code, not the checks around it, for a run of them."""
+
+
 class _RejectError(Exception):
     def __init__(self, reason: str, detail: str = "") -> None:
         super().__init__(detail or reason)
@@ -370,32 +398,86 @@ class Receiver:
         self, datagram: bytes, now_ns: int, shed: bool = False, topic: str | None = None
     ) -> VerifiedMessage | None:
         self.stats.datagrams += 1
+        pending = self._admit(datagram, now_ns, shed, topic)
+        if not isinstance(pending, _Pending):
+            return None
+        return self._settle(pending, now_ns, self._verify(pending))
+
+    def _admit(
+        self,
+        datagram: bytes,
+        now_ns: int,
+        shed: bool,
+        topic: str | None,
+        staged: set[tuple[str, int, int]] | None = None,
+    ) -> _Pending | _Deferred | None:
+        """Every check before the signature (steps 1 and 2 of the module docstring).
+        The datagram, its header and the sender's key when they pass; None when it
+        is rejected (counted) or was a nonce envelope. With ``staged`` (the
+        (sender, seq, generation time) of messages admitted earlier in a batch whose
+        signature is not checked yet): :data:`DEFERRED` for a copy of one of them,
+        to be checked in full after it. Never raises."""
         known = self._fast_tag(datagram, now_ns) if self._tag_keys else None
         if known is False:
             self.stats.rejected["bad_preauth"] += 1
             return None
         try:
             if known is None:
-                verified = self._check(bytes(datagram), now_ns, shed, topic)
-            elif self.fast_path:
-                verified = self._check_known(bytes(datagram), now_ns, shed, topic, known)
-            else:
-                verified = self._check(bytes(datagram), now_ns, shed, topic, True)
+                return self._check(bytes(datagram), now_ns, shed, topic, staged=staged)
+            if self.fast_path:
+                return self._check_known(bytes(datagram), now_ns, shed, topic, known, staged)
+            return self._check(bytes(datagram), now_ns, shed, topic, True, staged)
+        except _DeferError:
+            return DEFERRED
         except (_RejectError, MessageFormatError) as rej:
-            self.stats.rejected[rej.reason] += 1
-            if log.isEnabledFor(logging.DEBUG):
-                log.debug("rejected %d-byte datagram: %s (%s)", len(datagram), rej.reason, rej)
+            self._count_rejection(rej.reason, rej, datagram)
+        except Exception:
+            self._count_internal_error(datagram)
+        return None
+
+    def _verify(self, pending: _Pending) -> bool | None:
+        """The signature check of an admitted message (step 3), timed for shedding;
+        None when the check itself failed (a bug: :meth:`_settle` counts it)."""
+        body, signature = signed_part(pending.datagram)
+        started = time.perf_counter()
+        try:
+            valid: bool | None = verify(pending.key, body, signature)
+        except Exception:
+            valid = None
+        self._verify_s += time.perf_counter() - started
+        return valid
+
+    def _settle(self, pending: _Pending, now_ns: int, valid: bool | None) -> VerifiedMessage | None:
+        """Steps 3 to 5 for an admitted message whose signature was found ``valid`` or
+        not (None: its check failed): the verified message, or None (rejected,
+        counted). Never raises."""
+        datagram = pending.datagram
+        try:
+            if valid is None:
+                raise RuntimeError("the signature check failed")
+            if not valid:
+                raise _RejectError("bad_signature", pending.head.sender_id)
+            verified = self._accept(datagram, pending.head, now_ns)
+        except (_RejectError, MessageFormatError) as rej:
+            self._count_rejection(rej.reason, rej, datagram)
             return None
         except Exception:
-            self.stats.rejected["internal_error"] += 1
-            if self.stats.rejected["internal_error"] == 1:
-                log.exception("receiver check failed on a %d-byte datagram", len(datagram))
+            self._count_internal_error(datagram)
             return None
-        if verified is not None:
-            self.stats.verified += 1
-            self.stats.bearings += len(verified.message.bearings)
-            self.latency.observe(verified.sender_id, verified.age_s, now_ns, verified.message.seq)
+        self.stats.verified += 1
+        self.stats.bearings += len(verified.message.bearings)
+        self.latency.observe(verified.sender_id, verified.age_s, now_ns, verified.message.seq)
         return verified
+
+    def _count_rejection(self, reason: str, why: Exception, datagram: bytes) -> None:
+        self.stats.rejected[reason] += 1
+        if log.isEnabledFor(logging.DEBUG):
+            log.debug("rejected %d-byte datagram: %s (%s)", len(datagram), reason, why)
+
+    def _count_internal_error(self, datagram: bytes) -> None:
+        self.stats.rejected["internal_error"] += 1
+        if self.stats.rejected["internal_error"] == 1:
+            log.exception("receiver check failed on a %d-byte datagram", len(datagram))
 
     def _check(
         self,
@@ -404,7 +486,8 @@ class Receiver:
         shed: bool,
         topic: str | None = None,
         tag_checked: bool = False,
-    ) -> VerifiedMessage | None:
+        staged: set[tuple[str, int, int]] | None = None,
+    ) -> _Pending | None:
         cfg = self.config
         head = peek(datagram, cfg.max_datagram)  # MessageFormatError is a rejection too
         if head.kind == TYPE_NONCE:
@@ -419,22 +502,14 @@ class Receiver:
         key = self.trust.signing_key(head.sender_id)
         if key is None:
             raise _RejectError("unknown_sender", head.sender_id)
-        self._preauthenticate(datagram, head, now_ns, tag_checked)
+        self._preauthenticate(datagram, head, now_ns, tag_checked, staged)
         if shed:
             raise _RejectError("overload", head.sender_id)
-        return self._verify_and_accept(datagram, head, key, now_ns)
+        return _Pending(datagram, head, key)
 
-    def _verify_and_accept(
-        self, datagram: bytes, head: Peeked, key: ec.EllipticCurvePublicKey, now_ns: int
-    ) -> VerifiedMessage:
-        """The signature, then relevance and replay (steps 3 to 5 of the module docstring)."""
+    def _accept(self, datagram: bytes, head: Peeked, now_ns: int) -> VerifiedMessage:
+        """Relevance and replay of a message with a valid signature (steps 4 and 5)."""
         cfg = self.config
-        body, signature = signed_part(datagram)
-        started = time.perf_counter()
-        valid = verify(key, body, signature)
-        self._verify_s += time.perf_counter() - started
-        if not valid:
-            raise _RejectError("bad_signature", head.sender_id)
         msg = decode_peeked(datagram, head)
         now_us = now_ns // NS_PER_US
         age_us = now_us - msg.t_gen_us
@@ -450,8 +525,14 @@ class Receiver:
         return VerifiedMessage(msg, now_ns, age_us / US_PER_S)
 
     def _check_known(
-        self, datagram: bytes, now_ns: int, shed: bool, topic: str | None, known: _Known
-    ) -> VerifiedMessage | None:
+        self,
+        datagram: bytes,
+        now_ns: int,
+        shed: bool,
+        topic: str | None,
+        known: _Known,
+        staged: set[tuple[str, int, int]] | None = None,
+    ) -> _Pending | None:
         """:meth:`_check` for a version-2 safety message whose tag :meth:`_fast_tag`
         found right under the cached key of its (sender, epoch): the same checks in
         the same order, without parsing what that check already established. Any
@@ -472,23 +553,30 @@ class Receiver:
                 and _names_other(topic, sender)
             )
         ):
-            return self._check(datagram, now_ns, shed, topic, True)
+            return self._check(datagram, now_ns, shed, topic, True, staged)
         key = self.trust.signing_key(sender)
         if key is None or self.preauth is None or self.preauth.key_for(sender, known.epoch) is None:
-            return self._check(datagram, now_ns, shed, topic, True)
+            return self._check(datagram, now_ns, shed, topic, True, staged)
         t_gen_us, seq = _GEN_SEQ.unpack_from(datagram, known.fixed_at)
         fresh = now_ns // NS_PER_US - t_gen_us <= self.config.max_age_s * US_PER_S
         if fresh and self.replay.seen(sender, seq, t_gen_us):
             raise _RejectError("replay", f"{sender} seq {seq} (copy)")
+        if staged is not None and (sender, seq, t_gen_us) in staged:
+            raise _DeferError
         if not self.limiter.allow(sender):
             raise _RejectError("rate_limited", sender)
         if shed:
             raise _RejectError("overload", sender)
         head = Peeked(TYPE_SAFETY, sender, datagram[known.fixed_at + 32], VERSION_PREAUTH)
-        return self._verify_and_accept(datagram, head, key, now_ns)
+        return _Pending(datagram, head, key)
 
     def _preauthenticate(
-        self, datagram: bytes, head: Peeked, now_ns: int, tag_checked: bool = False
+        self,
+        datagram: bytes,
+        head: Peeked,
+        now_ns: int,
+        tag_checked: bool = False,
+        staged: set[tuple[str, int, int]] | None = None,
     ) -> None:
         """The cheap checks before the signature: pre-authentication tag (unless
         ``tag_checked``: :meth:`_fast_tag` found it right), exact copies of verified
@@ -524,6 +612,9 @@ class Receiver:
         fresh = now_ns // NS_PER_US - t_gen_us <= self.config.max_age_s * US_PER_S
         if fresh and self.replay.seen(head.sender_id, seq, t_gen_us):
             raise _RejectError("replay", f"{head.sender_id} seq {seq} (copy)")
+        if staged is not None and (head.sender_id, seq, t_gen_us) in staged:
+            # a copy of a message whose signature is not checked yet: decide after it
+            raise _DeferError
         if not self.limiter.allow(head.sender_id):
             raise _RejectError("rate_limited", head.sender_id)
 
@@ -608,6 +699,10 @@ class Receiver:
         if overloaded:
             queued.reverse()
         self._verify_s = 0.0
+        if not overloaded and self.fast_path:
+            out = self._check_batch(queued)
+            self.latency.poll(self.clock())
+            return out
         shed = False
         clock = self.clock
         for i, (item, topic) in enumerate(queued):
@@ -619,6 +714,43 @@ class Receiver:
         if overloaded:
             out.reverse()
         self.latency.poll(self.clock())
+        return out
+
+    def _check_batch(self, queued: list[tuple[bytes, str | None]]) -> list[VerifiedMessage]:
+        """Check ``queued`` (not overloaded: nothing is shed) in runs of :data:`_BATCH`:
+        the checks before the signature for each message of a run in order, then
+        the signatures, then the checks after them in order. Each message meets
+        the same checks in the same order as one at a time; a copy of a message
+        of the same run waits until that one is settled and is then checked in full."""
+        out: list[VerifiedMessage] = []
+        clock = self.clock
+        stats = self.stats
+        for start in range(0, len(queued), _BATCH):
+            admitted: list[tuple[_Pending | tuple[bytes, str | None], int]] = []
+            staged: set[tuple[str, int, int]] = set()
+            for item, topic in queued[start : start + _BATCH]:
+                now_ns = clock()
+                stats.datagrams += 1
+                pending = self._admit(item, now_ns, False, topic, staged)
+                if isinstance(pending, _Pending):
+                    t_gen_us, seq, _ = header_epoch(pending.datagram, pending.head)
+                    staged.add((pending.head.sender_id, seq, t_gen_us))
+                    admitted.append((pending, now_ns))
+                elif pending is DEFERRED:
+                    admitted.append(((item, topic), now_ns))
+            valid = [self._verify(p) if isinstance(p, _Pending) else None for p, _ in admitted]
+            for (entry, now_ns), ok in zip(admitted, valid, strict=True):
+                if isinstance(entry, _Pending):
+                    verified = self._settle(entry, now_ns, ok)
+                else:
+                    again = self._admit(entry[0], now_ns, False, entry[1])
+                    verified = (
+                        self._settle(again, now_ns, self._verify(again))
+                        if isinstance(again, _Pending)
+                        else None
+                    )
+                if verified is not None:
+                    out.append(verified)
         return out
 
     def counters(self) -> dict[str, int]:

@@ -77,15 +77,30 @@ def verify(public_key: ec.EllipticCurvePublicKey, data: bytes, signature: bytes)
     """True when ``signature`` (64-byte ``r ‖ s``) is a valid signature of ``data``."""
     if len(signature) != SIGNATURE_BYTES:
         return False
-    r = int.from_bytes(signature[:_HALF], "big")
-    s = int.from_bytes(signature[_HALF:], "big")
-    if r == 0 or s == 0:
+    der = der_signature(signature)
+    if der is None:
         return False
     try:
-        public_key.verify(encode_dss_signature(r, s), data, _ECDSA)
+        public_key.verify(der, data, _ECDSA)
     except InvalidSignature:
         return False
     return True
+
+
+def der_signature(signature: bytes) -> bytes | None:
+    """The DER form ``cryptography`` takes of a 64-byte ``r ‖ s`` signature, or None
+    when r or s is zero (never valid)."""
+    r, s = signature[:_HALF], signature[_HALF:SIGNATURE_BYTES]
+    if r[0] and s[0]:
+        # the usual case, built directly: no leading zero bytes to strip, a 0x00 in
+        # front of a first byte with its top bit set (DER integers are signed)
+        der_r = (b"\x02\x21\x00" + r) if r[0] & 0x80 else (b"\x02\x20" + r)
+        der_s = (b"\x02\x21\x00" + s) if s[0] & 0x80 else (b"\x02\x20" + s)
+        return b"\x30" + bytes((len(der_r) + len(der_s),)) + der_r + der_s
+    r_int, s_int = int.from_bytes(r, "big"), int.from_bytes(s, "big")
+    if r_int == 0 or s_int == 0:
+        return None
+    return encode_dss_signature(r_int, s_int)
 
 
 class SenderKeys(Protocol):

@@ -7,11 +7,14 @@ a time."""
 from __future__ import annotations
 
 import os
+import random
 import struct
 import sys
 from pathlib import Path
+from typing import Any
 
 import pytest
+from cryptography.hazmat.primitives.asymmetric.utils import encode_dss_signature
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "link"))
 
@@ -20,6 +23,7 @@ from linkhelp import NOW_NS, SCHEDULE, key, message
 from rfsas_hw.link import Receiver, ReceiverConfig, Signer, TrustedKeys
 from rfsas_hw.link.message import SIGNATURE_BYTES, VERSION_PREAUTH, encode_body
 from rfsas_hw.link.preauth import PreauthKeys, TagKey, derive_key, make_tag, seal
+from rfsas_hw.link.signing import der_signature
 from rfsas_hw.link.transport import Transport
 from rfsas_hw.privacy.hashing import FixedNonce
 
@@ -161,17 +165,41 @@ class Queued(Transport):
         pass
 
 
-@pytest.mark.parametrize("shed", [False, True])
-def test_batch_receive_decides_as_one_at_a_time(shed: bool) -> None:
+def batch_corpus() -> list[tuple[bytes, str | None]]:
+    """The corpus, copies of some of its messages later in the same run (of a
+    verified one, a forged one, a stale one), and enough more for several runs."""
     items = corpus()
-    cfg: dict[str, object] = {"backlog": 4, "shed_after_s": 0.0} if shed else {}
+    items += [items[0], items[9], items[15], items[0]]
+    items += [(sealed(S2, seq), "rfsas/v1/bearing/rsu-2/3") for seq in range(100, 190)]
+    items += [items[-1], items[3]]
+    return items
+
+
+@pytest.mark.parametrize("shed", [False, True])
+@pytest.mark.parametrize(
+    "cfg", [{}, {"accept_v1": False}, {"sender_burst": 30.0, "sender_rate_hz": 1e-3}]
+)
+def test_batch_receive_decides_as_one_at_a_time(shed: bool, cfg: dict[str, object]) -> None:
+    items = batch_corpus()
+    if shed:
+        cfg = {**cfg, "backlog": 4, "shed_after_s": 0.0}
     fast = receiver(True, Queued(items), **cfg)
     full = receiver(False, Queued(items), **cfg)
+    batches = {"n": 0}
+    check_batch = fast._check_batch
+
+    def counting(queued: list[tuple[bytes, str | None]]) -> list[object]:
+        batches["n"] += 1
+        return check_batch(queued)  # type: ignore[return-value]
+
+    fast._check_batch = counting  # type: ignore[method-assign,assignment]
     a = [(v.sender_id, v.message.seq) for v in fast.receive(0, max_datagrams=len(items))]
     b = [(v.sender_id, v.message.seq) for v in full.receive(0, max_datagrams=len(items))]
     assert a == b and a
     assert fast.stats.as_dict() == full.stats.as_dict()
     assert ("overload" in fast.stats.rejected) == shed
+    assert batches["n"] == (0 if shed else 1)  # shedding keeps the one-at-a-time order
+    assert shed or fast.stats.rejected["replay"] >= 4
 
 
 def test_recv_many_takes_at_most_the_limit_in_order() -> None:
@@ -198,3 +226,48 @@ def test_prepared_tag_key_gives_the_hmac_tags(size: int) -> None:
 def test_hand_made_helper_edits_only_the_named_byte() -> None:
     made = hand_made(S1, 3, 4, 1)
     assert struct.unpack_from(">2sBBB", made) == (b"RF", VERSION_PREAUTH, 1, 1)
+
+
+def test_der_signature_is_the_library_encoding() -> None:
+    rng = random.Random(7)
+    cases = [bytes(rng.getrandbits(8) for _ in range(64)) for _ in range(3000)]
+    for first_r, first_s in ((0x00, 0x00), (0x00, 0x80), (0x80, 0x00), (0x7F, 0xFF), (0x01, 0x80)):
+        base = bytearray(rng.getrandbits(8) for _ in range(64))
+        base[0], base[32] = first_r, first_s
+        cases.append(bytes(base))
+    cases += [
+        bytes(64),
+        bytes(32) + b"\1" * 32,
+        b"\1" * 32 + bytes(32),
+        bytes(31) + b"\x80" + b"\xff" * 32,
+    ]
+    for sig in cases:
+        r, s = int.from_bytes(sig[:32], "big"), int.from_bytes(sig[32:], "big")
+        want = None if r == 0 or s == 0 else encode_dss_signature(r, s)
+        assert der_signature(sig) == want, sig.hex()
+
+
+def test_copies_in_one_batch_cost_no_signature_check(monkeypatch: pytest.MonkeyPatch) -> None:
+    import rfsas_hw.link.receiver as receiver_module
+
+    checks = {"n": 0}
+    real = receiver_module.verify
+
+    def counting(*args: Any) -> bool:
+        checks["n"] += 1
+        return real(*args)
+
+    monkeypatch.setattr(receiver_module, "verify", counting)
+    forged = bytearray(sealed(S1, 41)[:-8])
+    forged[-3] ^= 1
+    insider = bytes(forged) + make_tag(derive_key(NONCE, "rsu-1"), bytes(forged))
+    items = [(sealed(S1, 40), T1)] * 30 + [(insider, T1)] * 3
+    counts = []
+    for fast in (True, False):
+        checks["n"] = 0
+        rx = receiver(fast, Queued(items))
+        assert len(rx.receive(0)) == 1
+        counts.append((checks["n"], rx.stats.as_dict()))
+    # one check for the valid message (its copies are replays), one per forged copy
+    assert counts[0] == counts[1]
+    assert counts[0][0] == 1 + 3

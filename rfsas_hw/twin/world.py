@@ -20,6 +20,7 @@ Levels of detail (method.md §10):
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
@@ -468,7 +469,7 @@ class World:
         sensors = [s for s, _, _ in items]
         cands = [c for _, c, _ in items]
         counts = [len(c["t"]) for c in cands]
-        bounds = np.concatenate([[0], np.cumsum(counts)]).tolist()
+        bounds = [0, *itertools.accumulate(counts)]
         parts = [slice(bounds[k], bounds[k + 1]) for k in range(len(items))]
 
         def cat(name: str) -> npt.NDArray[Any]:
@@ -619,7 +620,7 @@ class World:
         }
         if len(kept) < n:
             shared = {name: v[kept] for name, v in shared.items()}
-        kept_bounds = np.searchsorted(kept, bounds).tolist()
+        kept_bounds = bounds if len(kept) == n else np.searchsorted(kept, bounds).tolist()
         jitter_us_all = [s.driver.delivery_jitter_us if physical else 0.0 for s in sensors]
         if one_card:
             # drawn for every candidate frame, heard or not, as the streams require

@@ -688,6 +688,13 @@ class Receiver:
         message out; a flood of forged signatures delays valid messages by at most
         the budget instead of by the whole socket queue.
 
+        Otherwise they are checked in arrival order, in runs of up to 64: the
+        checks before the signature for each message of a run, then the run's
+        signatures, then the checks after them. Every message meets the same
+        checks in the same order as with :meth:`feed`, and a copy of a message of
+        the same run is checked after that one is settled (so it costs no
+        signature check when that one was verified).
+
         Raises:
             LinkError: the receiver has no transport.
         """

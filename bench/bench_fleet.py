@@ -90,6 +90,8 @@ NONCE = bytes(range(32))
 N_SENSORS = 8
 ECDSA_SHA256 = ec.ECDSA(hashes.SHA256())
 SENDER_PROCS = 2
+LOAD_TICK_S = 0.005
+"""How often a load process writes what its sensors have due, seconds."""
 
 
 class UdpPublishing:
@@ -306,9 +308,10 @@ def _sender(
     total = len(batches[0][1])
     k = 0
     while k < total:
+        # a write every LOAD_TICK_S: a sensor's packets of that time in one TLS record
+        time.sleep(LOAD_TICK_S)
         due = min(total, int((time.perf_counter() - t0) * rate) + 1)
         if due <= k:
-            time.sleep(0.001)
             continue
         for tx, packets in batches:
             with contextlib.suppress(OSError):

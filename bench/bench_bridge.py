@@ -18,11 +18,11 @@ machine counts as little as possible; wall time is printed too.
 Run: ``python bench/bench_bridge.py [STEPS]`` (needs the ``[sumo]`` extra).
 
 Measured with ``python bench/bench_bridge.py 60`` on the 2-core development
-machine with nothing else running (load average 0.9): bundled crossing
-3.29 ms per step (SUMO 0.035 ms), +100 entities 24.86 ms (SUMO 0.238 ms),
-about 0.22 ms more per extra entity; over six runs in the same minutes
-3.0–4.3 ms and 24.9–29.0 ms, the goals not met. docs/simulators.md §6 has
-the table and an old-against-new comparison.
+machine with nothing else running (load average 1.3): bundled crossing
+1.82 ms per step (SUMO 0.008 ms), +100 entities 12.38 ms (SUMO 0.211 ms),
+about 0.11 ms more per extra entity; over five runs in the same minutes
+1.78–1.96 ms and 11.6–13.8 ms, both goals met. docs/simulators.md §6 has
+the table and what a step costs.
 """
 
 from __future__ import annotations

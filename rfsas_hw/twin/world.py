@@ -84,6 +84,47 @@ def no_frames() -> dict[str, npt.NDArray[Any]]:
     }
 
 
+_LAYOUTS_MAX = 64
+"""How many :class:`_Layout` a world keeps (sensor sets × frame counts) before starting over."""
+
+
+class _Layout:
+    """Per-sensor constants of one :meth:`World._receive_many` call, repeated over its rows.
+
+    Sensor ``k`` owns ``counts[k]`` rows. The arrays are what the call would
+    build (same dtypes and values) and are read-only: callers compute from
+    them or copy them.
+    """
+
+    def __init__(
+        self, sensors: Sequence[SensorSpec], counts: list[int], rxs: Sequence[ReceiverStreams]
+    ) -> None:
+        self.sensors = list(sensors)  # keeps the ids in the cache key alive
+        self.rxs = list(rxs)
+        self.xy = np.repeat(
+            np.array(
+                [(s.pose.x_m, s.pose.y_m) if s.pose is not None else (0.0, 0.0) for s in sensors],
+                np.float64,
+            ),
+            counts,
+            axis=0,
+        )
+        self.heading = np.repeat(
+            np.array(
+                [s.pose.heading_deg % 360.0 if s.pose is not None else 0.0 for s in sensors],
+                np.float64,
+            ),
+            counts,
+        )
+        self.offsets = np.repeat(
+            np.array([s.antenna.chain_offsets_db for s in sensors], np.float64), counts, axis=0
+        )
+        self.clock0 = np.repeat([rx.tsft0_us[0] for rx in rxs], counts)[:, None]
+        self.rate = np.repeat([rx.drift[0] for rx in rxs], counts)[:, None]
+        for a in (self.xy, self.heading, self.offsets, self.clock0, self.rate):
+            a.flags.writeable = False
+
+
 def _quantise_each(
     values: npt.NDArray[np.float64], sensors: Sequence[SensorSpec], parts: Sequence[slice]
 ) -> npt.NDArray[np.float64]:
@@ -303,6 +344,7 @@ class World:
         }
         self._cache: dict[str, Receptions] = {}
         self._tables: dict[tuple[str, int], tuple[npt.NDArray[np.uint8], Array, Array]] = {}
+        self._layouts: dict[tuple[object, ...], _Layout] = {}
 
     # -- geometry -----------------------------------------------------------------
 
@@ -416,35 +458,37 @@ class World:
         self,
         sensors: list[SensorSpec],
         cands: list[dict[str, Any]],
-        counts: list[int],
         parts: list[slice],
+        layout: _Layout | None,
     ) -> tuple[Array, Array]:
         """:meth:`sensor_pose` of every sensor at its candidates' times, stacked.
 
-        Standing sensors' rows are repeated from one small table (the values
-        :meth:`sensor_pose` gives), so only sensors on a vehicle cost a lookup.
+        Standing sensors' rows are a copy of ``layout``'s (the values
+        :meth:`sensor_pose` gives, repeated), so only sensors on a vehicle cost
+        a lookup. ``layout`` may be None for one sensor only.
         """
-        if len(sensors) == 1:
+        if len(sensors) == 1 or layout is None:
             return self.sensor_pose(sensors[0], cands[0]["t"])
-        xy = np.repeat(
-            np.array(
-                [(s.pose.x_m, s.pose.y_m) if s.pose is not None else (0.0, 0.0) for s in sensors],
-                np.float64,
-            ),
-            counts,
-            axis=0,
-        )
-        heading = np.repeat(
-            np.array(
-                [s.pose.heading_deg % 360.0 if s.pose is not None else 0.0 for s in sensors],
-                np.float64,
-            ),
-            counts,
-        )
+        xy, heading = layout.xy.copy(), layout.heading.copy()
         for s, c, p in zip(sensors, cands, parts, strict=True):
             if s.pose is None:
                 xy[p], heading[p] = self.sensor_pose(s, c["t"])
         return xy, heading
+
+    def _layout(
+        self, items: Sequence[tuple[SensorSpec, dict[str, Any], ReceiverStreams]], counts: list[int]
+    ) -> _Layout:
+        """The per-sensor constants of :meth:`_receive_many` for these sensors and frame
+        counts, built once per such combination (consecutive windows usually repeat it)."""
+        key = (tuple(id(s) for s, _, _ in items), tuple(id(rx) for _, _, rx in items), *counts)
+        layout = self._layouts.get(key)
+        if layout is None:
+            if len(self._layouts) >= _LAYOUTS_MAX:
+                self._layouts.clear()
+            layout = self._layouts[key] = _Layout(
+                [s for s, _, _ in items], counts, [rx for _, _, rx in items]
+            )
+        return layout
 
     def _receive(self, s: SensorSpec, c: dict[str, Any], rx: ReceiverStreams) -> Receptions:
         """What sensor ``s`` makes of the candidate frames ``c`` (time-sorted).
@@ -493,7 +537,8 @@ class World:
             if id(c) not in positions:
                 positions[id(c)] = self._frame_positions(c)
         exy = each([positions[id(c)] for c in cands])
-        sxy, heading = self._sensor_poses(sensors, cands, counts, parts)
+        layout = self._layout(items, counts) if len(items) > 1 else None
+        sxy, heading = self._sensor_poses(sensors, cands, parts, layout)
         delta = exy - sxy
         dist = np.hypot(delta[:, 0], delta[:, 1])
         azimuth = math_rad_to_compass(np.arctan2(delta[:, 1], delta[:, 0]))
@@ -528,8 +573,11 @@ class World:
             fade = np.zeros((n, 2))
         power = (pt - pl - rf.margin_db - block)[:, None] + gains + fade
         if physical:
-            offsets = np.array([s.antenna.chain_offsets_db for s in sensors], np.float64)
-            power = power + np.repeat(offsets, counts, axis=0)
+            if layout is not None:
+                power = power + layout.offsets
+            else:
+                offsets = np.array([s.antenna.chain_offsets_db for s in sensors], np.float64)
+                power = power + np.repeat(offsets, counts, axis=0)
         snr = power - threshold[:, None]
         sigma = np.empty((n, 2))
         floors = {s.driver.measurement_floor_db for s in sensors}
@@ -630,8 +678,11 @@ class World:
                     for (_, _, rx), k, jitter in zip(items, counts, jitter_us_all, strict=True)
                 ]
             )
-            clock0 = np.repeat([rx.tsft0_us[0] for _, _, rx in items], counts)[:, None]
-            rate = np.repeat([rx.drift[0] for _, _, rx in items], counts)[:, None]
+            if layout is not None:
+                clock0, rate = layout.clock0, layout.rate
+            else:
+                clock0 = np.repeat([rx.tsft0_us[0] for _, _, rx in items], counts)[:, None]
+                rate = np.repeat([rx.drift[0] for _, _, rx in items], counts)[:, None]
             cards = {
                 "heard": heard_all,
                 "capture_ns": t_ns[:, None] + np.round(delay_us * 1e3).astype(np.int64),

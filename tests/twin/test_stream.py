@@ -386,3 +386,50 @@ def test_frames_and_knots_are_trimmed_at_most_a_lookahead_behind(lookahead_s: fl
             if len(live) > 1:
                 # one knot before the trim time is kept
                 assert live.knots()[0][1] >= done - lookahead_s - 0.1 - 1e-9
+
+
+def test_per_sensor_constants_are_built_once_per_layout_and_never_shared() -> None:
+    """The sensor poses, chain offsets and clocks that ``_receive_many`` repeats over
+    its rows come from a cache per (sensors, frame counts): every window still equals
+    the sensor computed alone (chain offsets that differ per unit included), and no
+    frame column shares memory with the cache."""
+    import dataclasses
+
+    sc = _more_units()
+    sensors = tuple(
+        dataclasses.replace(
+            s, antenna=dataclasses.replace(s.antenna, chain_offsets_db=(0.5, -1.25))
+        )
+        if s.id == "rsu-se"
+        else s
+        for s in sc.spec.sensors
+    )
+    sc = Scenario(
+        spec=dataclasses.replace(sc.spec, sensors=sensors), source=sc.source, base_dir=sc.base_dir
+    )
+    world = World(sc)
+    alone, together = StreamTwin(sc), StreamTwin(sc)
+    fed_a: dict[str, int] = {}
+    fed_b: dict[str, int] = {}
+    sids = [s.id for s in sc.spec.sensors]
+    windows = 40
+    for k in range(1, windows + 1):
+        t0, t1 = (k - 1) * 0.1, k * 0.1
+        _feed(alone, world, t1, fed_a)
+        _feed(together, world, t1, fed_b)
+        together.prepare(t1)
+        for sid in sids:
+            a = alone.receptions_between(sid, t0, t1)
+            b = together.receptions_between(sid, t0, t1)
+            for name in Receptions.__dataclass_fields__:
+                if name not in ("sensor_id", "n_cards"):
+                    got, want = getattr(b, name), getattr(a, name)
+                    assert got.dtype == want.dtype, name
+                    np.testing.assert_array_equal(got, want, err_msg=name)
+                    for layout in together._layouts.values():
+                        for cached in (layout.xy, layout.heading, layout.clock0, layout.rate):
+                            assert not np.shares_memory(got, cached), name
+            assert b.sensor_xy.flags.writeable and b.sensor_heading_deg.flags.writeable
+    assert 0 < len(together._layouts) < windows
+    for layout in together._layouts.values():
+        assert not layout.xy.flags.writeable and not layout.offsets.flags.writeable

@@ -44,17 +44,21 @@ def segment_crossings(p0: Array, p1: Array, rects: Array) -> npt.NDArray[np.bool
         return np.zeros((n, m), dtype=bool)
     d = (p1 - p0)[:, None, :]
     o = p0[:, None, :]
-    lo = rects[None, :, [0, 2]]  # (1, m, 2): x_min, y_min
-    hi = rects[None, :, [1, 3]]
+    lo = rects[None, :, 0:3:2]  # (1, m, 2): x_min, y_min
+    hi = rects[None, :, 1:4:2]
     with np.errstate(divide="ignore", invalid="ignore"):
         t1 = (lo - o) / d
         t2 = (hi - o) / d
     parallel = d == 0
-    inside_slab = (o > lo) & (o < hi)
-    t_near = np.where(parallel, np.where(inside_slab, -np.inf, np.inf), np.minimum(t1, t2))
-    t_far = np.where(parallel, np.where(inside_slab, np.inf, -np.inf), np.maximum(t1, t2))
-    enter = np.maximum(np.max(t_near, axis=-1), 0.0)
-    leave = np.minimum(np.min(t_far, axis=-1), 1.0)
+    if parallel.any():
+        inside_slab = (o > lo) & (o < hi)
+        t_near = np.where(parallel, np.where(inside_slab, -np.inf, np.inf), np.minimum(t1, t2))
+        t_far = np.where(parallel, np.where(inside_slab, np.inf, -np.inf), np.maximum(t1, t2))
+    else:  # no segment along an axis (the usual case): no slab test to substitute
+        t_near = np.minimum(t1, t2)
+        t_far = np.maximum(t1, t2)
+    enter = np.maximum(t_near.max(axis=-1), 0.0)
+    leave = np.minimum(t_far.min(axis=-1), 1.0)
     return np.asarray(leave - enter > 1e-9, dtype=bool)
 
 

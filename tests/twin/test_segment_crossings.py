@@ -1,0 +1,67 @@
+"""The slab test of segments against buildings: its short path for segments with no
+component along an axis gives exactly what the full substitution gives."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from rfsas_hw.twin.rfworld import blockage_db, segment_crossings
+
+
+def _reference(p0: np.ndarray, p1: np.ndarray, rects: np.ndarray) -> np.ndarray:
+    """Liang–Barsky with the parallel substitution applied to every segment."""
+    d = (p1 - p0)[:, None, :]
+    o = p0[:, None, :]
+    lo = rects[None, :, [0, 2]]
+    hi = rects[None, :, [1, 3]]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t1 = (lo - o) / d
+        t2 = (hi - o) / d
+    parallel = d == 0
+    inside = (o > lo) & (o < hi)
+    t_near = np.where(parallel, np.where(inside, -np.inf, np.inf), np.minimum(t1, t2))
+    t_far = np.where(parallel, np.where(inside, np.inf, -np.inf), np.maximum(t1, t2))
+    enter = np.maximum(np.max(t_near, axis=-1), 0.0)
+    leave = np.minimum(np.min(t_far, axis=-1), 1.0)
+    return np.asarray(leave - enter > 1e-9, dtype=bool)
+
+
+def test_crossings_equal_the_full_substitution_for_every_kind_of_segment() -> None:
+    rng = np.random.default_rng(12)
+    rects = np.array(
+        [
+            [8.0, 60.0, 8.0, 60.0, 20.0],
+            [-60.0, -8.0, 8.0, 60.0, 12.5],
+            [-60.0, -8.0, -60.0, -8.0, 20.0],
+            [8.0, 60.0, -60.0, -8.0, 7.25],
+        ]
+    )
+    crossed = parallel_seen = 0
+    for trial in range(3000):
+        n = int(rng.integers(1, 16))
+        p0 = rng.uniform(-70.0, 70.0, (n, 2))
+        p1 = rng.uniform(-70.0, 70.0, (n, 2))
+        kind = trial % 5
+        if kind == 1:
+            p1[:, 0] = p0[:, 0]  # along the y axis
+        elif kind == 2:
+            p0, p1 = np.round(p0 / 8.0) * 8.0, np.round(p1 / 8.0) * 8.0  # edges and corners
+        elif kind == 3:
+            p1[: n // 2] = p0[: n // 2]  # zero length
+        elif kind == 4:
+            p0[0, 1] = np.nan
+        want = _reference(p0, p1, rects)
+        got = segment_crossings(p0, p1, rects)
+        assert got.dtype == want.dtype and got.shape == want.shape
+        np.testing.assert_array_equal(got, want)
+        loss, hit = blockage_db(p0, p1, rects)
+        np.testing.assert_array_equal(loss, want.astype(np.float64) @ rects[:, 4])
+        np.testing.assert_array_equal(hit, want.any(axis=1))
+        crossed += int(want.sum())
+        parallel_seen += int(((p1 - p0) == 0).any())
+    assert crossed > 1000 and parallel_seen > 1000
+    # four columns only (no loss) are enough for the crossings
+    p0, p1 = rng.uniform(-70.0, 70.0, (9, 2)), rng.uniform(-70.0, 70.0, (9, 2))
+    np.testing.assert_array_equal(
+        segment_crossings(p0, p1, rects[:, :4]), _reference(p0, p1, rects[:, :4])
+    )

@@ -18,10 +18,10 @@ machine counts as little as possible; wall time is printed too.
 Run: ``python bench/bench_bridge.py [STEPS]`` (needs the ``[sumo]`` extra).
 
 Measured with ``python bench/bench_bridge.py 60`` on the 2-core development
-machine with nothing else running (load average 1.3): bundled crossing
-1.82 ms per step (SUMO 0.008 ms), +100 entities 12.38 ms (SUMO 0.211 ms),
-about 0.11 ms more per extra entity; over five runs in the same minutes
-1.78–1.96 ms and 11.6–13.8 ms, both goals met. docs/simulators.md §6 has
+machine with nothing else running (load average 0.7): bundled crossing
+1.89 ms per step (SUMO 0.021 ms), +100 entities 13.37 ms (SUMO 0.220 ms),
+about 0.12 ms more per extra entity; over six runs in the same minute
+1.73–1.89 ms and 13.0–14.6 ms, both goals met. docs/simulators.md §6 has
 the table and what a step costs.
 """
 

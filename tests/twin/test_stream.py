@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -327,6 +328,36 @@ def _more_units() -> Scenario:
     return Scenario(spec=spec, source=sc.source, base_dir=sc.base_dir)
 
 
+def _alone_and_together(
+    sc: Scenario, world: World, alone: StreamTwin, together: StreamTwin, windows: int, dt: float
+) -> Iterator[tuple[str, Receptions, Receptions]]:
+    """Step both twins window by window (``together`` prepares all units at once) and
+    give each unit's receptions from each: (sensor id, alone, together)."""
+    fed_a: dict[str, int] = {}
+    fed_b: dict[str, int] = {}
+    for k in range(1, windows + 1):
+        t0, t1 = (k - 1) * dt, k * dt
+        _feed(alone, world, t1, fed_a)
+        _feed(together, world, t1, fed_b)
+        together.prepare(t1)
+        for s in sc.spec.sensors:
+            yield (
+                s.id,
+                alone.receptions_between(s.id, t0, t1),
+                together.receptions_between(s.id, t0, t1),
+            )
+
+
+def _same_columns(a: Receptions, b: Receptions) -> Iterator[tuple[str, np.ndarray]]:
+    """Assert every array column of ``b`` equals ``a``'s, type included; give (name, b's)."""
+    for name in Receptions.__dataclass_fields__:
+        if name not in ("sensor_id", "n_cards"):
+            got, want = getattr(b, name), getattr(a, name)
+            assert got.dtype == want.dtype, name
+            np.testing.assert_array_equal(got, want, err_msg=name)
+            yield name, got
+
+
 def test_units_that_hear_the_same_frames_share_them_and_get_what_they_get_alone(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
@@ -342,24 +373,11 @@ def test_units_that_hear_the_same_frames_share_them_and_get_what_they_get_alone(
         return original(self, s)
 
     monkeypatch.setattr(StreamTwin, "_candidates", counted)
-    fed_a: dict[str, int] = {}
-    fed_b: dict[str, int] = {}
-    sids = [s.id for s in sc.spec.sensors]
-    heard = dict.fromkeys(sids, 0)
-    for k in range(1, 40):
-        t0, t1 = (k - 1) * 0.2, k * 0.2
-        _feed(alone, world, t1, fed_a)
-        _feed(together, world, t1, fed_b)
-        together.prepare(t1)
-        for sid in sids:
-            a = alone.receptions_between(sid, t0, t1)
-            b = together.receptions_between(sid, t0, t1)
-            heard[sid] += len(a)
-            for name in Receptions.__dataclass_fields__:
-                if name not in ("sensor_id", "n_cards"):
-                    got, want = getattr(b, name), getattr(a, name)
-                    assert got.dtype == want.dtype, name
-                    np.testing.assert_array_equal(got, want, err_msg=name)
+    heard = {s.id: 0 for s in sc.spec.sensors}
+    for sid, a, b in _alone_and_together(sc, world, alone, together, 39, 0.2):
+        heard[sid] += len(a)
+        for _ in _same_columns(a, b):
+            pass
     assert all(v > 0 for v in heard.values()), heard
     # per window: one selection for the three channel-6 units and the on-board unit
     # (same technologies, same channel), one for channel 1, one for the hopping unit
@@ -409,27 +427,13 @@ def test_per_sensor_constants_are_built_once_per_layout_and_never_shared() -> No
     )
     world = World(sc)
     alone, together = StreamTwin(sc), StreamTwin(sc)
-    fed_a: dict[str, int] = {}
-    fed_b: dict[str, int] = {}
-    sids = [s.id for s in sc.spec.sensors]
     windows = 40
-    for k in range(1, windows + 1):
-        t0, t1 = (k - 1) * 0.1, k * 0.1
-        _feed(alone, world, t1, fed_a)
-        _feed(together, world, t1, fed_b)
-        together.prepare(t1)
-        for sid in sids:
-            a = alone.receptions_between(sid, t0, t1)
-            b = together.receptions_between(sid, t0, t1)
-            for name in Receptions.__dataclass_fields__:
-                if name not in ("sensor_id", "n_cards"):
-                    got, want = getattr(b, name), getattr(a, name)
-                    assert got.dtype == want.dtype, name
-                    np.testing.assert_array_equal(got, want, err_msg=name)
-                    for layout in together._layouts.values():
-                        for cached in (layout.xy, layout.heading, layout.clock0, layout.rate):
-                            assert not np.shares_memory(got, cached), name
-            assert b.sensor_xy.flags.writeable and b.sensor_heading_deg.flags.writeable
+    for _, a, b in _alone_and_together(sc, world, alone, together, windows, 0.1):
+        for name, got in _same_columns(a, b):
+            for layout in together._layouts.values():
+                for cached in (layout.xy, layout.heading, layout.clock0, layout.rate):
+                    assert not np.shares_memory(got, cached), name
+        assert b.sensor_xy.flags.writeable and b.sensor_heading_deg.flags.writeable
     assert 0 < len(together._layouts) < windows
     for layout in together._layouts.values():
         assert not layout.xy.flags.writeable and not layout.offsets.flags.writeable

@@ -22,8 +22,8 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-import numpy.typing as npt
 
+from rfsas_hw.angles import relative_to_compass
 from rfsas_hw.df.calibration import Calibration
 from rfsas_hw.df.estimate import DfFlag, DfResult, estimate
 from rfsas_hw.df.hybrid import phase_df_result
@@ -73,13 +73,6 @@ class PipelineStats:
             "released": self.released,
             "nonce_alarms": self.nonce_alarms,
         }
-
-
-def _to_compass(relative_deg: npt.NDArray[np.float64], boresight_deg: float) -> Any:
-    """:func:`~rfsas_hw.angles.relative_to_compass` for a float64 array (the same
-    operations, without its conversions)."""
-    out = np.mod(relative_deg + boresight_deg, 360.0)
-    return np.where(out >= 360.0, 0.0, out)
 
 
 class _DfMemo:
@@ -338,7 +331,7 @@ class SensorPipeline:
         out = BearingBatch(
             sensor_id=self.sensor_id,
             t_ns=frames.t_ns,
-            azimuth_deg=_to_compass(waiting.relative_deg, self.pose.heading_deg),
+            azimuth_deg=relative_to_compass(waiting.relative_deg, self.pose.heading_deg),
             sigma_deg=waiting.sigma_deg,
             snr_db=waiting.snr_db,
             channel=frames.channel,

@@ -71,26 +71,6 @@ _REGULARISE_M2 = 1e-20
 """Added to the combined covariance so that exact point masses stay integrable, m²."""
 
 
-_TWO_PI = 2 * math.pi
-
-
-def compass_to_math_rad_float(azimuth_deg: float) -> float:
-    """:func:`~rfsas_hw.angles.compass_to_math_rad` of one float, in plain floats.
-
-    The same operations (``math.radians`` multiplies by π/180 as ``np.deg2rad``
-    does, Python's float ``%`` is numpy's ``mod``), so the same bits.
-    """
-    out = math.radians(90.0 - azimuth_deg)
-    return math.pi - (math.pi - out) % _TWO_PI
-
-
-def math_rad_to_compass_float(angle_rad: float) -> float:
-    """:func:`~rfsas_hw.angles.math_rad_to_compass` of one float, in plain floats
-    (the same operations, the same bits)."""
-    out = (90.0 - math.degrees(angle_rad)) % 360.0
-    return 0.0 if out >= 360.0 else out
-
-
 def threat_box(kind_or_size: str | Size | Any) -> Size:
     """The box of a threat kind (``pedestrian``, ``cyclist``, ``vehicle``) or a given size.
 
@@ -127,7 +107,7 @@ def heading_covariance(
         raise BackendError(
             f"position sigmas must be ≥ 0 m, got along {sigma_along_m}, across {sigma_across_m}"
         )
-    a = compass_to_math_rad_float(float(heading_deg))
+    a = compass_to_math_rad(float(heading_deg))
     u = np.array([math.cos(a), math.sin(a)])
     n = np.array([-u[1], u[0]])
     return np.asarray(

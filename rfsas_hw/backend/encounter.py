@@ -24,9 +24,7 @@ from rfsas_hw.angles import compass_to_math_rad, math_rad_to_compass
 from rfsas_hw.backend.collision import (
     Size,
     collision_probability_batch,
-    compass_to_math_rad_float,
     exact_probability_of,
-    math_rad_to_compass_float,
     threat_box,
 )
 from rfsas_hw.backend.risk import (
@@ -150,9 +148,7 @@ def assess_encounter(
     threat_pos_cov = J @ P @ J.T
     threat_pos_cov = (threat_pos_cov + threat_pos_cov.T) / 2
     speed_t = math.hypot(x[2], x[3])
-    threat_heading = (
-        math_rad_to_compass_float(math.atan2(x[3], x[2])) if speed_t > MOVING_MPS else 0.0
-    )
+    threat_heading = math_rad_to_compass(math.atan2(x[3], x[2])) if speed_t > MOVING_MPS else 0.0
     size_t = cfg.threat_size
     p_coll = exact_probability_of(
         pv + t_star * vv,
@@ -164,7 +160,7 @@ def assess_encounter(
         threat_pos_cov,
         size_t,
     )
-    a = compass_to_math_rad_float(threat_heading)
+    a = compass_to_math_rad(threat_heading)
     ut = np.array([math.cos(a), math.sin(a)])
     nt = np.array([-ut[1], ut[0]])
     reach = float(

@@ -32,8 +32,8 @@ from typing import IO, Any, Protocol
 
 import numpy as np
 
+from rfsas_hw.angles import compass_to_math_rad
 from rfsas_hw.backend.association import AssociationConfig, Associator
-from rfsas_hw.backend.collision import compass_to_math_rad_float
 from rfsas_hw.backend.encounter import (
     Encounter,
     EncounterConfig,
@@ -482,7 +482,7 @@ class BackendService:
             return v
         dt = max(now - v.t_ns, 0) / NS_PER_S
         # position + velocity·dt, element by element in floats (the same operations)
-        a = compass_to_math_rad_float(float(v.heading_deg))
+        a = compass_to_math_rad(float(v.heading_deg))
         vx, vy = math.cos(a) * v.speed_mps, math.sin(a) * v.speed_mps
         return replace(v, x_m=float(v.x_m + vx * dt), y_m=float(v.y_m + vy * dt), t_ns=now)
 

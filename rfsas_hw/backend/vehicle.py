@@ -24,11 +24,11 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from rfsas_hw.angles import compass_to_math_rad
 from rfsas_hw.backend.collision import (
     VEHICLE_SIGMA_ACROSS_M,
     VEHICLE_SIGMA_ALONG_M,
     VEHICLE_SIZE,
-    compass_to_math_rad_float,
     heading_covariance,
 )
 from rfsas_hw.config import from_mapping, read_yaml
@@ -82,7 +82,7 @@ class VehicleState:
     @property
     def direction(self) -> npt.NDArray[np.float64]:
         """Unit vector of the heading, east/north."""
-        a = compass_to_math_rad_float(float(self.heading_deg))
+        a = compass_to_math_rad(float(self.heading_deg))
         return np.array([math.cos(a), math.sin(a)])
 
     @property

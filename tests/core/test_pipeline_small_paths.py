@@ -6,11 +6,10 @@ import numpy as np
 import pytest
 
 from rfsas_hw import pipeline
-from rfsas_hw.angles import relative_to_compass
 from rfsas_hw.df import fit_calibration
 from rfsas_hw.df.estimate import estimate
 from rfsas_hw.df.lut import UniformLut
-from rfsas_hw.pipeline import DF_MEMO_ROWS, SensorPipeline, _DfMemo, _to_compass
+from rfsas_hw.pipeline import DF_MEMO_ROWS, SensorPipeline, _DfMemo
 from rfsas_hw.privacy.hashing import FixedNonce, MacHasher
 from rfsas_hw.records import ObservationBatch, Pose
 from rfsas_hw.rf import GaussianBeamPair, ReceiverModel, turntable_sweep
@@ -18,17 +17,6 @@ from rfsas_hw.rf.synth import TurntableSamples
 
 RX = ReceiverModel(measurement_floor_db=0.5)
 T0 = 1_700_000_000 * 10**9
-
-
-def test_compass_azimuths_equal_relative_to_compass_bit_for_bit() -> None:
-    rng = np.random.default_rng(3)
-    rel = np.concatenate([rng.uniform(-90, 90, 500), [-1e-14, 0.0, -0.0, 90.0, -90.0]])
-    for heading in (0.0, 170.0, 225.0, 290.0, 359.999999, float(rng.uniform(0, 360))):
-        got = _to_compass(rel, heading)
-        want = relative_to_compass(rel, heading)
-        assert got.dtype == want.dtype == np.float64
-        np.testing.assert_array_equal(got, want)
-        assert ((got >= 0.0) & (got < 360.0)).all()
 
 
 def test_lookup_inside_and_outside_the_table_and_nan() -> None:

@@ -101,6 +101,10 @@ _FEW_BEARINGS = 8
 """Messages with at most this many bearings are parsed without numpy (faster for few rows)."""
 HEADER_BYTES = _PREFIX.size + _FIXED.size
 """Header bytes besides the sender id."""
+PREFIX_BYTES = _PREFIX.size
+"""Bytes before the sender id; its fixed fields (generation time first) follow it."""
+N_BEARINGS_AT = _FIXED.size - 1
+"""Offset of the bearing count from the start of the fixed fields, bytes."""
 _SENDER_RE = re.compile(rb"[A-Za-z0-9._-]{1,32}")
 _INT64_MAX = (1 << 63) - 1
 _MAX_T_US = _INT64_MAX // 1000

@@ -63,7 +63,9 @@ from rfsas_hw.link.message import (
     BEARING_BYTES,
     MAGIC,
     MAX_DATAGRAM,
+    N_BEARINGS_AT,
     PREAUTH_BYTES,
+    PREFIX_BYTES,
     SIGNATURE_BYTES,
     TYPE_NONCE,
     TYPE_SAFETY,
@@ -245,7 +247,7 @@ class _Known:
         self.sender_id = sender_id
         self.epoch = epoch
         self.tag = tag
-        self.fixed_at = 6 + len(sender_id)
+        self.fixed_at = PREFIX_BYTES + len(sender_id)
         """Offset of the generation time in the sender's messages, bytes."""
         self.topic_prefix = f"{_BEARING_TOPICS}{sender_id}/"
         """A bearing topic that starts so names this sender."""
@@ -567,7 +569,8 @@ class Receiver:
             raise _RejectError("rate_limited", sender)
         if shed:
             raise _RejectError("overload", sender)
-        head = Peeked(TYPE_SAFETY, sender, datagram[known.fixed_at + 32], VERSION_PREAUTH)
+        n_bearings = datagram[known.fixed_at + N_BEARINGS_AT]
+        head = Peeked(TYPE_SAFETY, sender, n_bearings, VERSION_PREAUTH)
         return _Pending(datagram, head, key)
 
     def _preauthenticate(

@@ -6,7 +6,7 @@ Geometry inside the backend uses math angles: radians counter-clockwise from
 east, as returned by ``atan2(dy, dx)`` on east/north coordinates.
 
 Every function takes a float or a numpy array and returns the same kind.
-The conversions between compass and math angles take a plain Python float
+The conversions between compass and math angles, and ``wrap_deg_180``, take a plain Python float
 through plain float operations that are the numpy ones (``math.radians`` and
 ``math.degrees`` multiply by the same constants as ``np.deg2rad`` and
 ``np.rad2deg``; float ``%`` is ``np.mod``), so a float gives the same bits as
@@ -47,6 +47,8 @@ def wrap_deg_180(angle_deg: float) -> float: ...
 def wrap_deg_180(angle_deg: Array) -> Array: ...
 def wrap_deg_180(angle_deg: float | Array) -> float | Array:
     """Wrap degrees into (-180, 180]."""
+    if type(angle_deg) is float:
+        return 180.0 - (180.0 - angle_deg) % 360.0
     out = 180.0 - np.mod(180.0 - np.asarray(angle_deg, dtype=np.float64), 360.0)
     return _same_kind(angle_deg, out)  # type: ignore[no-any-return]
 

@@ -33,6 +33,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from rfsas_hw.angles import wrap_deg_180
 from rfsas_hw.errors import SimulationError
 from rfsas_hw.records import mac_to_int
 from rfsas_hw.twin.motion import Track
@@ -205,8 +206,7 @@ class LiveTrack:
             h = (
                 heading_deg % 360.0
                 if math.isnan(prev)
-                # wrap_deg_180 in floats (Python's % is numpy's mod for floats)
-                else prev + (180.0 - (180.0 - (heading_deg - prev)) % 360.0)
+                else prev + wrap_deg_180(float(heading_deg - prev))
             )
         i = self._n
         self._t[i], self._x[i], self._y[i], self._h[i] = t_s, x_m, y_m, h
@@ -441,9 +441,7 @@ class StreamTwin(World):
         if listens is not None:
             on = np.asarray(listens(w["t"], w["channel"]), bool)
         else:
-            plan = self._plans.get(s.id)
-            if plan is None:
-                plan = self._plans[s.id] = ScanPlan.from_spec(s.scan)
+            plan = self._plan(s)
             if plan.hopping:
                 on = plan.channel_at(w["t"]) == w["channel"]
             else:  # one channel, listened to all the time (frame times are finite)
@@ -454,14 +452,19 @@ class StreamTwin(World):
         out["row"] = rows
         return out
 
+    def _plan(self, s: SensorSpec) -> ScanPlan:
+        """Sensor ``s``'s scan plan (built once)."""
+        plan = self._plans.get(s.id)
+        if plan is None:
+            plan = self._plans[s.id] = ScanPlan.from_spec(s.scan)
+        return plan
+
     def _candidates_key(self, s: SensorSpec) -> tuple[bytes, int] | None:
         """What :meth:`_candidates` of ``s`` depends on, when it is the technologies heard
         and one fixed channel (sensors with equal keys get the same frames); else None."""
         if s.id in self.listening:
             return None
-        plan = self._plans.get(s.id)
-        if plan is None:
-            plan = self._plans[s.id] = ScanPlan.from_spec(s.scan)
+        plan = self._plan(s)
         if plan.hopping:
             return None
         return self._hears(s).tobytes(), int(plan.channels[0])

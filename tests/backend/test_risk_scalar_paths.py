@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from rfsas_hw.angles import compass_to_math_rad, math_rad_to_compass
+from rfsas_hw.angles import compass_to_math_rad, math_rad_to_compass, wrap_deg_180
 from rfsas_hw.backend.risk import BRAKE_DECEL_MPS2, impact_speed, stopping_distance
 from rfsas_hw.errors import BackendError
 
@@ -58,4 +58,7 @@ def test_angle_conversions_of_one_float_equal_the_array_functions_bit_for_bit() 
     rad = np.concatenate([rng.uniform(-7, 7, 20000), [0.0, -0.0, math.pi, -math.pi, 1e-300]])
     want = math_rad_to_compass(rad)
     got = np.array([math_rad_to_compass(float(a)) for a in rad])
+    np.testing.assert_array_equal(got.view(np.int64), want.view(np.int64))
+    want = wrap_deg_180(az)
+    got = np.array([wrap_deg_180(float(a)) for a in az])
     np.testing.assert_array_equal(got.view(np.int64), want.view(np.int64))

@@ -58,8 +58,12 @@ metadrive-ci:
 	@$(MAKE) --no-print-directory $(MD_STAMP) || echo "SKIPPED tests/metadrive_sim: could not build $(MD_VENV) (pip output above)"
 	@if [ -f $(MD_STAMP) ]; then $(MD_PY) -m pytest -q -ra -p no:cacheprovider tests/metadrive_sim; fi
 
+# `make demo DEMO_ARGS="--cpm udp://127.0.0.1:2009?btp=1"` also sends the tracks as CPMs
+# (needs the v2x extra: .venv/bin/pip install -e '.[v2x]').
+DEMO_ARGS ?=
+
 demo: $(STAMP)
-	$(VENV)/bin/rfsas demo
+	$(VENV)/bin/rfsas demo $(DEMO_ARGS)
 
 calibration-demo: $(STAMP)
 	mkdir -p out

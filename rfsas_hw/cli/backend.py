@@ -176,6 +176,19 @@ def render_table(service: BackendService, alarm: bool) -> Table:
     help="Send fixes and tracks as Cursor-on-Target events to a TAK server (needs an origin).",
 )
 @click.option(
+    "--cpm",
+    metavar="URL",
+    help="Send the tracks as ETSI Collective Perception Messages: udp://HOST:PORT[?btp=1] "
+    "or mqtt(s)://HOST[:PORT]/TOPIC (needs the site origin and the v2x extra; docs/v2x.md).",
+)
+@click.option(
+    "--cpm-station-id",
+    type=click.IntRange(0, 2**32 - 1),
+    default=1,
+    show_default=True,
+    help="StationId of this backend in its CPMs.",
+)
+@click.option(
     "--advise",
     metavar="mqtts://HOST?…",
     help="Publish signed assessments (advisories) to a broker, on the tile topics of "
@@ -230,6 +243,8 @@ def backend(
     web: str | None,
     web_token: str | None,
     cot: str | None,
+    cpm: str | None,
+    cpm_station_id: int,
     advise: str | None,
     send_cues: str | None,
     cues_fallback: str | None,
@@ -309,6 +324,10 @@ def backend(
             from rfsas_hw.exports.tak import CotSender
 
             sinks.append(CotSender(cot, config.site.origin))
+        if cpm is not None:
+            from rfsas_hw.v2x.sink import backend_cpm_sink
+
+            sinks.append(backend_cpm_sink(cpm, cpm_station_id, config.site))
         if advise is not None:
             if config.site.origin is None:
                 raise ConfigError("--advise needs the site origin: --origin LAT,LON or site.origin")

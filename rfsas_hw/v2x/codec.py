@@ -64,9 +64,12 @@ def _scaled(value: float, unit: float, lo: int, hi: int) -> int:
 
 
 def _confidence(value: float, unit: float, out_of_range: int, unavailable: int) -> int:
-    """A 95 % confidence as the smallest n with ``value ≤ n·unit`` (1 … out_of_range)."""
-    if not math.isfinite(value) or value < 0:
+    """A 95 % confidence as the smallest n with ``value ≤ n·unit`` (1 … out_of_range);
+    NaN is unavailable, infinity out of range."""
+    if math.isnan(value) or value < 0:
         return unavailable
+    if math.isinf(value):
+        return out_of_range
     return max(1, min(out_of_range, math.ceil(value / unit - 1e-9)))
 
 

@@ -104,4 +104,5 @@ def assessment(
         risk=math.nan,
         advisory="none",
         reasons=(),
+        link_alarm=False,
     )

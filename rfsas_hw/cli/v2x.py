@@ -1,0 +1,150 @@
+"""``rfsas v2x decode``: print Collective Perception Messages as JSON, ours or any station's.
+
+Also the ``cpm`` format of ``rfsas export`` (:func:`export_cpm`).
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+from typing import Any
+
+import click
+
+from rfsas_hw.cli.exitcodes import FAILED
+from rfsas_hw.errors import ConfigError, CpmFormatError, DataFormatError
+
+PCAP_MAGICS = (b"\xd4\xc3\xb2\xa1", b"\xa1\xb2\xc3\xd4", b"\x4d\x3c\xb2\xa1", b"\xa1\xb2\x3c\x4d")
+PCAPNG_MAGIC = b"\x0a\x0d\x0d\x0a"
+
+
+def _line(data: dict[str, Any]) -> str:
+    return json.dumps(data, separators=(",", ":"))
+
+
+def _decode_file(path: Path) -> tuple[int, int]:
+    """Print every CPM of a file; (decoded, bad)."""
+    from rfsas_hw.v2x.codec import decode_cpm_tree
+    from rfsas_hw.v2x.geonet import read_pcap_cpms, split_datagram
+
+    try:
+        data = path.read_bytes()
+    except OSError as err:
+        raise DataFormatError(f"{path}: cannot read: {err.strerror or err}") from err
+    if data[:4] in PCAP_MAGICS or data[:4] == PCAPNG_MAGIC:
+        found, problems = read_pcap_cpms(data, str(path))
+        bad = len(problems)
+        for problem in problems:
+            click.echo(f"skipped: {problem}", err=True)
+        decoded = 0
+        for frame_no, t_ns, cpm in found:
+            try:
+                tree = decode_cpm_tree(cpm)
+            except CpmFormatError as err:
+                click.echo(f"skipped: {path}: frame {frame_no}: {err}", err=True)
+                bad += 1
+                continue
+            click.echo(_line({"source": str(path), "frame": frame_no, "t_ns": t_ns, "cpm": tree}))
+            decoded += 1
+        return decoded, bad
+    # one message: a bare CPM, or one behind BTP-B or GeoNetworking headers
+    tree = decode_cpm_tree(split_datagram(data, str(path)))
+    click.echo(_line({"source": str(path), "cpm": tree}))
+    return 1, 0
+
+
+@click.group("v2x")
+def v2x() -> None:
+    """ETSI Collective Perception Messages (CPM v2, TS 103 324 v2.1.1): see docs/v2x.md."""
+
+
+@v2x.command("decode")
+@click.argument("source")
+@click.option(
+    "--allow",
+    multiple=True,
+    metavar="NETWORK",
+    help="udp: senders accepted (an address or a network; repeat) [default: loopback].",
+)
+@click.option(
+    "--count",
+    type=click.IntRange(min=1),
+    help="udp/mqtt: stop after this many datagrams.",
+)
+@click.option(
+    "--duration",
+    type=click.FloatRange(min=0, min_open=True),
+    help="udp/mqtt: stop after this many seconds [default: Ctrl-C].",
+)
+def decode(source: str, allow: tuple[str, ...], count: int | None, duration: float | None) -> None:
+    """Print the CPMs in SOURCE as JSON lines.
+
+    SOURCE is a file (a pcap/pcapng of GeoNetworking frames, or one CPM, bare or
+    behind BTP-B/GeoNetworking headers), udp://HOST:PORT, or mqtt(s)://HOST[:PORT]/TOPIC.
+    CPMs from any station are read; a datagram that is not one is named on stderr.
+
+    \b
+    rfsas v2x decode run.pcap
+    rfsas v2x decode udp://0.0.0.0:2009 --allow 10.0.0.0/8
+    rfsas v2x decode mqtt://broker.local/its/cpm --count 10
+    """
+    if "://" not in source:
+        decoded, bad = _decode_file(Path(source))
+        click.echo(f"decoded {decoded} CPM(s), skipped {bad}", err=True)
+        if decoded == 0:
+            raise SystemExit(FAILED)
+        return
+    from rfsas_hw.v2x.listen import CpmListener
+
+    listener = CpmListener(source, allow) if allow else CpmListener(source)
+    click.echo(f"listening on {source}", err=True)
+    end = None if duration is None else time.monotonic() + duration
+    seen = 0
+    try:
+        while count is None or seen < count:
+            left = None if end is None else end - time.monotonic()
+            if left is not None and left <= 0:
+                break
+            got = listener.receive(timeout=left if left is not None else 1.0)
+            if got is None:
+                continue
+            seen += 1
+            if got.cpm is None:
+                click.echo(f"skipped: {got.error}", err=True)
+                continue
+            click.echo(_line({"source": got.sender, "t_ns": got.t_ns, "cpm": got.cpm}))
+    except KeyboardInterrupt:
+        click.echo("stopped", err=True)
+    finally:
+        listener.close()
+    stats = listener.stats
+    click.echo(
+        f"received {stats['received']}, decoded {stats['decoded']}, not a CPM {stats['bad']}, "
+        f"refused senders {stats['refused_sender']}",
+        err=True,
+    )
+
+
+def export_cpm(runs: tuple[Path, ...], out: Path, fmt: str, opts: dict[str, Any]) -> list[str]:
+    """``rfsas export --to cpm``: one run log as a pcap of CPM frames; the lines to print.
+
+    Raises:
+        ConfigError: more than one run, or a bad origin.
+        ExportError: unreadable log, no origin, unwritable output.
+    """
+    from rfsas_hw.backend.site import parse_origin
+    from rfsas_hw.v2x.export import export_cpm_pcap
+
+    if len(runs) != 1:
+        raise ConfigError(f"--to {fmt} exports one run log at a time, got {len(runs)}")
+    origin = parse_origin(opts["origin"]) if opts.get("origin") else None
+    result = export_cpm_pcap(runs[0], out, origin=origin)
+    lines = [
+        f"wrote {result.path}: {result.messages} CPMs with {result.objects} perceived objects "
+        f"from {result.steps} backend steps"
+    ]
+    for reason, n in sorted(result.run.skipped.items()):
+        lines.append(f"skipped {n} line(s): {reason}")
+    lines += [f"  {message}" for message in result.run.errors[:5]]
+    return lines

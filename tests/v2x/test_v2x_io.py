@@ -102,6 +102,14 @@ def test_export_to_cpm_writes_a_pcap_tshark_reads(tmp_path: Path, pycrate_cpm: P
         assert pycrate_cpm.reencode(data) == data
         cpm = decode_cpm(data)
         assert cpm.station_id == 1 and cpm.reference.lat_deg == pytest.approx(52.2053)
+    # no bit of the emitter ids (keyed hashes of MACs) anywhere in the file
+    blob = pcap.read_bytes()
+    width = len(blob) * 8
+    number = int.from_bytes(blob, "big")
+    shifted = [((number << k) & ((1 << width) - 1)).to_bytes(len(blob), "big") for k in range(8)]
+    for emitter in ("ab" * 8, "cd" * 8):
+        raw = bytes.fromhex(emitter)
+        assert not any(raw[:3] in s for s in shifted) and emitter.encode() not in blob
     first = decode_cpm(found[0][2])
     assert [s.sensor_id for s in first.sensors] == [0, 1, 2]
     assert len(first.objects) == 2
@@ -256,6 +264,24 @@ def test_sink_publishes_on_an_mqtt_topic(tmp_path: Path) -> None:
     finally:
         proc.terminate()
         proc.wait(10)
+
+
+def test_backend_sink_needs_the_site_origin_and_takes_the_sites_fields_of_view() -> None:
+    from rfsas_hw.backend.site import SiteConfig, SiteSensor
+    from rfsas_hw.errors import ConfigError
+    from rfsas_hw.v2x.sink import backend_cpm_sink
+
+    with pytest.raises(ConfigError, match="site origin"):
+        backend_cpm_sink("udp://127.0.0.1:9", 1, SiteConfig())
+    site = SiteConfig(origin=ORIGIN, sensors=(SiteSensor("rsu-a", Pose(0, 0, 90), 60.0),))
+    sink = backend_cpm_sink("udp://127.0.0.1:9?btp=1", 5, site)
+    try:
+        assert sink.generator.config.fov_deg == {"rsu-a": 60.0}
+        assert sink.generator.config.station_id == 5 and sink.sender.btp
+    finally:
+        sink.close()
+    with pytest.raises(ConfigError, match="expected udp"):
+        backend_cpm_sink("tcp://127.0.0.1:9", 1, site)
 
 
 def test_split_datagram_reads_the_three_forms() -> None:

@@ -189,6 +189,12 @@ def render_table(service: BackendService, alarm: bool) -> Table:
     help="StationId of this backend in its CPMs.",
 )
 @click.option(
+    "--cpm-from-vehicle",
+    is_flag=True,
+    help="The CPMs come from the vehicle (--vehicle) rather than a roadside unit: "
+    "the vehicle's position is their reference, its heading their orientation.",
+)
+@click.option(
     "--advise",
     metavar="mqtts://HOST?…",
     help="Publish signed assessments (advisories) to a broker, on the tile topics of "
@@ -245,6 +251,7 @@ def backend(
     cot: str | None,
     cpm: str | None,
     cpm_station_id: int,
+    cpm_from_vehicle: bool,
     advise: str | None,
     send_cues: str | None,
     cues_fallback: str | None,
@@ -311,6 +318,7 @@ def backend(
     )
     feed: VehicleFeed | None = None
     sinks: list[ResultSink] = []
+    cpm_sink = None
     try:
         if vehicle is not None and vehicle.startswith("udp://"):
             feed = VehicleFeed.listen(vehicle)
@@ -327,7 +335,10 @@ def backend(
         if cpm is not None:
             from rfsas_hw.v2x.sink import backend_cpm_sink
 
-            sinks.append(backend_cpm_sink(cpm, cpm_station_id, config.site))
+            cpm_sink = backend_cpm_sink(
+                cpm, cpm_station_id, config.site, vehicle_station=cpm_from_vehicle
+            )
+            sinks.append(cpm_sink)
         if advise is not None:
             if config.site.origin is None:
                 raise ConfigError("--advise needs the site origin: --origin LAT,LON or site.origin")
@@ -368,6 +379,8 @@ def backend(
             feed.close()
         raise
     service = BackendService(config, vehicle=state, sinks=sinks)
+    if cpm_sink is not None and cpm_from_vehicle:
+        cpm_sink.vehicle = lambda: service.vehicle
     service.link_stats = receiver.counters
     try:
         ros2_out = attach_scene(service, out, ros2)

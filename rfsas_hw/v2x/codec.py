@@ -30,7 +30,7 @@ from rfsas_hw.v2x.model import (
     VruClass,
 )
 
-__all__ = ["ASN1_DIR", "decode_cpm", "decode_cpm_tree", "encode_cpm"]
+__all__ = ["ASN1_DIR", "decode_cpm", "decode_cpm_tree", "encode_cpm", "load_schema"]
 
 ASN1_DIR = Path(__file__).with_name("asn1")
 """The ETSI ASN.1 modules (CPM v2.1.1 and the Common Data Dictionary v2.4.1)."""
@@ -53,6 +53,16 @@ def _spec() -> Any:
     asn1tools = require("asn1tools")
     files = sorted(str(p) for p in ASN1_DIR.glob("*.asn"))
     return asn1tools.compile_files(files, "uper")
+
+
+def load_schema() -> None:
+    """Compile the ASN.1 modules now (about a second, once per process) rather than at
+    the first message, so that a live sink does not stall its first step.
+
+    Raises:
+        MissingDependencyError: ``asn1tools`` is not installed (the ``v2x`` extra).
+    """
+    _spec()
 
 
 # --- SI → wire ---------------------------------------------------------------------

@@ -44,7 +44,7 @@ from rfsas_hw.backend.vehicle import VehicleState
 from rfsas_hw.errors import ConfigError
 from rfsas_hw.geo import SiteOrigin
 from rfsas_hw.records import Assessment, Pose
-from rfsas_hw.v2x.codec import encode_cpm
+from rfsas_hw.v2x.codec import encode_cpm, load_schema
 from rfsas_hw.v2x.model import (
     CONFIDENCE_95_1D,
     CONFIDENCE_95_2D,
@@ -215,9 +215,14 @@ class _Included:
 
 
 class CpmGenerator:
-    """Keeps the generation state of one station; :meth:`step` gives each step's CPMs."""
+    """Keeps the generation state of one station; :meth:`step` gives each step's CPMs.
+
+    Raises:
+        MissingDependencyError: ``asn1tools`` is not installed (the ``v2x`` extra).
+    """
 
     def __init__(self, config: CpmConfig) -> None:
+        load_schema()
         self.config = config
         self.ids = ObjectIds()
         self._first_seen: dict[str, int] = {}

@@ -179,9 +179,12 @@ class CpmSink:
         self.sender.close()
 
 
-def backend_cpm_sink(url: str, station_id: int, site: SiteConfig) -> CpmSink:
-    """The CPM sink of a roadside backend: station ``station_id`` at the site origin,
-    each unit's field of view as the site declares it.
+def backend_cpm_sink(
+    url: str, station_id: int, site: SiteConfig, *, vehicle_station: bool = False
+) -> CpmSink:
+    """The CPM sink of a backend: station ``station_id``, a roadside unit at the site
+    origin (or, with ``vehicle_station``, a vehicle: set :attr:`CpmSink.vehicle`), each
+    unit's field of view as the site declares it.
 
     Raises:
         ConfigError: the site has no origin, or a bad URL.
@@ -192,6 +195,7 @@ def backend_cpm_sink(url: str, station_id: int, site: SiteConfig) -> CpmSink:
     config = CpmConfig(
         station_id=station_id,
         origin=site.origin,
+        station="vehicle" if vehicle_station else "rsu",
         fov_deg={s.id: s.fov_deg for s in site.sensors},
     )
     return CpmSink.to_url(url, config)

@@ -92,3 +92,24 @@ def test_mutated_cpms_are_refused_or_read_strictly() -> None:
     # most mutations break a CPM; some (a flipped bit in a value) leave a valid one
     assert outcome["refused"] > CASES // 2, outcome
     assert outcome["decoded"] > 0, outcome
+
+
+@pytest.mark.fuzz
+def test_mutated_geonetworking_frames_are_refused_or_read() -> None:
+    from rfsas_hw.v2x.geonet import GeoPosition, ethernet_frame, split_datagram
+
+    pool = [
+        ethernet_frame(p.read_bytes(), 7, 15, 1_795_737_600 * 10**9, GeoPosition(52.2, 0.12))[14:]
+        for p in sorted(GOLDEN_DIR.glob("*.uper"))
+    ]
+    rng = random.Random(4400)
+    refused = 0
+    for _ in range(max(CASES // 4, 50)):
+        mutate = rng.choice(MUTATIONS[:-1])
+        data = bytes(mutate(rng, bytearray(rng.choice(pool)), pool))
+        try:
+            decode_cpm(split_datagram(data, "fuzzed packet"))
+        except CpmFormatError as err:
+            assert str(err)
+            refused += 1
+    assert refused > 0

@@ -113,7 +113,8 @@ def decode(source: str, allow: tuple[str, ...], count: int | None, duration: flo
             if got.cpm is None:
                 click.echo(f"skipped: {got.error}", err=True)
                 continue
-            click.echo(_line({"source": got.sender, "t_ns": got.t_ns, "cpm": got.cpm}))
+            # one line per message as it arrives, also into a pipe
+            print(_line({"source": got.sender, "t_ns": got.t_ns, "cpm": got.cpm}), flush=True)
     except KeyboardInterrupt:
         click.echo("stopped", err=True)
     finally:

@@ -74,6 +74,8 @@ AGGREGATION_SENSOR_ID = 0
 """Sensor id of the backend's fusion (``localAggregation``) in every message."""
 MAX_SEGMENTS = 8
 """``MessageSegmentationInfo`` counts messages 1 … 8."""
+MAX_OBJECTS = 255
+"""Perceived objects one message holds."""
 PEDESTRIAN_MAX_SPEED_MPS = 2.5
 """Fastest tracked speed still classed as a pedestrian, m/s (a brisk walk or a jog)."""
 BICYCLIST_MAX_SPEED_MPS = 12.0
@@ -315,7 +317,8 @@ class CpmGenerator:
     ) -> tuple[PerceivedObject, bool]:
         sx = math.sqrt(a.cov_xx_m2) if a.cov_xx_m2 >= 0 else math.nan
         sy = math.sqrt(a.cov_yy_m2) if a.cov_yy_m2 >= 0 else math.nan
-        rho = a.cov_xy_m2 / (sx * sy) if sx > 0 and sy > 0 else math.nan
+        finite = math.isfinite(sx * sy * a.cov_xy_m2)
+        rho = a.cov_xy_m2 / (sx * sy) if finite and sx > 0 and sy > 0 else math.nan
         speed = math.hypot(a.vx_mps, a.vy_mps)
         kind, confidence = classify(speed)
         semi95 = CONFIDENCE_95_2D * _semi_major_1sigma(a.cov_xx_m2, a.cov_xy_m2, a.cov_yy_m2)
@@ -355,7 +358,8 @@ class CpmGenerator:
             vehicle: the vehicle's state (a ``vehicle`` station's reference).
 
         Raises:
-            ConfigError: a vehicle station without a vehicle state, or ids exhausted.
+            ConfigError: a vehicle station without a vehicle state, more objects due
+                at once than 8 segments hold (2040), or no object id left.
         """
         cfg = self.config
         live = [a for a in assessments if math.isfinite(a.x_m) and math.isfinite(a.y_m)]
@@ -413,12 +417,20 @@ class CpmGenerator:
 
     def _segment(self, base: Cpm, objects: list[PerceivedObject]) -> list[EncodedCpm]:
         """One message, or up to 8 segments each within ``max_message_bytes``."""
-        whole = replace(base, objects=tuple(objects))
-        data = encode_cpm(whole)
-        if len(data) <= self.config.max_message_bytes or len(objects) <= 1:
-            return [EncodedCpm(whole, data)]
-        size = len(data)
-        n = min(MAX_SEGMENTS, max(2, math.ceil(size / self.config.max_message_bytes)))
+        if len(objects) <= MAX_OBJECTS:
+            whole = replace(base, objects=tuple(objects))
+            data = encode_cpm(whole)
+            if len(data) <= self.config.max_message_bytes or len(objects) <= 1:
+                return [EncodedCpm(whole, data)]
+            n = math.ceil(len(data) / self.config.max_message_bytes)
+        else:
+            n = math.ceil(len(objects) / MAX_OBJECTS)
+        if len(objects) > MAX_SEGMENTS * MAX_OBJECTS:
+            raise ConfigError(
+                f"CPM: {len(objects)} objects due at once; 8 segments hold at most "
+                f"{MAX_SEGMENTS * MAX_OBJECTS}"
+            )
+        n = min(MAX_SEGMENTS, max(2, n))
         while True:
             chunk = math.ceil(len(objects) / n)
             parts = [objects[i : i + chunk] for i in range(0, len(objects), chunk)]

@@ -134,6 +134,22 @@ def test_many_objects_are_segmented(pycrate_cpm: PycrateCpm) -> None:
         assert pycrate_cpm.reencode(m.data) == m.data
 
 
+def test_more_objects_than_one_message_holds_are_segmented() -> None:
+    gen = generator(max_message_bytes=1_000_000)
+    crowd = [assessment(f"{i:016x}", T0, i * 0.1, 0.0) for i in range(300)]
+    messages = gen.step(T0, crowd, STATIONS)
+    assert [len(m.cpm.objects) for m in messages] == [150, 150]
+    assert [m.cpm.segment for m in messages] == [(1, 2), (2, 2)]
+
+
+def test_singular_covariance_has_no_correlation() -> None:
+    gen = generator()
+    a = assessment("a", T0, 1.0, 2.0, cov=(math.inf, 0.5, 1.0))
+    o = decode_cpm(gen.step(T0, [a], STATIONS)[0].data).objects[0]
+    assert o.x_conf_m == math.inf and math.isnan(o.xy_correlation)
+    assert o.quality == 0
+
+
 def test_vehicle_station_references_the_vehicle() -> None:
     gen = generator(station="vehicle")
     car = VehicleState(x_m=10.0, y_m=-20.0, heading_deg=30.0, speed_mps=12.0)

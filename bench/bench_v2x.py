@@ -11,7 +11,8 @@ mapping and encoding), and the run log's way of writing the same tracks (one
 ``json.dumps`` line per assessment, as ``rfsas backend --out`` does). Sizes: the
 steady-state message (objects only) and the first message, which also carries the
 sensor information container (sent again once a second). Goals: encoding ≤ 1.5 ms,
-message ≤ 650 bytes.
+message ≤ 650 bytes. The machine is shared: the table gives the median wall and CPU
+time and the least wall time (the call other processes disturbed least).
 """
 
 from __future__ import annotations
@@ -74,8 +75,9 @@ def pedestrians(rng: np.random.Generator) -> list[Assessment]:
     return out
 
 
-def timed(fn: Callable[[], object], repeat: int = 300) -> tuple[float, float]:
-    """Median wall and median CPU time of one call, ms."""
+def timed(fn: Callable[[], object], repeat: int = 300) -> tuple[float, float, float]:
+    """Median wall, median CPU and least wall time of one call, ms (the least is the
+    call the other processes on the machine disturbed least)."""
     fn()
     wall, cpu = [], []
     for _ in range(repeat):
@@ -83,7 +85,7 @@ def timed(fn: Callable[[], object], repeat: int = 300) -> tuple[float, float]:
         fn()
         cpu.append(time.process_time() - c)
         wall.append(time.perf_counter() - w)
-    return statistics.median(wall) * 1e3, statistics.median(cpu) * 1e3
+    return statistics.median(wall) * 1e3, statistics.median(cpu) * 1e3, min(wall) * 1e3
 
 
 def json_lines(tracks: list[Assessment]) -> bytes:
@@ -111,31 +113,33 @@ def main() -> None:
     steady = encode_cpm(steady_cpm)
     assert decode_cpm(steady).objects == decode_cpm(with_sensors.data).objects
 
-    enc_wall, enc_cpu = timed(lambda: encode_cpm(steady_cpm))
-    enc_s_wall, enc_s_cpu = timed(lambda: encode_cpm(with_sensors.cpm))
+    enc = timed(lambda: encode_cpm(steady_cpm))
+    enc_s = timed(lambda: encode_cpm(with_sensors.cpm))
 
     def step() -> None:
         CpmGenerator(CpmConfig(station_id=1, origin=ORIGIN)).step(T0, tracks, STATIONS)
 
-    step_wall, step_cpu = timed(step, repeat=100)
-    dec_wall, dec_cpu = timed(lambda: decode_cpm(steady), repeat=100)
+    gen = timed(step, repeat=100)
+    dec = timed(lambda: decode_cpm(steady), repeat=100)
     log = json_lines(tracks)
-    json_wall, json_cpu = timed(lambda: json_lines(tracks))
+    js = timed(lambda: json_lines(tracks))
 
     print(f"{N_OBJECTS} pedestrians, full 2x2 covariance, velocity, two units each")
-    print(f"{'what':48s} {'bytes':>6s} {'wall ms':>8s} {'cpu ms':>7s}")
+    print(f"{'what':48s} {'bytes':>6s} {'wall ms':>8s} {'cpu ms':>7s} {'min ms':>7s}")
     rows = [
-        ("CPM, objects only (encode_cpm)", len(steady), enc_wall, enc_cpu),
-        ("CPM with sensor information (encode_cpm)", len(with_sensors.data), enc_s_wall, enc_s_cpu),
-        ("CPM generator step (select, map, encode)", len(with_sensors.data), step_wall, step_cpu),
-        ("CPM decode (strict, objects only)", len(steady), dec_wall, dec_cpu),
-        ("JSON run-log lines of the same tracks", len(log), json_wall, json_cpu),
+        ("CPM, objects only (encode_cpm)", len(steady), enc),
+        ("CPM with sensor information (encode_cpm)", len(with_sensors.data), enc_s),
+        ("CPM generator step (select, map, encode)", len(with_sensors.data), gen),
+        ("CPM decode (strict, objects only)", len(steady), dec),
+        ("JSON run-log lines of the same tracks", len(log), js),
     ]
-    for what, size, wall, cpu in rows:
-        print(f"{what:48s} {size:6d} {wall:8.3f} {cpu:7.3f}")
+    for what, size, (wall, cpu, least) in rows:
+        print(f"{what:48s} {size:6d} {wall:8.3f} {cpu:7.3f} {least:7.3f}")
+    enc_wall, enc_cpu, enc_min = enc
     print(
-        f"goal: encode <= {GOAL_MS} ms: {'met' if enc_cpu <= GOAL_MS else 'MISSED'} "
-        f"(cpu {enc_cpu:.3f} ms, wall {enc_wall:.3f} ms); "
+        f"goal: encode <= {GOAL_MS} ms: median cpu {enc_cpu:.3f} ms "
+        f"{'met' if enc_cpu <= GOAL_MS else 'MISSED'}, least wall {enc_min:.3f} ms "
+        f"{'met' if enc_min <= GOAL_MS else 'MISSED'} (median wall {enc_wall:.3f} ms); "
         f"<= {GOAL_BYTES} bytes: objects-only {len(steady)} "
         f"{'met' if len(steady) <= GOAL_BYTES else 'MISSED'}, with sensor information "
         f"{len(with_sensors.data)} {'met' if len(with_sensors.data) <= GOAL_BYTES else 'over'}"

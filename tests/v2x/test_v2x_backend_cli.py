@@ -28,15 +28,17 @@ SENSORS = {"rsu-n": Pose(-35.0, 10.0, 90.0), "rsu-s": Pose(25.0, -5.0, 0.0)}
 ORIGIN = SiteOrigin(52.2053, 0.1218)
 
 
-def send_rounds(url: str, stores: dict[str, KeyStore]) -> None:
-    time.sleep(0.2)
+def send_rounds(url: str, stores: dict[str, KeyStore], stop: threading.Event) -> None:
+    """Bearings every 0.1 s until ``stop`` (at most 60 s): the command may take a few
+    seconds to start on a loaded machine, and what arrives before it runs is stale."""
     pubs = {sid: Publisher.to_url(url, stores[sid].signer(), pose) for sid, pose in SENSORS.items()}
     try:
-        for _ in range(30):
+        for _ in range(600):
+            if stop.wait(0.1):
+                break
             now = time.time_ns()
             for sid, pose in SENSORS.items():
                 pubs[sid].on_bearings(bearing_towards(sid, pose, TARGET, EMITTER, now))
-            time.sleep(0.1)
     finally:
         for pub in pubs.values():
             pub.close()
@@ -55,7 +57,8 @@ def test_backend_sends_cpms_from_the_vehicle(tmp_path: Path) -> None:
     link_port = link.address[1]  # type: ignore[index]
     link.close()
     url = f"udp://127.0.0.1:{link_port}"
-    sender = threading.Thread(target=send_rounds, args=(url, stores))
+    stop = threading.Event()
+    sender = threading.Thread(target=send_rounds, args=(url, stores, stop))
     sender.start()
     try:
         result = CliRunner().invoke(
@@ -67,13 +70,16 @@ def test_backend_sends_cpms_from_the_vehicle(tmp_path: Path) -> None:
                 "--cpm-from-vehicle",
             ],
         )  # fmt: skip
-        sender.join()
+        stop.set()
+        sender.join(timeout=10)
         assert result.exit_code == 0, result.output
         cpms = []
         while (got := listener.receive(timeout=0.5)) is not None:
             assert got.cpm is not None, got.error
             cpms.append(got)
     finally:
+        stop.set()
+        sender.join(timeout=10)
         listener.close()
     assert cpms
     lat, lon, _ = ORIGIN.to_geodetic(-12.0, 22.0)

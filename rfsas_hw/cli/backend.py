@@ -438,6 +438,8 @@ def backend(
     elapsed = time.monotonic() - started
     stats = service.all_stats()
     console.print(f"ran {elapsed:.1f} s: " + ", ".join(f"{k} {v}" for k, v in stats.items()))
+    if cpm_sink is not None:
+        console.print(", ".join(f"{k} {v}" for k, v in cpm_sink.counters().items()))
     if out is not None:
         click.echo(f"wrote {out}")
     if plot is not None:

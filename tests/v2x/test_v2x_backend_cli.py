@@ -73,6 +73,7 @@ def test_backend_sends_cpms_from_the_vehicle(tmp_path: Path) -> None:
         stop.set()
         sender.join(timeout=10)
         assert result.exit_code == 0, result.output
+        assert "cpm.sent" in result.output and "cpm.dropped 0" in result.output
         cpms = []
         while (got := listener.receive(timeout=0.5)) is not None:
             assert got.cpm is not None, got.error

@@ -471,6 +471,13 @@ def _decode_object(raw: Mapping[str, Any]) -> PerceivedObject:
             "vx_conf_mps": _conf_back(v["xVelocity"]["confidence"], 0.01, 126, 127),
             "vy_conf_mps": _conf_back(v["yVelocity"]["confidence"], 0.01, 126, 127),
         }
+    elif "velocity" in raw and raw["velocity"][0] == "polarVelocity":
+        # another station's polar velocity, as east/north components (speed 0.01 m/s,
+        # direction a mathematical angle); its confidences do not split into x and y
+        v = raw["velocity"][1]
+        speed = _unscale(v["velocityMagnitude"]["speedValue"], 0.01, 16383)
+        direction = math.radians(_angle_back(v["velocityDirection"]["value"]))
+        velocity = {"vx_mps": speed * math.cos(direction), "vy_mps": speed * math.sin(direction)}
     kind, confidence = _decode_class(raw.get("classification", ()))
     return PerceivedObject(
         object_id=raw.get("objectId", -1),

@@ -220,3 +220,89 @@ def test_tree_is_json_of_every_container() -> None:
     assert obj["lowerTriangularCorrelationMatrices"][0]["componentsIncludedIntheMatrix"] == [0, 1]
     assert "cartesianVelocity" in obj["velocity"]
     assert json.loads(text) == tree
+
+
+def foreign_cpm() -> bytes:
+    """A CPM as another station might send it: a perception region, a polar velocity,
+    an object without classification, written with asn1tools directly."""
+    import asn1tools
+
+    from rfsas_hw.v2x.codec import ASN1_DIR
+
+    spec = asn1tools.compile_files(sorted(str(p) for p in ASN1_DIR.glob("*.asn")), "uper")
+    region = [
+        {
+            "measurementDeltaTime": -10,
+            "perceptionRegionConfidence": 90,
+            "perceptionRegionShape": ("circular", {"radius": 500}),
+            "shadowingApplies": True,
+        }
+    ]
+    objects = {
+        "numberOfPerceivedObjects": 1,
+        "perceivedObjects": [
+            {
+                "objectId": 42,
+                "measurementDeltaTime": 5,
+                "position": {
+                    "xCoordinate": {"value": 1234, "confidence": 50},
+                    "yCoordinate": {"value": -567, "confidence": 60},
+                },
+                "velocity": (
+                    "polarVelocity",
+                    {
+                        "velocityMagnitude": {"speedValue": 300, "speedConfidence": 10},
+                        "velocityDirection": {"value": 450, "confidence": 20},
+                    },
+                ),
+            }
+        ],
+    }
+    message = {
+        "header": {"protocolVersion": 2, "messageId": 14, "stationId": 99},
+        "payload": {
+            "managementContainer": {
+                "referenceTime": T0_MS,
+                "referencePosition": {
+                    "latitude": 500000000,
+                    "longitude": 60000000,
+                    "positionConfidenceEllipse": {
+                        "semiMajorConfidence": 100,
+                        "semiMinorConfidence": 50,
+                        "semiMajorOrientation": 900,
+                    },
+                    "altitude": {"altitudeValue": 800001, "altitudeConfidence": "unavailable"},
+                },
+            },
+            "cpmContainers": [
+                {"containerId": 2, "containerData": spec.encode("OriginatingRsuContainer", {})},
+                {
+                    "containerId": 4,
+                    "containerData": spec.encode("PerceptionRegionContainer", region),
+                },
+                {
+                    "containerId": 5,
+                    "containerData": spec.encode("PerceivedObjectContainer", objects),
+                },
+            ],
+        },
+    }
+    return bytes(spec.encode("CollectivePerceptionMessage", message))
+
+
+def test_a_foreign_cpm_is_read_with_what_rfsas_does_not_write(pycrate_cpm: PycrateCpm) -> None:
+    data = foreign_cpm()
+    assert pycrate_cpm.reencode(data) == data
+    cpm = decode_cpm(data)
+    assert cpm.station_id == 99 and math.isnan(cpm.reference.altitude_m)
+    assert cpm.reference.semi_major_m == pytest.approx(1.0)
+    (obj,) = cpm.objects
+    assert (obj.object_id, obj.x_m, obj.y_m) == (42, pytest.approx(12.34), pytest.approx(-5.67))
+    # a polar velocity (3 m/s at 45°) is read as east/north components
+    assert (obj.vx_mps, obj.vy_mps) == (pytest.approx(2.1213, abs=1e-4),) * 2
+    assert math.isnan(obj.vx_conf_mps) and obj.object_class is None
+    region = cpm.extra["perceptionRegionContainer"]
+    assert region[0]["perceptionRegionShape"] == {"circular": {"radius": 500}}
+    tree = decode_cpm_tree(data)
+    velocity = tree["containers"]["perceivedObjectContainer"]["perceivedObjects"][0]["velocity"]
+    assert velocity["polarVelocity"]["velocityMagnitude"]["speedValue"] == 300

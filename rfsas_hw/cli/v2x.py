@@ -13,10 +13,7 @@ from typing import Any
 import click
 
 from rfsas_hw.cli.exitcodes import FAILED
-from rfsas_hw.errors import ConfigError, CpmFormatError, DataFormatError
-
-PCAP_MAGICS = (b"\xd4\xc3\xb2\xa1", b"\xa1\xb2\xc3\xd4", b"\x4d\x3c\xb2\xa1", b"\xa1\xb2\x3c\x4d")
-PCAPNG_MAGIC = b"\x0a\x0d\x0d\x0a"
+from rfsas_hw.errors import ConfigError, CpmFormatError
 
 
 def _line(data: dict[str, Any]) -> str:
@@ -26,32 +23,26 @@ def _line(data: dict[str, Any]) -> str:
 def _decode_file(path: Path) -> tuple[int, int]:
     """Print every CPM of a file; (decoded, bad)."""
     from rfsas_hw.v2x.codec import decode_cpm_tree
-    from rfsas_hw.v2x.geonet import read_pcap_cpms, split_datagram
+    from rfsas_hw.v2x.geonet import read_cpm_file
 
-    try:
-        data = path.read_bytes()
-    except OSError as err:
-        raise DataFormatError(f"{path}: cannot read: {err.strerror or err}") from err
-    if data[:4] in PCAP_MAGICS or data[:4] == PCAPNG_MAGIC:
-        found, problems = read_pcap_cpms(data, str(path))
-        bad = len(problems)
-        for problem in problems:
-            click.echo(f"skipped: {problem}", err=True)
-        decoded = 0
-        for frame_no, t_ns, cpm in found:
-            try:
-                tree = decode_cpm_tree(cpm)
-            except CpmFormatError as err:
-                click.echo(f"skipped: {path}: frame {frame_no}: {err}", err=True)
-                bad += 1
-                continue
-            click.echo(_line({"source": str(path), "frame": frame_no, "t_ns": t_ns, "cpm": tree}))
-            decoded += 1
-        return decoded, bad
-    # one message: a bare CPM, or one behind BTP-B or GeoNetworking headers
-    tree = decode_cpm_tree(split_datagram(data, str(path)))
-    click.echo(_line({"source": str(path), "cpm": tree}))
-    return 1, 0
+    contents = read_cpm_file(path)
+    if not contents.capture:  # one message: a broken one is the command's error (exit 2)
+        tree = decode_cpm_tree(contents.cpms[0][2])
+        click.echo(_line({"source": str(path), "cpm": tree}))
+        return 1, 0
+    for problem in contents.problems:
+        click.echo(f"skipped: {problem}", err=True)
+    decoded, bad = 0, len(contents.problems)
+    for frame_no, t_ns, cpm in contents.cpms:
+        try:
+            tree = decode_cpm_tree(cpm)
+        except CpmFormatError as err:
+            click.echo(f"skipped: {path}: frame {frame_no}: {err}", err=True)
+            bad += 1
+            continue
+        click.echo(_line({"source": str(path), "frame": frame_no, "t_ns": t_ns, "cpm": tree}))
+        decoded += 1
+    return decoded, bad
 
 
 @click.group("v2x")

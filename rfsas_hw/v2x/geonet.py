@@ -16,9 +16,10 @@ from __future__ import annotations
 
 import struct
 from dataclasses import dataclass
+from pathlib import Path
 from typing import BinaryIO
 
-from rfsas_hw.errors import CpmFormatError
+from rfsas_hw.errors import CpmFormatError, DataFormatError
 from rfsas_hw.sources.pcapfile import PcapWriter, iter_chunks
 from rfsas_hw.v2x.timestamp import its_ms_from_utc_ns
 
@@ -28,6 +29,7 @@ __all__ = [
     "GeoPosition",
     "btp_b",
     "ethernet_frame",
+    "read_cpm_file",
     "read_pcap_cpms",
     "split_datagram",
     "station_address",
@@ -213,3 +215,39 @@ def read_pcap_cpms(data: bytes, name: str) -> tuple[list[tuple[int, int, bytes]]
             out.append((frame_no, int(chunk.t_ns[i]), cpm))
         problems.extend(p.error(name).args[0] for p in chunk.problems)
     return out, problems
+
+
+PCAP_MAGICS = (b"\xd4\xc3\xb2\xa1", b"\xa1\xb2\xc3\xd4", b"\x4d\x3c\xb2\xa1", b"\xa1\xb2\x3c\x4d")
+PCAPNG_MAGIC = b"\x0a\x0d\x0d\x0a"
+
+
+@dataclass(frozen=True, slots=True)
+class CpmFile:
+    """The CPMs found in a file."""
+
+    cpms: list[tuple[int, int, bytes]]
+    """``(frame number, t_ns, CPM bytes)``; a one-message file is frame 1 at time 0."""
+    problems: list[str]
+    """Frames of a capture that carry no readable CPM, with the reason."""
+    capture: bool
+    """Whether the file is a pcap/pcapng capture (else one message)."""
+
+
+def read_cpm_file(path: str | Path) -> CpmFile:
+    """The CPMs of a file: a pcap/pcapng of Ethernet frames (as :func:`read_pcap_cpms`),
+    or one message (a bare CPM, or behind BTP-B or GeoNetworking headers).
+
+    Raises:
+        DataFormatError: the file cannot be read.
+        CpmFormatError: a one-message file whose headers are not a CPM's.
+        CaptureFormatError: a capture that cannot be parsed.
+    """
+    p = Path(path)
+    try:
+        data = p.read_bytes()
+    except OSError as err:
+        raise DataFormatError(f"{p}: cannot read: {err.strerror or err}") from err
+    if data[:4] in PCAP_MAGICS or data[:4] == PCAPNG_MAGIC:
+        found, problems = read_pcap_cpms(data, str(p))
+        return CpmFile(found, problems, capture=True)
+    return CpmFile([(1, 0, split_datagram(data, str(p)))], [], capture=False)

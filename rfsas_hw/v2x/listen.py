@@ -42,6 +42,9 @@ class ReceivedCpm:
     """``HOST:PORT`` of a UDP sender, or the MQTT topic."""
     cpm: dict[str, Any] | None
     """The CPM as JSON values (:func:`~rfsas_hw.v2x.codec.decode_cpm_tree`), or None."""
+    data: bytes = b""
+    """The CPM's bytes without BTP-B/GeoNetworking headers (the datagram when those
+    cannot be read)."""
     error: str = ""
     """Why the datagram is not a readable CPM (empty when it is)."""
 
@@ -137,13 +140,15 @@ class CpmListener:
     def _decode(self, data: bytes, sender: str) -> ReceivedCpm:
         self.stats["received"] += 1
         now = time.time_ns()
+        cpm = data
         try:
-            tree = decode_cpm_tree(split_datagram(data, f"datagram from {sender}"))
+            cpm = split_datagram(data, f"datagram from {sender}")
+            tree = decode_cpm_tree(cpm)
         except CpmFormatError as err:
             self.stats["bad"] += 1
-            return ReceivedCpm(now, sender, None, str(err))
+            return ReceivedCpm(now, sender, None, cpm, str(err))
         self.stats["decoded"] += 1
-        return ReceivedCpm(now, sender, tree)
+        return ReceivedCpm(now, sender, tree, cpm)
 
     def close(self) -> None:
         """Close the socket or broker connection; idempotent."""

@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 from click.testing import CliRunner
+from pycrate_cpm import PycrateCpm
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "backend"))
 
@@ -44,7 +45,7 @@ def send_rounds(url: str, stores: dict[str, KeyStore], stop: threading.Event) ->
             pub.close()
 
 
-def test_backend_sends_cpms_from_the_vehicle(tmp_path: Path) -> None:
+def test_backend_sends_cpms_from_the_vehicle(tmp_path: Path, pycrate_cpm: PycrateCpm) -> None:
     backend_keys = KeyStore.create(tmp_path / "backend", "backend", "obu-1")
     stores = {sid: KeyStore.create(tmp_path / sid, "sensor", sid) for sid in SENSORS}
     for store in stores.values():
@@ -88,6 +89,7 @@ def test_backend_sends_cpms_from_the_vehicle(tmp_path: Path) -> None:
     for got in cpms:
         tree = got.cpm
         assert tree is not None and tree["header"]["stationId"] == 77
+        assert pycrate_cpm.reencode(got.data) == got.data
         assert tree["containers"]["originatingVehicleContainer"]["orientationAngle"]["value"] == 900
         ref = tree["managementContainer"]["referencePosition"]
         assert (

@@ -200,7 +200,7 @@ def test_listener_decodes_any_form_and_refuses_other_senders() -> None:
 
 
 @pytest.mark.parametrize("btp", [False, True])
-def test_sink_sends_each_steps_cpms_over_udp(btp: bool) -> None:
+def test_sink_sends_each_steps_cpms_over_udp(btp: bool, pycrate_cpm: PycrateCpm) -> None:
     from cpmhelp import assessment
 
     listener = CpmListener("udp://127.0.0.1:0")
@@ -214,6 +214,7 @@ def test_sink_sends_each_steps_cpms_over_udp(btp: bool) -> None:
         got = listener.receive(timeout=5.0)
         assert got is not None and got.cpm is not None
         assert got.cpm["header"]["stationId"] == 9
+        assert pycrate_cpm.reencode(got.data) == got.data
         assert sink.counters()["cpm.sent"] == 1
     finally:
         sink.close()
@@ -226,7 +227,7 @@ def free_port() -> int:
         return int(s.getsockname()[1])
 
 
-def test_sink_publishes_on_an_mqtt_topic(tmp_path: Path) -> None:
+def test_sink_publishes_on_an_mqtt_topic(tmp_path: Path, pycrate_cpm: PycrateCpm) -> None:
     from cpmhelp import assessment
 
     mosquitto = shutil.which("mosquitto") or (
@@ -256,6 +257,7 @@ def test_sink_publishes_on_an_mqtt_topic(tmp_path: Path) -> None:
             got = listener.receive(timeout=10.0)
             assert got is not None and got.cpm is not None, listener.stats
             assert got.sender == "its/cpm"
+            assert pycrate_cpm.reencode(got.data) == got.data
             objects = got.cpm["containers"]["perceivedObjectContainer"]["perceivedObjects"]
             assert objects[0]["position"]["xCoordinate"]["value"] == 100
         finally:

@@ -18,7 +18,7 @@ from rfsas_hw.twin.scenario import (
     WaypointSpec,
     load_scenario,
 )
-from rfsas_hw.twin.stream import LiveTrack, StreamTwin, _interp_tracks, _unique_inverse
+from rfsas_hw.twin.stream import LiveTrack, StreamTwin
 from rfsas_hw.twin.world import Receptions, World
 
 CROSSING = Path(__file__).resolve().parents[2] / "examples" / "crossing.yaml"
@@ -130,38 +130,6 @@ def test_many_carriers_streamed_equal_the_offline_run() -> None:
         assert len(np.unique(offline.emitter)) > 8
         for name, got in streamed.items():
             np.testing.assert_array_equal(got, getattr(offline, name), err_msg=name)
-
-
-def test_side_by_side_interpolation_is_np_interp_bit_for_bit() -> None:
-    rng = np.random.default_rng(9)
-    knots = []
-    for k in range(9):
-        m = 1 + k % 4
-        ts = np.sort(rng.uniform(0, 2, m))
-        if m >= 3:
-            ts[1] = ts[2]  # a repeated knot time
-        knots.append((ts, rng.normal(0, 30, m), rng.normal(0, 30, m)))
-    knots.append((np.array([0.5, 1.0]), np.array([3.0, 3.0]), np.array([1e300, -1e300])))
-    track = rng.integers(0, len(knots), 3000)
-    t = rng.uniform(-0.5, 2.5, 3000)
-    on_knot = rng.random(3000) < 0.2
-    t[on_knot] = [knots[u][0][rng.integers(len(knots[u][0]))] for u in track[on_knot]]
-    got = _interp_tracks(knots, track, t)
-    for u, (ts, xs, ys) in enumerate(knots):
-        sel = track == u
-        np.testing.assert_array_equal(got[sel, 0], np.interp(t[sel], ts, xs))
-        np.testing.assert_array_equal(got[sel, 1], np.interp(t[sel], ts, ys))
-
-
-def test_few_frames_tell_emitters_apart_as_np_unique_does() -> None:
-    rng = np.random.default_rng(4)
-    for n in (0, 1, 2, 5, 32, 33, 200):
-        ids = rng.integers(0, 7, n).astype(np.intp)
-        uniq, inverse = _unique_inverse(ids)
-        want_u, want_inv = np.unique(ids, return_inverse=True)
-        assert uniq == want_u.tolist()
-        assert inverse.dtype == np.intp
-        np.testing.assert_array_equal(inverse, want_inv.reshape(-1))
 
 
 def test_live_track_positions_are_the_offline_tracks_bit_for_bit() -> None:

@@ -79,13 +79,20 @@ def _interp_tracks(
 ) -> Array:
     """Positions at times ``t`` on tracks ``knots[track]`` (knot times, east, north), (n, 2).
 
-    ``np.interp`` on each track, as the offline world interpolates one track.
+    ``np.interp`` on each track, as the offline world interpolates one track;
+    the rows are grouped by track with one sort, so a track costs two calls.
     """
-    out = np.empty((len(t), 2))
+    order = np.argsort(track, kind="stable")
+    bounds = np.searchsorted(track[order], np.arange(len(knots) + 1)).tolist()
+    t_sorted = t[order]
+    xy = np.empty((len(t), 2))
     for u, (ts, xs, ys) in enumerate(knots):
-        sel = track == u
-        out[sel, 0] = np.interp(t[sel], ts, xs)
-        out[sel, 1] = np.interp(t[sel], ts, ys)
+        lo, hi = bounds[u], bounds[u + 1]
+        if lo < hi:
+            xy[lo:hi, 0] = np.interp(t_sorted[lo:hi], ts, xs)
+            xy[lo:hi, 1] = np.interp(t_sorted[lo:hi], ts, ys)
+    out = np.empty_like(xy)
+    out[order] = xy
     return out
 
 

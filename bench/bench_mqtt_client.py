@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import importlib.util
 import multiprocessing as mp
 import os
 import ssl
@@ -167,6 +168,9 @@ def _gmqtt(files: BrokerFiles, n: int, q: MpQueue[object]) -> None:
     asyncio.run(run())
 
 
+NEEDS = {"gmqtt 0.8 (MQTT 5)": ("gmqtt", "bench"), "paho-mqtt 2 (MQTT 5)": ("paho", "dev")}
+"""The import each other client needs, and the extra that installs it."""
+
 CLIENTS = {
     "rfsas-hw (own MQTT 5)": _ours,
     "gmqtt 0.8 (MQTT 5)": _gmqtt,
@@ -211,8 +215,15 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         files = setup(Path(tmp))
         broker = start_broker(files, Path(tmp) / "mosquitto.log")
+        rows: list[tuple[str, int, float]] = []
+        missing: list[str] = []
         try:
-            rows = [(name, *measure(name, files, n)) for name in CLIENTS]
+            for name in CLIENTS:
+                module, extra = NEEDS.get(name, ("rfsas_hw", ""))
+                if importlib.util.find_spec(module) is None:
+                    missing.append(f"{name}: NOT installed (pip install -e '.[{extra}]')")
+                    continue
+                rows.append((name, *measure(name, files, n)))
         finally:
             broker.terminate()
             broker.wait(10)
@@ -222,6 +233,8 @@ def main() -> None:
     for name, got, cpu in rows:
         per = cpu / max(got, 1)
         print(f"{name:<24} {got:>9,} {per * 1e6:>15.1f} {per / own:>7.2f}")
+    for line in missing:
+        print(line)
 
 
 if __name__ == "__main__":

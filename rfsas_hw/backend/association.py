@@ -71,10 +71,6 @@ class AssociationConfig:
         return int((self.window_s if self.max_age_s is None else self.max_age_s) * NS_PER_S)
 
 
-_SMALL_ADD = 8
-"""Batches of at most this many bearings pick each emitter's newest in plain Python."""
-
-
 @dataclass(slots=True)
 class AssociationStats:
     """Counts of the association."""
@@ -138,22 +134,12 @@ class Associator:
             return
         sensor = batch.sensor_id
         emitters, times = batch.emitter.tolist(), batch.t_ns.tolist()
-        if n <= _SMALL_ADD:
-            # a live sensor's few bearings: the rows the lexsort below picks, in its order
-            # (each emitter's newest, the later row on a tie; emitters ascending)
-            newest: dict[int, int] = {}
-            for i, emitter in enumerate(emitters):
-                j = newest.get(emitter)
-                if j is None or times[j] <= times[i]:
-                    newest[emitter] = i
-            rows = [newest[e] for e in sorted(newest)]
-        else:
-            # newest bearing of each emitter in the batch, without a Python loop per bearing
-            order = np.lexsort((batch.t_ns, batch.emitter))
-            em = batch.emitter[order]
-            last = np.ones(n, bool)
-            last[:-1] = em[1:] != em[:-1]
-            rows = order[last].tolist()
+        # newest bearing of each emitter in the batch (the later row on a tie), emitters ascending
+        order = np.lexsort((batch.t_ns, batch.emitter))
+        em = batch.emitter[order]
+        last = np.ones(n, bool)
+        last[:-1] = em[1:] != em[:-1]
+        rows = order[last].tolist()
         self.stats.superseded += n - len(rows)
         azimuths, sigmas = batch.azimuth_deg.tolist(), batch.sigma_deg.tolist()
         for i in rows:

@@ -25,8 +25,7 @@ import numpy as np
 import numpy.typing as npt
 
 from rfsas_hw.board.codec import CRC_STARTS, decode_payload
-from rfsas_hw.board.columns import RECORD, is_measurement, records
-from rfsas_hw.board.fastpath import WIRE, decode_measurement_rows, segments
+from rfsas_hw.board.columns import is_measurement, records
 from rfsas_hw.board.framing import (
     MAX_ENCODED,
     Frame,
@@ -35,7 +34,7 @@ from rfsas_hw.board.framing import (
     cobs_decode,
     recover_suffix,
 )
-from rfsas_hw.board.messages import CompatFlag, Measurement, Message, PayloadError
+from rfsas_hw.board.messages import CompatFlag, Message, PayloadError
 from rfsas_hw.errors import BoardProtocolError
 
 MAX_KEPT_ERRORS = 20
@@ -100,8 +99,6 @@ class FrameDecoder:
         self._expect: int | None = None
         self.new_errors: list[FrameError] = []
         """Errors raised by the last :meth:`feed` (for a raise-on-error policy)."""
-        self.vector_min_bytes = 4096
-        """Buffers at least this long are decoded with the column-wise fast path."""
 
     def _note(self, err: FrameError, offset: int) -> None:
         err.offset = offset
@@ -176,65 +173,27 @@ class FrameDecoder:
         Returns ``(raw, frame)`` pairs, ``raw`` being the frame's wire bytes
         including the delimiter. Bad segments are counted, never raised.
         """
+        return [(raw, frame) for raw, frame, _ in self._feed(data)]
+
+    def _feed(self, data: bytes) -> list[tuple[bytes, Frame, int]]:
+        """:meth:`feed`, with the stream offset of each frame's segment."""
         self.new_errors = []
         self.stats.bytes += len(data)
         buf = self._buf + data if self._buf else data
-        if len(buf) >= self.vector_min_bytes:
-            return self._feed_vectorised(buf)
         parts = buf.split(b"\x00")
         tail = parts.pop()
         pos = self._offset
-        out: list[tuple[bytes, Frame]] = []
+        out: list[tuple[bytes, Frame, int]] = []
+        segment = self._segment
+        track = self._track
         for seg in parts:
             if seg:
-                got = self._segment(seg, pos)
-                if got is not None:
-                    self._track(got[1].seq, got[1].compat)
-                    out.append(got)
-            pos += len(seg) + 1
-        self._keep_tail(tail, pos)
-        return out
-
-    def _feed_vectorised(self, buf: bytes) -> list[tuple[bytes, Frame]]:
-        """:meth:`feed` for a large buffer: measurement frames checked column-wise."""
-        arr = np.frombuffer(buf, dtype=np.uint8)
-        starts_a, ends_a = segments(arr)
-        base = self._offset
-        if ends_a.size == 0:
-            self._keep_tail(buf, base)
-            return []
-        row_of = np.full(ends_a.size, -1, dtype=np.int64)
-        cand = np.flatnonzero(ends_a - starts_a == WIRE)
-        blob = b""
-        if cand.size:
-            rows = arr[starts_a[cand, None] + np.arange(WIRE)]
-            ok, decoded = decode_measurement_rows(rows)
-            good = cand[ok]
-            row_of[good] = np.arange(good.size)
-            blob = decoded[ok].tobytes()
-        out: list[tuple[bytes, Frame]] = []
-        track = self._track
-        body = WIRE - 1
-        meas = Measurement.TYPE
-        n_fast = 0
-        for s, e, r in zip(starts_a.tolist(), ends_a.tolist(), row_of.tolist(), strict=True):
-            if r >= 0:
-                o = r * body
-                seq = blob[o + 3] | (blob[o + 4] << 8)
-                compat = blob[o + 2]
-                track(seq, compat)
-                out.append(
-                    (buf[s : e + 1], Frame(meas, seq, blob[o + 8 : o + body - 2], 0, compat))
-                )
-                n_fast += 1
-            elif e > s:
-                got = self._segment(buf[s:e], base + s)
+                got = segment(seg, pos)
                 if got is not None:
                     track(got[1].seq, got[1].compat)
-                    out.append(got)
-        self.stats.frames += n_fast
-        last = int(ends_a[-1]) + 1
-        self._keep_tail(buf[last:], base + last)
+                    out.append((*got, pos))
+            pos += len(seg) + 1
+        self._keep_tail(tail, pos)
         return out
 
     def feed_columns(self, data: bytes) -> tuple[npt.NDArray[np.void], list[tuple[bytes, Frame]]]:
@@ -243,90 +202,32 @@ class FrameDecoder:
         Returns the measurement records of every MEASUREMENT and
         MEASUREMENT_BATCH frame as a :data:`~rfsas_hw.board.columns.RECORD`
         array in stream order, and the ``(raw, frame)`` pairs of all other
-        frames. Single-measurement frames are decoded column-wise
-        (:mod:`rfsas_hw.board.fastpath`); counters are the same as with
-        :meth:`feed`, plus ``bad_payloads`` for a measurement frame whose
-        payload is too short (a sender bug, counted and skipped).
+        frames. Counters are those of :meth:`feed`, plus ``bad_payloads`` for
+        a measurement frame whose payload is too short (a sender bug, counted
+        and skipped).
         """
-        self.new_errors = []
-        self.stats.bytes += len(data)
-        buf = self._buf + data if self._buf else data
-        arr = np.frombuffer(buf, dtype=np.uint8)
-        starts, ends = segments(arr)
-        base = self._offset
-        if ends.size == 0:
-            self._keep_tail(buf, base)
-            return np.empty(0, RECORD), []
-        fast = np.zeros(ends.size, dtype=bool)
-        cand = np.flatnonzero(ends - starts == WIRE)
-        rec_parts: list[npt.NDArray[np.void]] = []
-        rec_order: list[npt.NDArray[np.int64]] = []
-        seq_idx: list[npt.NDArray[np.int64]] = []
-        seq_val: list[npt.NDArray[np.int64]] = []
-        seq_cmp: list[npt.NDArray[np.int64]] = []
-        if cand.size:
-            rows = arr[starts[cand, None] + np.arange(WIRE)]
-            ok, decoded = decode_measurement_rows(rows)
-            good = cand[ok]
-            fast[good] = True
-            frames = decoded[ok]
-            self.stats.frames += int(good.size)
-            rec_parts.append(np.ascontiguousarray(frames[:, 8:33]).view(RECORD).reshape(-1))
-            rec_order.append(good)
-            seq_idx.append(good)
-            seq_val.append(frames[:, 3].astype(np.int64) | (frames[:, 4].astype(np.int64) << 8))
-            seq_cmp.append(frames[:, 2].astype(np.int64))
-        others: list[tuple[int, bytes, Frame]] = []
-        for i in np.flatnonzero(~fast & (ends > starts)).tolist():
-            s, e = int(starts[i]), int(ends[i])
-            got = self._segment(buf[s:e], base + s)
-            if got is None:
-                continue
-            frame = got[1]
-            seq_idx.append(np.array([i]))
-            seq_val.append(np.array([frame.seq]))
-            seq_cmp.append(np.array([frame.compat]))
+        measurements: list[tuple[Frame, int]] = []
+        others: list[tuple[bytes, Frame]] = []
+        for raw, frame, pos in self._feed(data):
             if is_measurement(frame):
-                try:
-                    r = records([frame])
-                except PayloadError as err:  # a sender bug: counted, not raised
-                    self.stats.bad_payloads += 1
-                    self._note(FrameError("payload", str(err)), base + s)
-                    continue
-                rec_parts.append(r)
-                rec_order.append(np.full(len(r), i))
+                measurements.append((frame, pos))
             else:
-                others.append((i, *got))
-        if seq_idx:
-            idx = np.concatenate(seq_idx)
-            order = np.argsort(idx, kind="stable")
-            self._track_many(np.concatenate(seq_val)[order], np.concatenate(seq_cmp)[order])
-        self._keep_tail(buf[int(ends[-1]) + 1 :], base + int(ends[-1]) + 1)
-        if not rec_parts:
-            recs = np.empty(0, RECORD)
-        elif len(rec_parts) == 1:
-            recs = rec_parts[0]
-        else:
-            recs = np.concatenate(rec_parts)[np.argsort(np.concatenate(rec_order), kind="stable")]
-        others.sort(key=lambda t: t[0])
-        return recs, [(raw, frame) for _, raw, frame in others]
-
-    def _track_many(self, seqs: npt.NDArray[np.int64], compats: npt.NDArray[np.int64]) -> None:
-        """:meth:`_track` over many frames in stream order, vectorised."""
-        if seqs.size == 0:
-            return
-        expect = np.empty_like(seqs)
-        expect[1:] = (seqs[:-1] + 1) & 0xFFFF
-        expect[0] = seqs[0] if self._expect is None else self._expect
-        gap = (seqs - expect) & 0xFFFF
-        flagged = (compats & _RESTART) != 0
-        restart = (gap != 0) & (flagged | (gap >= 0x8000))
-        lost = (gap != 0) & ~restart
-        st = self.stats
-        st.restarts += int(restart.sum()) + int(self._expect is None and flagged[0])
-        st.sequence_gaps += int(lost.sum())
-        st.lost += int(gap[lost].sum())
-        self._expect = int(seqs[-1] + 1) & 0xFFFF
+                others.append((raw, frame))
+        try:
+            return records(frame for frame, _ in measurements), others
+        except PayloadError:
+            pass
+        # A sender bug: find the frames at fault, count them and keep the rest.
+        good: list[Frame] = []
+        for frame, pos in measurements:
+            try:
+                records([frame])
+            except PayloadError as err:
+                self.stats.bad_payloads += 1
+                self._note(FrameError("payload", str(err)), pos)
+                continue
+            good.append(frame)
+        return records(good), others
 
     def flush(self) -> None:
         """End of input: count a frame left without its delimiter as truncated."""

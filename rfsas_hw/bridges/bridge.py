@@ -241,15 +241,6 @@ def fitted_calibration(sensor: SensorSpec, *, seed: int = 0) -> Calibration:
     return _FITTED[key]
 
 
-def _median(values: np.ndarray) -> float:
-    """``float(np.median(values))`` of a non-empty integer array, without numpy's overhead."""
-    n = len(values)
-    if n == 1:
-        return float(values[0])
-    part = np.partition(values, [(n - 1) // 2, n // 2])
-    return (float(part[(n - 1) // 2]) + float(part[n // 2])) / 2
-
-
 class Bridge:
     """RF-SAS for a simulator (see the module docstring).
 
@@ -500,7 +491,7 @@ class Bridge:
                     bearings[sid] = BearingBatch.empty(sid)
                     continue
                 if sid in self._mounted:  # a roadside unit's pose never changes
-                    mid_s = (_median(obs.t_ns) - self.t0_ns) / NS_PER_S
+                    mid_s = (float(np.median(obs.t_ns)) - self.t0_ns) / NS_PER_S
                     xy, heading = twin.sensor_pose(sid, [mid_s])
                     pipe.pose = Pose(float(xy[0, 0]), float(xy[0, 1]), float(heading[0]))
                 batch = pipe.process(obs)

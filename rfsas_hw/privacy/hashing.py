@@ -70,11 +70,11 @@ class NonceProvider(Protocol):
 
 def hash_mac(nonce: bytes, mac: int) -> int:
     """The 64-bit emitter id of one 48-bit MAC under ``nonce``."""
-    digest = hmac.new(nonce, int(mac).to_bytes(6, "big"), hashlib.sha256).digest()
-    return int.from_bytes(digest[:ID_BYTES], "big")
+    return _hash_many(nonce, [int(mac)])[0]
 
 
 def _hash_many(nonce: bytes, macs: list[int]) -> list[int]:
+    """Emitter ids of 48-bit MACs: the first 8 bytes of HMAC-SHA256(nonce, MAC big-endian)."""
     # Keying HMAC costs two SHA-256 compressions; copying the keyed state
     # saves them for every MAC after the first.
     keyed = hmac.new(nonce, digestmod=hashlib.sha256)
@@ -87,7 +87,10 @@ def _hash_many(nonce: bytes, macs: list[int]) -> list[int]:
 
 
 SMALL_BATCH = 8
-"""Batches up to this size are hashed frame by frame (no sorting)."""
+"""Batches up to this size are looked up frame by frame (``hash_one``), not sorted.
+
+Per batch of 1–8 cached MACs about 3–7 µs against 35–49 µs for the
+``np.unique`` path (``bench/bench_small_batches.py``)."""
 
 
 class MacHasher:

@@ -13,14 +13,14 @@ where the frame starts, how many bytes were captured and when. The
    place that words the error for a bad frame.
 
 Small batches (live capture) skip the grouping: numpy's per-call cost is
-larger than the per-frame walk below ``vector_min`` frames.
+larger than the per-frame walk below ``vector_min`` frames. The field offsets
+of the gathers come from the walk itself (``compile_layout``), so there is one
+radiotap decoder.
 """
 
 from __future__ import annotations
 
-import struct
 from collections import Counter
-from collections.abc import Sequence
 from dataclasses import dataclass, field, fields
 from typing import Any
 
@@ -40,8 +40,11 @@ LINKTYPE_RADIOTAP = 127
 
 MAX_FAST_WORDS = 8
 """Headers with more present words than this are walked one by one."""
-DEFAULT_VECTOR_MIN = 48
-"""Below this many frames a batch is decoded frame by frame."""
+DEFAULT_VECTOR_MIN = 16
+"""Below this many frames a batch is decoded frame by frame (by the walk).
+
+Where a batch of two-chain frames costs the same either way, measured with
+``bench/bench_capture.py``'s layouts."""
 SENTINEL_DBM = (-128, 0)
 """Chain values drivers use for "no measurement" (iwlwifi S8_MIN; 0 in some vectors)."""
 
@@ -56,12 +59,6 @@ F_NO_CHAINS = "no per-antenna signal"
 F_SENTINEL = "sentinel chain value"
 F_NO_SIGNAL = "no signal at all"
 F_EXTRA_CHAIN = "chain index beyond n_antennas"
-
-_U16 = struct.Struct("<H").unpack_from
-_U32 = struct.Struct("<I").unpack_from
-_U64 = struct.Struct("<Q").unpack_from
-# it_len, TSFT µs, flags, frequency MHz, combined dBm, per-chain (antenna, dBm)
-_RtValues = tuple[int, int | None, int, int, int | None, Sequence[tuple[int, int]]]
 
 
 @dataclass(slots=True)
@@ -329,27 +326,18 @@ class FrameDecoder:
         reason = R_RADIOTAP
         try:
             if is_radiotap:
-                got = self._quick_radiotap(buf, start, avail)
-                if got is None:
-                    info = radiotap.parse_at(buf, start, avail)
-                    got = (
-                        info.length,
-                        info.tsft_us,
-                        info.flags or 0,
-                        info.channel_mhz or 0,
-                        info.signal_dbm,
-                        info.chains,
-                    )
-                rt_len, tsft, flags, freq, signal, chains = got
+                info = radiotap.parse_at(buf, start, avail)
+                rt_len = info.length
+                flags = info.flags or 0
                 fcs = bool(flags & radiotap.FLAG_FCS_AT_END)
-                if tsft is not None:
-                    table.tsft_us[i] = tsft
+                if info.tsft_us is not None:
+                    table.tsft_us[i] = info.tsft_us
                     table.has_tsft[i] = True
                 table.rt_flags[i] = flags
-                table.freq_mhz[i] = freq
-                if signal is not None:
-                    table.signal_dbm[i] = signal
-                for ant, dbm in chains:
+                table.freq_mhz[i] = info.channel_mhz or 0
+                if info.signal_dbm is not None:
+                    table.signal_dbm[i] = info.signal_dbm
+                for ant, dbm in info.chains:
                     if ant < self.width:
                         table.chain_dbm[i, ant] = dbm
                     else:
@@ -382,55 +370,6 @@ class FrameDecoder:
         if hdr.seq is not None:
             table.seq[i] = hdr.seq
             table.frag[i] = hdr.frag if hdr.frag is not None else -1
-
-    def _quick_radiotap(self, buf: bytes, start: int, avail: int) -> _RtValues | None:
-        """The fields of one well-formed header through its cached layout; None to walk it."""
-        if avail < radiotap.MIN_HEADER_LEN or buf[start]:
-            return None
-        it_len = _U16(buf, start + 2)[0]
-        if it_len < radiotap.MIN_HEADER_LEN or it_len > avail:
-            return None
-        words = []
-        off = 4
-        while True:
-            if off + 4 > it_len:
-                return None
-            word = _U32(buf, start + off)[0]
-            words.append(word)
-            off += 4
-            if not word >> 31:
-                break
-        present = tuple(words)
-        first = self._first.get(present) or self._layout(buf, present, -1, start, avail)
-        if first is None or not first.vectorisable:
-            return None
-        skip_at = first.vendor_skip_at
-        skip = -1
-        if skip_at >= 0:
-            if it_len < skip_at + 2:
-                return None
-            skip = _U16(buf, start + skip_at)[0]
-        layout = self._layouts.get((present, skip)) or self._layout(
-            buf, present, skip, start, avail
-        )
-        if layout is None or not layout.vectorisable or it_len < layout.min_len:
-            return None
-        chains = []
-        for ant_off, sig_off in layout.chains:
-            sig = buf[start + sig_off]
-            chains.append((buf[start + ant_off], sig - 256 if sig > 127 else sig))
-        signal = None
-        if layout.signal >= 0:
-            sig = buf[start + layout.signal]
-            signal = sig - 256 if sig > 127 else sig
-        return (
-            it_len,
-            _U64(buf, start + layout.tsft)[0] if layout.tsft >= 0 else None,
-            buf[start + layout.flags] if layout.flags >= 0 else 0,
-            _U16(buf, start + layout.channel)[0] if layout.channel >= 0 else 0,
-            signal,
-            chains,
-        )
 
     # -- vectorised path -----------------------------------------------------------
 

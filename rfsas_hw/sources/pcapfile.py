@@ -2,7 +2,8 @@
 
 :class:`CaptureParser` is a push parser: feed it bytes as they arrive (a file
 read in large blocks, or a pipe), ask for chunks of complete frames. One
-Python-level step per record finds the record offsets; everything else
+Python-level step per record or block finds the offsets (a large pcap
+buffer is walked with numpy, :func:`find_pcap_records`); everything else
 (timestamps, lengths, interface ids) is read with numpy for the whole chunk.
 
 * pcap: both byte orders, microsecond and nanosecond magic.
@@ -152,8 +153,17 @@ def _ts_to_ns(ts: npt.NDArray[np.uint64], iface: Interface) -> npt.NDArray[np.in
     return out + iface.tsoffset_s * NS_PER_S
 
 
+RECORD_HEADER = 16
+"""Bytes of a pcap record header: seconds, fraction, captured length, original length."""
+RECORD_CAPLEN_AT = 8
+"""Offset of the captured length in a pcap record header."""
 FAST_MIN_BYTES = 64 * 1024
-"""Below this many buffered bytes records are found one by one."""
+"""Below this many buffered bytes pcap records are found one by one.
+
+The numpy walk (:func:`find_pcap_records`) parses a pcap of realistic frame
+sizes (60–1,500 bytes) about 1.4 times faster than the record loop
+(``bench/bench_capture.py``); pcapng blocks are always found one by one (a
+numpy walk over them did not win there)."""
 SLOW_RECORDS = 4096
 """Records found one by one after the numpy walk stopped early (then it is tried again)."""
 MAX_REPAIRS = 16
@@ -161,24 +171,17 @@ MAX_REPAIRS = 16
 
 
 def _step(
-    u32: npt.NDArray[np.uint32], p: npt.NDArray[np.int64], end: int, pcapng: bool
+    u32: npt.NDArray[np.uint32], p: npt.NDArray[np.int64], end: int
 ) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.bool_], npt.NDArray[np.bool_]]:
-    """One record (pcap) or enhanced packet block (pcapng) at each offset in ``p``.
+    """One pcap record at each offset in ``p``.
 
     Returns (offset of the next one, this one is whole and plausible, this one
     is plausible but cut by ``end``).
     """
-    if not pcapng:
-        length = u32[p + 8].astype(np.int64)
-        nxt = p + 16 + length
-        plausible = length <= MAX_CAPLEN
-        return nxt, plausible & (nxt <= end), plausible & (nxt > end)
-    blen = u32[p + 4].astype(np.int64)
-    nxt = p + blen
-    plausible = (u32[p] == BT_EPB) & (blen >= 32) & (blen % 4 == 0) & (blen <= MAX_BLOCK)
-    whole = plausible & (nxt <= end)
-    whole &= u32[np.where(whole, nxt - 4, p)] == blen
-    return nxt, whole, plausible & (nxt > end)
+    length = u32[p + RECORD_CAPLEN_AT].astype(np.int64)
+    nxt = p + RECORD_HEADER + length
+    plausible = length <= MAX_CAPLEN
+    return nxt, plausible & (nxt <= end), plausible & (nxt > end)
 
 
 def _lockstep(
@@ -186,7 +189,6 @@ def _lockstep(
     starts: npt.NDArray[np.int64],
     seg_end: npt.NDArray[np.int64],
     end: int,
-    pcapng: bool = False,
 ) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.int64]]:
     """Walk the record chains from ``starts`` in lock step until each leaves its segment.
 
@@ -202,7 +204,7 @@ def _lockstep(
     idx = np.flatnonzero(starts >= 0)
     while len(idx):
         p = at[idx]
-        nxt, good, cut = _step(u32, p, end, pcapng)
+        nxt, good, cut = _step(u32, p, end)
         row = np.full(k, -1, np.int64)
         row[idx] = np.where(good, p, -1)
         rows.append(row)
@@ -217,12 +219,9 @@ def _lockstep(
 
 
 def find_pcap_records(
-    buf: bytes, endian: str, pos: int, end: int, mean_record: float, pcapng: bool = False
+    buf: bytes, endian: str, pos: int, end: int, mean_record: float
 ) -> tuple[npt.NDArray[np.int64], int]:
     """Offsets of consecutive pcap records from ``pos`` (a known record start), found with numpy.
-
-    With ``pcapng`` the records are enhanced packet blocks (any other block
-    ends the walk; the caller handles it).
 
     A record's offset depends on every record before it, so one walk is
     sequential. Instead the buffer is cut into segments; a record start is
@@ -253,46 +252,30 @@ def find_pcap_records(
     seg_len = int(max(4096, 32 * mean_record))
     window = int(min(seg_len // 2, max(128, 3 * mean_record)))
     # The last window must end inside the buffer.
-    if pcapng:
-        seg_len -= seg_len % 4  # blocks stay 4-aligned relative to pos
-        window -= window % 4
-    k = (end - pos - window - 16) // seg_len
+    k = (end - pos - window - RECORD_HEADER) // seg_len
     if k < 2:
         return none, pos
     seg = pos + np.arange(k, dtype=np.int64) * seg_len
     seg_end = seg + seg_len
     # The last chain stops where a full record header no longer fits.
-    seg_end[-1] = end - 15
+    seg_end[-1] = end - RECORD_HEADER + 1
     rows = np.arange(k - 1)
-    if pcapng:
-        # Row j: every 4-aligned offset after segment j+1's start; look for a packet block type.
-        windows = np.lib.stride_tricks.as_strided(
-            u32[int(seg[1]) :], shape=(k - 1, window // 4), strides=(seg_len, 4), writeable=False
-        )
-        match = windows == BT_EPB
-        first = match.argmax(axis=1)
-        guess = seg[1:] + 4 * first
-        blen = u32[guess + 4].astype(np.int64)
-        fits = (blen >= 32) & (blen % 4 == 0) & (guess + blen <= end)
-        trailer = u32[np.where(fits, guess + blen - 4, guess)] == blen
-        plausible = match[rows, first] & fits & trailer
-    else:
-        high = int(u32[pos]) >> 16
-        high_at = 2 if endian == "<" else 0
-        # Row j: the window after segment j+1's start, one u16 per byte offset.
-        windows = np.lib.stride_tricks.as_strided(
-            u16[int(seg[1]) + high_at :],
-            shape=(k - 1, window),
-            strides=(seg_len, 1),
-            writeable=False,
-        )
-        match = windows == high
-        first = match.argmax(axis=1)
-        guess = seg[1:] + first
-        length = u32[guess + 8].astype(np.int64)
-        plausible = match[rows, first] & (length <= MAX_CAPLEN) & (u32[guess + 12] >= length)
+    high = int(u32[pos]) >> 16
+    high_at = 2 if endian == "<" else 0
+    # Row j: the window after segment j+1's start, one u16 per byte offset.
+    windows = np.lib.stride_tricks.as_strided(
+        u16[int(seg[1]) + high_at :],
+        shape=(k - 1, window),
+        strides=(seg_len, 1),
+        writeable=False,
+    )
+    match = windows == high
+    first = match.argmax(axis=1)
+    guess = seg[1:] + first
+    length = u32[guess + RECORD_CAPLEN_AT].astype(np.int64)
+    plausible = match[rows, first] & (length <= MAX_CAPLEN) & (u32[guess + 12] >= length)
     starts = np.concatenate(([pos], np.where(plausible, guess, -1)))
-    grid, crossing = _lockstep(u32, starts, seg_end, end, pcapng)
+    grid, crossing = _lockstep(u32, starts, seg_end, end)
     redone: dict[int, npt.NDArray[np.int64]] = {}
     n_ok = 0
     for _ in range(MAX_REPAIRS + 1):
@@ -303,7 +286,7 @@ def find_pcap_records(
             break
         # Chain n_ok started off the true chain: walk it again from where it must start.
         one = np.array([crossing[n_ok - 1]], np.int64)
-        sub, cross = _lockstep(u32, one, seg_end[n_ok : n_ok + 1], end, pcapng)
+        sub, cross = _lockstep(u32, one, seg_end[n_ok : n_ok + 1], end)
         starts[n_ok] = one[0]
         crossing[n_ok] = cross[0]
         column = sub[:, 0]
@@ -509,8 +492,8 @@ class CaptureParser:
         n_fast = len(fast)
         append = offs.append
         unpack = struct.Struct(self._endian + "I").unpack_from
-        while n_fast + len(offs) < budget and pos + 16 <= end:
-            incl = unpack(buf, pos + 8)[0]
+        while n_fast + len(offs) < budget and pos + RECORD_HEADER <= end:
+            incl = unpack(buf, pos + RECORD_CAPLEN_AT)[0]
             if incl > MAX_CAPLEN:
                 lost_at.append(n_fast + len(offs))
                 self._pending = (
@@ -524,10 +507,10 @@ class CaptureParser:
                 problems.append(self._resync_problem(pos, found, end))
                 pos = found
                 continue
-            if pos + 16 + incl > end:
+            if pos + RECORD_HEADER + incl > end:
                 break
             append(pos)
-            pos += 16 + incl
+            pos += RECORD_HEADER + incl
         n_rec = n_fast + len(offs)
         if final and self._resync_from is None and pos < end and n_rec < budget:
             lost_at.append(n_rec)
@@ -651,11 +634,9 @@ class CaptureParser:
         lost_at: list[int] = []
         counter = self._frame_no
 
-        fast = np.empty(0, np.int64)
-
         def lose(reason: str, at: int, detail: str) -> None:
-            lost_at.append(len(fast) + len(frames))
-            number = counter + len(fast) + len(frames) + len(lost_at)
+            lost_at.append(len(frames))
+            number = counter + len(frames) + len(lost_at)
             problems.append(FrameProblem(reason, number, self._base + at, detail))
 
         if self._resync_from is not None:
@@ -664,31 +645,11 @@ class CaptureParser:
                 return None
             pos = found
             self._resync_from = None
-        budget = max_frames
-        if (
-            self._resync_from is None
-            and self.interfaces
-            and end - pos >= FAST_MIN_BYTES
-            and struct.unpack_from(self._endian + "I", buf, pos)[0] == BT_EPB
-        ):
-            region = min(end, pos + int(max_frames * self._mean_record * 1.25) + FAST_MIN_BYTES)
-            fast, pos = find_pcap_records(
-                buf, self._endian, pos, region, self._mean_record, pcapng=True
-            )
-            if len(fast) > 1:
-                self._mean_record = (pos - int(fast[0])) / len(fast)
-            if len(fast) > max_frames:
-                pos = int(fast[max_frames])
-                fast = fast[:max_frames]
-            if len(fast) and pos >= region - MAX_CAPLEN - 16:
-                budget = len(fast)  # the walk reached its region: the next call goes on
-            else:
-                budget = min(max_frames, len(fast) + SLOW_RECORDS)
         head = struct.Struct(self._endian + "II")
         tail = struct.Struct(self._endian + "I")
-        while len(fast) + len(frames) < budget and pos + 12 <= end:
+        while len(frames) < max_frames and pos + 12 <= end:
             if struct.unpack_from("<I", buf, pos)[0] == PCAPNG_SHB:
-                if frames or len(fast):
+                if frames:
                     break  # a chunk never spans sections: the byte order may change
                 try:
                     blen = self._read_shb(buf, pos, end)
@@ -767,8 +728,8 @@ class CaptureParser:
                     )
                 )
             pos += blen
-        n_rec = len(fast) + len(frames)
-        if final and self._resync_from is None and n_rec < budget and 0 < end - pos < 12:
+        n_rec = len(frames)
+        if final and self._resync_from is None and n_rec < max_frames and 0 < end - pos < 12:
             problems.append(
                 FrameProblem(
                     R_TRUNCATED,
@@ -782,12 +743,11 @@ class CaptureParser:
         self._frame_no = counter + n_rec + len(lost_at)
         if not n_rec and not problems:
             return None
-        return self._pcapng_spans(buf, fast, frames, kinds, lost_at, counter, problems, pos)
+        return self._pcapng_spans(buf, frames, kinds, lost_at, counter, problems, pos)
 
     def _pcapng_spans(
         self,
         buf: bytes,
-        fast: npt.NDArray[np.int64],
         frames: list[int],
         kinds: list[int],
         lost_at: list[int],
@@ -795,11 +755,11 @@ class CaptureParser:
         problems: list[FrameProblem],
         pos: int,
     ) -> Chunk:
-        o = np.concatenate((fast, np.asarray(frames, np.int64))) if frames else fast
+        o = np.asarray(frames, np.int64)
         e = self._endian
         u32 = _u32_view(buf, e)
         u16 = _u16_view(buf, e)
-        is_pb = np.concatenate((np.zeros(len(fast), bool), np.asarray(kinds, np.int64) == BT_PB))
+        is_pb = np.asarray(kinds, np.int64) == BT_PB
         blen = u32[o + 4].astype(np.int64)
         iface = np.where(is_pb, u16[o + 8], u32[o + 8]).astype(np.int64)
         ts = (u32[o + 12].astype(np.uint64) << np.uint64(32)) | u32[o + 16].astype(np.uint64)

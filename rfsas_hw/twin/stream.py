@@ -74,75 +74,25 @@ def _merge_frames(
     }
 
 
-_FEW_TRACKS = 4
-"""Up to this many tracks are interpolated one by one (faster than side by side)."""
-_FEW_FRAMES = 32
-"""Up to this many frames, a window's emitters are told apart in plain integers."""
-
-
-def _unique_inverse(ids: npt.NDArray[np.intp]) -> tuple[list[int], npt.NDArray[np.intp]]:
-    """The distinct values of ``ids`` in increasing order and each row's index into
-    them: what ``np.unique(ids, return_inverse=True)`` gives, in plain integers for
-    a handful of rows (cheaper than its sort)."""
-    if len(ids) > _FEW_FRAMES:
-        uniq, inverse = np.unique(ids, return_inverse=True)
-        return uniq.tolist(), inverse.reshape(-1)
-    rows = ids.tolist()
-    uniq_ids = sorted(set(rows))
-    where = {e: k for k, e in enumerate(uniq_ids)}
-    return uniq_ids, np.array([where[e] for e in rows], np.intp)
-
-
 def _interp_tracks(
     knots: list[tuple[Array, Array, Array]], track: npt.NDArray[np.intp], t: Array
 ) -> Array:
     """Positions at times ``t`` on tracks ``knots[track]`` (knot times, east, north), (n, 2).
 
-    Each row gives what ``np.interp`` gives on its own track, bit for bit: the
-    end values outside the knots, the knot's value on a knot, else
-    ``slope·(t − t_j) + y_j`` with ``slope = (y_{j+1} − y_j)/(t_{j+1} − t_j)``.
+    ``np.interp`` on each track, as the offline world interpolates one track;
+    the rows are grouped by track with one sort, so a track costs two calls.
     """
-    U = len(knots)
-    if U <= _FEW_TRACKS:
-        out = np.empty((len(t), 2))
-        for u, (ts, xs, ys) in enumerate(knots):
-            sel = track == u
-            out[sel, 0] = np.interp(t[sel], ts, xs)
-            out[sel, 1] = np.interp(t[sel], ts, ys)
-        return out
-    n_k = np.array([len(k[0]) for k in knots], np.intp)
-    K = int(n_k.max())
-    # every track's knots in one row, padded with +inf times and its last position
-    kt = np.full((U, K), np.inf)
-    kx = np.repeat(np.array([k[1][-1] for k in knots])[:, None], K, axis=1)
-    ky = np.repeat(np.array([k[2][-1] for k in knots])[:, None], K, axis=1)
-    rows_k = np.repeat(np.arange(U), n_k)
-    cols_k = np.arange(len(rows_k)) - np.repeat(np.cumsum(n_k) - n_k, n_k)
-    kt[rows_k, cols_k] = np.concatenate([k[0] for k in knots])
-    kx[rows_k, cols_k] = np.concatenate([k[1] for k in knots])
-    ky[rows_k, cols_k] = np.concatenate([k[2] for k in knots])
-    T = kt[track]
-    j = np.count_nonzero(T <= t[:, None], axis=1) - 1
-    last = n_k[track] - 1
-    rows = np.arange(len(t))
-    jj = np.clip(j, 0, max(K - 2, 0))
-    jn = np.minimum(jj + 1, K - 1)
-    t0, t1 = T[rows, jj], T[rows, jn]
-    out = np.empty((len(t), 2))
-    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-        for axis, kv in enumerate((kx, ky)):
-            V = kv[track]
-            y0, y1 = V[rows, jj], V[rows, jn]
-            slope = (y1 - y0) / (t1 - t0)
-            value = slope * (t - t0) + y0
-            redo = np.isnan(value)
-            if redo.any():
-                other = slope * (t - t1) + y1
-                other = np.where(np.isnan(other) & (y0 == y1), y0, other)
-                value = np.where(redo, other, value)
-            value = np.where(t0 == t, y0, value)
-            value = np.where(j >= last, V[rows, last], value)
-            out[:, axis] = np.where(j < 0, V[:, 0], value)
+    order = np.argsort(track, kind="stable")
+    bounds = np.searchsorted(track[order], np.arange(len(knots) + 1)).tolist()
+    t_sorted = t[order]
+    xy = np.empty((len(t), 2))
+    for u, (ts, xs, ys) in enumerate(knots):
+        lo, hi = bounds[u], bounds[u + 1]
+        if lo < hi:
+            xy[lo:hi, 0] = np.interp(t_sorted[lo:hi], ts, xs)
+            xy[lo:hi, 1] = np.interp(t_sorted[lo:hi], ts, ys)
+    out = np.empty_like(xy)
+    out[order] = xy
     return out
 
 
@@ -495,16 +445,17 @@ class StreamTwin(World):
     def _positions(self, emitter: npt.NDArray[np.intp], t_s: Array) -> Array:
         """Where each frame's emitter was at its time, shape (n, 2), metres.
 
-        :meth:`emitter_position` for many emitters in one pass: the knots of
-        every carrier side by side, interpolated exactly as ``np.interp`` does
-        on one track (so the streamed frames keep the offline world's positions).
+        :meth:`emitter_position` for many emitters: ``np.interp`` on each
+        carrier's knots, as the offline world does (so the streamed frames keep
+        the offline world's positions).
 
         Raises:
             SimulationError: a carrier has no knot yet.
         """
         if not len(t_s):
             return np.empty((0, 2))
-        uniq_ids, inverse = _unique_inverse(emitter)
+        uniq, inverse = np.unique(emitter, return_inverse=True)
+        uniq_ids: list[int] = uniq.tolist()
         knots: list[tuple[Array, Array, Array]] = []
         for i in uniq_ids:
             track = self._carrier(i)

@@ -356,16 +356,15 @@ def _big_capture(kind: str, big_endian: bool, corrupt: bool) -> bytes:
     return bytes(data)
 
 
-@pytest.mark.parametrize("kind", ["pcap", "pcapng"])
 @pytest.mark.parametrize("big_endian", [False, True])
 @pytest.mark.parametrize("corrupt", [False, True])
 def test_numpy_record_walk_equals_record_by_record(
-    monkeypatch: pytest.MonkeyPatch, kind: str, big_endian: bool, corrupt: bool
+    monkeypatch: pytest.MonkeyPatch, big_endian: bool, corrupt: bool
 ) -> None:
-    """The lock-step numpy walk over large buffers finds exactly what the plain loop finds."""
+    """The lock-step numpy walk over a large pcap finds the records the plain loop finds."""
     from rfsas_hw.sources import pcapfile
 
-    data = _big_capture(kind, big_endian, corrupt)
+    data = _big_capture("pcap", big_endian, corrupt)
     assert len(data) > 20 * pcapfile.FAST_MIN_BYTES
 
     def run(max_frames: int) -> tuple[list[int], list[int], list[str]]:

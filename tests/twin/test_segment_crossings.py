@@ -55,7 +55,8 @@ def test_crossings_equal_the_full_substitution_for_every_kind_of_segment() -> No
         assert got.dtype == want.dtype and got.shape == want.shape
         np.testing.assert_array_equal(got, want)
         loss, hit = blockage_db(p0, p1, rects)
-        np.testing.assert_array_equal(loss, want.astype(np.float64) @ rects[:, 4])
+        # a sum of the crossed buildings' losses, in another order than the product's
+        np.testing.assert_allclose(loss, want.astype(np.float64) @ rects[:, 4], rtol=1e-12)
         np.testing.assert_array_equal(hit, want.any(axis=1))
         crossed += int(want.sum())
         parallel_seen += int(((p1 - p0) == 0).any())

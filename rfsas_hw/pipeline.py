@@ -26,6 +26,7 @@ import numpy as np
 from rfsas_hw.angles import relative_to_compass
 from rfsas_hw.df.calibration import Calibration
 from rfsas_hw.df.estimate import DfFlag, DfResult, estimate
+from rfsas_hw.df.fovguard import FovGuard
 from rfsas_hw.df.hybrid import phase_df_result
 from rfsas_hw.privacy.hashing import MacHasher, NonceExpiredError, NonceUnavailableError
 from rfsas_hw.records import BearingBatch, ObservationBatch, Pose
@@ -176,6 +177,8 @@ class SensorPipeline:
         min_snr_db: frames whose stronger antenna is below this are rejected (None: keep all).
         hold_max: most frames held while their epoch's nonce is missing; beyond it
             the oldest are dropped (counted as ``hold_overflow``).
+        fov_guard: the level rule in time (:class:`~rfsas_hw.df.fovguard.FovGuard`), keyed
+            by the raw MAC inside this process; None: one with the default settings.
     """
 
     def __init__(
@@ -187,8 +190,10 @@ class SensorPipeline:
         *,
         min_snr_db: float | None = None,
         hold_max: int = DEFAULT_HOLD_MAX,
+        fov_guard: FovGuard | None = None,
     ) -> None:
         self.calibration = calibration
+        self.fov_guard = FovGuard() if fov_guard is None else fov_guard
         self.hasher = hasher
         self.sensor_id = sensor_id
         self.pose = pose
@@ -235,6 +240,17 @@ class SensorPipeline:
         if self.calibration.phase is not None and batch.csi is not None:
             # a CSI receiver with a phase calibration: interferometer bearings
             result = phase_df_result(self.calibration, batch, result)
+        if self.fov_guard is not None:
+            rssi = batch.rssi_dbm
+            result = self.fov_guard.apply(
+                self.calibration,
+                result,
+                rssi[:, 0],
+                rssi[:, 1],
+                batch.channel,
+                batch.mac,
+                batch.t_ns,
+            )
         n_bad = int(np.count_nonzero(result.flags))
         if n_bad:
             for flag in DfFlag:

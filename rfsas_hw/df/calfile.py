@@ -2,7 +2,9 @@
 
 Version 1 files may carry two optional per-table keys of the σ model,
 ``model_sigma_deg`` (the fit's model error) and ``env_floor_deg`` (the
-environment floor a check measured), both degrees, both 0 when absent.
+environment floor a check measured), both degrees, both 0 when absent, and
+``level_db`` (the stronger chain's reading relative to boresight on the grid,
+dB), which the field-of-view rules use (:mod:`rfsas_hw.df.fovrule`).
 
 Every problem names the file and the key, e.g.
 ``cal.yaml: tables[0].psi: 40 values for a grid of 41``.
@@ -55,6 +57,7 @@ class _TableDoc:
     residual_rms_deg: float | None = None
     model_sigma_deg: float = 0.0
     env_floor_deg: float = 0.0
+    level_db: list[float] | None = None
 
 
 @dataclass
@@ -98,6 +101,13 @@ def _check_table(doc: _TableDoc, where: str) -> CalibrationTable:
         value = getattr(doc, key)
         if not (math.isfinite(value) and value >= 0):
             raise CalibrationError(f"{where}.{key}: must be a number ≥ 0 degrees, got {value}")
+    level = None
+    if doc.level_db is not None:
+        level = np.asarray(doc.level_db, dtype=np.float64)
+        if len(level) != len(grid) or not np.all(np.isfinite(level)):
+            raise CalibrationError(
+                f"{where}.level_db: {len(level)} values for a grid of {len(grid)}, all finite"
+            )
     rms = float("nan") if doc.residual_rms_deg is None else doc.residual_rms_deg
     try:
         return CalibrationTable(
@@ -111,6 +121,7 @@ def _check_table(doc: _TableDoc, where: str) -> CalibrationTable:
             rms,
             doc.model_sigma_deg,
             doc.env_floor_deg,
+            level,
         )
     except CalibrationError as err:
         raise CalibrationError(f"{where}: {err}") from err
@@ -216,6 +227,11 @@ def calibration_to_mapping(cal: Calibration) -> dict[str, Any]:
                 **sigma_terms,
                 "grid_deg": _FlowList([round(float(v), 6) for v in t.grid_deg]),
                 "psi": _FlowList([float(f"{v:.9g}") for v in t.psi]),
+                **(
+                    {}
+                    if t.level_db is None
+                    else {"level_db": _FlowList([round(float(v), 3) for v in t.level_db])}
+                ),
             }
         )
     return {

@@ -57,7 +57,7 @@ def _check_table(report: CheckReport, cal_path: Path, samples_path: Path) -> Tab
     table.add_row("samples", str(report.samples))
     table.add_row("inside field of view", str(report.inside_fov))
     table.add_row("bearings (all scored)", str(report.valid))
-    table.add_row("  of them from outside the field of view", str(report.outside_bearings))
+    table.add_row("  of them from outside the FoV", str(report.outside_bearings))
     for reason, count in sorted(report.rejected.items()):
         table.add_row(f"  rejected: {reason}", str(count))
     table.add_row("RMS bearing error", _fmt(report.rms_error_deg, "°"))

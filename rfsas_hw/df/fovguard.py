@@ -33,6 +33,10 @@ spinning once in 10 s forgets 5 dB a turn, well short of the 20 dB and more
 that a back lobe is down.
 """
 
+SMOOTH_S = 0.3
+"""Time constant of the level average an emitter is judged by, seconds: long enough
+to ride out a fading dip of a frame or two, short against a turn of the sensor."""
+
 MAX_EMITTERS = 65_536
 """Emitters a guard remembers at most (the least recently heard are forgotten)."""
 
@@ -88,6 +92,7 @@ class FovGuard:
             On a sensor that turns (a robot spinning in place) one turn lets every
             emitter show its front before its bearings count; 0 (the default) on a
             fixed mount, where waiting teaches nothing.
+        smooth_s: time constant of the level average an emitter is judged by, seconds.
     """
 
     def __init__(
@@ -96,32 +101,50 @@ class FovGuard:
         decay_db_per_s: float = DECAY_DB_PER_S,
         max_emitters: int = MAX_EMITTERS,
         warmup_s: float = 0.0,
+        smooth_s: float = SMOOTH_S,
     ) -> None:
-        if not (margin_db > 0 and decay_db_per_s >= 0 and max_emitters >= 1 and warmup_s >= 0):
+        if not (
+            margin_db > 0
+            and decay_db_per_s >= 0
+            and max_emitters >= 1
+            and warmup_s >= 0
+            and smooth_s >= 0
+        ):
             raise ValueError(
-                "margin_db > 0, decay_db_per_s ≥ 0, max_emitters ≥ 1 and warmup_s ≥ 0 needed"
+                "margin_db > 0, decay_db_per_s ≥ 0, max_emitters ≥ 1, warmup_s ≥ 0 and "
+                "smooth_s ≥ 0 needed"
             )
         self.warmup_ns = int(warmup_s * 1e9)
         self.margin_db = float(margin_db)
         self.decay_db_per_s = float(decay_db_per_s)
         self.max_emitters = int(max_emitters)
-        self._ref: OrderedDict[int, tuple[float, int, int]] = OrderedDict()
-        """Per emitter: reference level (dBm), when it was last updated and first heard (ns)."""
+        self.smooth_ns = smooth_s * 1e9
+        self._ref: OrderedDict[int, tuple[float, float, int, int]] = OrderedDict()
+        """Per emitter: smoothed and reference level (dBm), when it was last updated and
+        when first heard (ns)."""
         self.refused = 0
         """Bearings refused so far."""
 
     def __len__(self) -> int:
         return len(self._ref)
 
-    def references(
+    def track(
         self, keys: npt.ArrayLike, t_ns: npt.ArrayLike, levels_dbm: Array
-    ) -> npt.NDArray[np.float64]:
-        """Update each emitter's reference with the frames in order; the reference each
-        frame is judged against (NaN for a frame without a level; +inf while the
-        emitter is in its warm-up)."""
+    ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+        """Follow each emitter through the frames in order: its smoothed level and the
+        reference that level is judged against, per frame (dBm).
+
+        The smoothed level is an exponential average of the boresight-equivalent
+        levels with time constant ``smooth_s`` (a single fading dip is not a turn
+        away from the antennas); the reference is the brightest smoothed level,
+        decaying. NaN for a frame without a level; the reference is +inf while
+        the emitter is in its warm-up.
+        """
         refs = self._ref
         decay = self.decay_db_per_s * 1e-9
-        out = np.full(len(levels_dbm), np.nan)
+        tau = self.smooth_ns
+        n = len(levels_dbm)
+        smooth, out = np.full(n, np.nan), np.full(n, np.nan)
         rows = zip(
             np.asarray(keys).tolist(), np.asarray(t_ns).tolist(), levels_dbm.tolist(), strict=True
         )
@@ -130,16 +153,21 @@ class FovGuard:
                 continue
             got = refs.get(key)
             if got is None:
-                ref, first = level, t
+                s = ref = level
+                first = t
             else:
-                old, t_old, first = got
-                ref = max(level, old - decay * max(t - t_old, 0))
+                old_s, old_ref, t_old, first = got
+                dt = max(t - t_old, 0)
+                keep = math.exp(-dt / tau) if tau > 0 else 0.0
+                s = keep * old_s + (1.0 - keep) * level
+                ref = max(s, old_ref - decay * dt)
                 refs.move_to_end(key)
-            refs[key] = (ref, t, first)
+            refs[key] = (s, ref, t, first)
+            smooth[i] = s
             out[i] = ref if t - first >= self.warmup_ns else math.inf
         while len(refs) > self.max_emitters:
             refs.popitem(last=False)
-        return out
+        return smooth, out
 
     def apply(
         self,
@@ -156,7 +184,7 @@ class FovGuard:
         ``keys`` identifies the emitter of each frame, ``t_ns`` its time (ns).
         """
         levels = boresight_levels(cal, result, rssi1_dbm, rssi2_dbm, channel)
-        refs = self.references(keys, t_ns, levels)
-        out = refuse_weak(result, levels, refs, self.margin_db)
+        smooth, refs = self.track(keys, t_ns, levels)
+        out = refuse_weak(result, smooth, refs, self.margin_db)
         self.refused += int(np.count_nonzero(out.flags != result.flags))
         return out

@@ -148,25 +148,37 @@ def test_guard_refuses_an_emitter_walking_behind_the_sensor(cal) -> None:  # typ
 
 
 def test_guard_reference_decays_and_forgets_old_emitters(cal) -> None:  # type: ignore[no-untyped-def]
-    guard = FovGuard(margin_db=6.0, decay_db_per_s=1.0, max_emitters=2)
+    guard = FovGuard(margin_db=6.0, decay_db_per_s=1.0, max_emitters=2, smooth_s=0.0)
     levels = np.array([-50.0, -58.0, -58.0])
     t_ns = np.array([0, 1, 5_000_000_000])
-    refs = guard.references(np.array([7, 7, 7]), t_ns, levels)
-    # the second frame is judged against −50 dBm; five seconds later the reference
-    # has decayed to −55 dBm (the −58 dBm frame in between did not raise it)
+    smooth, refs = guard.track(np.array([7, 7, 7]), t_ns, levels)
+    # without smoothing the judged level is the frame's; the second frame is judged
+    # against −50 dBm; five seconds later the reference has decayed to −55 dBm (the
+    # −58 dBm frame in between did not raise it)
+    np.testing.assert_array_equal(smooth, levels)
     assert refs[0] == -50.0 and refs[1] == pytest.approx(-50.0)
     assert refs[2] == pytest.approx(-55.0, abs=1e-6)
-    guard.references(np.array([8, 9]), np.array([6, 7]) * 1_000_000_000, np.array([-40.0, -40.0]))
+    guard.track(np.array([8, 9]), np.array([6, 7]) * 1_000_000_000, np.array([-40.0, -40.0]))
     assert len(guard) == 2
     with pytest.raises(ValueError):
         FovGuard(margin_db=0.0)
 
 
+def test_guard_rides_out_a_fading_dip_but_not_a_turn_away(cal) -> None:  # type: ignore[no-untyped-def]
+    guard = FovGuard(smooth_s=0.3)
+    t_ns = np.arange(40) * 100_000_000  # 10 frames a second
+    levels = np.full(40, -50.0)
+    levels[10] = -62.0  # one frame in a 12 dB fade
+    levels[25:] = -72.0  # turned away: 22 dB down for good
+    smooth, refs = guard.track(np.zeros(40), t_ns, levels)
+    weak = weak_against(smooth, refs, guard.margin_db)
+    assert not weak[:25].any()
+    assert weak[30:].all()
+
+
 def test_guard_warmup_refuses_a_new_emitter_first(cal) -> None:  # type: ignore[no-untyped-def]
     guard = FovGuard(warmup_s=2.0)
-    refs = guard.references(
-        np.array([1, 1]), np.array([0, 3_000_000_000]), np.array([-50.0, -50.0])
-    )
+    _, refs = guard.track(np.array([1, 1]), np.array([0, 3_000_000_000]), np.array([-50.0, -50.0]))
     assert refs[0] == np.inf and refs[1] == -50.0
 
 

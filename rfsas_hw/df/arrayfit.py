@@ -38,6 +38,7 @@ import numpy as np
 import numpy.typing as npt
 
 from rfsas_hw.df.array import ArrayGeometry
+from rfsas_hw.df.arraycal import ElementCalibration
 from rfsas_hw.df.estimate import DfFlag, DfResult
 from rfsas_hw.df.fovrule import near_edge
 
@@ -52,24 +53,6 @@ MISFIT_RATIO = 4.0
 AMBIGUITY_RATIO = 0.6
 """A second peak of ρ at least this fraction of the first flags the packet ``AMBIGUOUS``."""
 _GOLDEN = (math.sqrt(5.0) - 1.0) / 2.0
-
-
-@dataclass(frozen=True, slots=True)
-class ElementCalibration:
-    """Per-element phase and gain of an array's receive chains (element 0 is the reference)."""
-
-    phase_rad: npt.NDArray[np.float64]
-    """Phase each chain adds, rad (0 for element 0)."""
-    gain_db: npt.NDArray[np.float64]
-    """Gain each chain adds relative to element 0, dB."""
-    residual_rad: float = 0.0
-    """Measured one-sigma phase error per element left after calibration, rad."""
-
-    def apply(self, snapshots: Complex) -> npt.NDArray[np.complex128]:
-        """``snapshots`` (…, N) with each chain's phase and gain removed."""
-        corr = np.exp(-1j * self.phase_rad) * 10.0 ** (-self.gain_db / 20.0)
-        out: npt.NDArray[np.complex128] = np.asarray(snapshots, np.complex128) * corr
-        return out
 
 
 def fit_element_calibration(

@@ -4,7 +4,9 @@ Version 1 files may carry two optional per-table keys of the σ model,
 ``model_sigma_deg`` (the fit's model error) and ``env_floor_deg`` (the
 environment floor a check measured), both degrees, both 0 when absent, and
 ``level_db`` (the stronger chain's reading relative to boresight on the grid,
-dB), which the field-of-view rules use (:mod:`rfsas_hw.df.fovrule`).
+dB), which the field-of-view rules use (:mod:`rfsas_hw.df.fovrule`). An optional
+``array:`` section holds an array's geometry and per-element phase and gain
+(:mod:`rfsas_hw.df.arraycal`).
 
 Every problem names the file and the key, e.g.
 ``cal.yaml: tables[0].psi: 40 values for a grid of 41``.
@@ -23,6 +25,7 @@ import numpy as np
 import yaml
 
 from rfsas_hw.config import from_mapping, read_yaml
+from rfsas_hw.df.arraycal import array_from_mapping, array_to_mapping
 from rfsas_hw.df.calibration import (
     FORMAT_NAME,
     FORMAT_VERSION,
@@ -70,6 +73,7 @@ class _FileDoc:
     antenna: dict[str, Any] = field(default_factory=dict)
     receiver: _ReceiverDoc = field(default_factory=_ReceiverDoc)
     phase: Any = None
+    array: Any = None
 
 
 def _check_table(doc: _TableDoc, where: str) -> CalibrationTable:
@@ -151,6 +155,7 @@ def calibration_from_mapping(data: Any, where: str = "calibration") -> Calibrati
         raise CalibrationError(str(err)) from err
     tables = tuple(_check_table(t, f"{where}: tables[{i}]") for i, t in enumerate(doc.tables))
     phase = None if doc.phase is None else phase_from_mapping(doc.phase, f"{where}: phase")
+    array = None if doc.array is None else array_from_mapping(doc.array, f"{where}: array")
     try:
         return Calibration(
             mode=doc.mode,
@@ -161,6 +166,7 @@ def calibration_from_mapping(data: Any, where: str = "calibration") -> Calibrati
             antenna=doc.antenna,
             created=doc.created,
             phase=phase,
+            array=array,
         )
     except CalibrationError as err:
         raise CalibrationError(f"{where}: tables: {err}") from err
@@ -247,6 +253,7 @@ def calibration_to_mapping(cal: Calibration) -> dict[str, Any]:
         },
         "tables": tables,
         **({} if cal.phase is None else {"phase": phase_to_mapping(cal.phase)}),
+        **({} if cal.array is None else {"array": array_to_mapping(cal.array)}),
     }
 
 

@@ -21,6 +21,7 @@ import numpy as np
 import numpy.typing as npt
 from scipy.interpolate import make_smoothing_spline
 
+from rfsas_hw.df.arraycal import ArrayCalibration
 from rfsas_hw.df.monopulse import Mode, balance_k_d, ratio, ratio_gradient
 from rfsas_hw.df.phasecal import PhaseCalibration
 from rfsas_hw.errors import CalibrationError
@@ -151,6 +152,8 @@ class Calibration:
     """When the calibration was made, ISO 8601 UTC."""
     phase: PhaseCalibration | None = None
     """Interferometer phase offsets of the antenna pairs (CSI receivers), or None."""
+    array: ArrayCalibration | None = None
+    """An array's geometry and per-element phase and gain (array DF), or None."""
 
     def __post_init__(self) -> None:
         seen: set[int | None] = set()

@@ -181,3 +181,36 @@ def test_missing_elements_fov_and_bad_input() -> None:
         estimate_array(ula, np.zeros((3, 5), complex), FREQ_MHZ)
     with pytest.raises(ValueError, match="frequency"):
         estimate_array(ula, x, 0.0)
+
+
+def test_array_calibration_is_stored_with_the_amplitude_tables(tmp_path: Path) -> None:
+    import dataclasses
+
+    from rfsas_hw.df import load_calibration, save_calibration
+    from rfsas_hw.df.arraycal import ArrayCalibration
+    from rfsas_hw.df.calfile import calibration_from_mapping, calibration_to_mapping
+
+    uca = ArrayGeometry.uca(8, 0.6 * LAM)
+    rng = np.random.default_rng(11)
+    cal_theta = np.repeat(np.arange(-180.0, 180.0, 15.0), 5)
+    x = array_snapshots(uca, cal_theta, 25.0, FREQ_MHZ, rng, chain_phase_rad=rng.uniform(-3, 3, 8))
+    elements = fit_element_calibration(uca, x, cal_theta, FREQ_MHZ)
+    base = load_calibration(Path(__file__).resolve().parents[2] / "calibration/example_cal.yaml")
+    cal = dataclasses.replace(
+        base, array=ArrayCalibration(uca, elements, FREQ_MHZ, (-180.0, 180.0))
+    )
+    path = tmp_path / "with_array.yaml"
+    save_calibration(cal, path)
+    back = load_calibration(path).array
+    assert back is not None and back.geometry.n == 8 and back.fov_deg == (-180.0, 180.0)
+    np.testing.assert_allclose(back.geometry.positions_m, uca.positions_m, atol=1e-6)
+    np.testing.assert_allclose(back.elements.phase_rad, elements.phase_rad, atol=1e-5)
+    np.testing.assert_allclose(back.elements.gain_db, elements.gain_db, atol=1e-4)
+    assert back.elements.residual_rad == pytest.approx(elements.residual_rad, abs=1e-5)
+    doc = calibration_to_mapping(cal)
+    doc["array"]["gain_db"] = doc["array"]["gain_db"][:-1]
+    with pytest.raises(CalibrationError, match=r"x\.yaml: array\.gain_db: 7 values for 8"):
+        calibration_from_mapping(doc, "x.yaml")
+    doc["array"]["colour"] = "red"
+    with pytest.raises(CalibrationError, match="unknown key 'colour'"):
+        calibration_from_mapping(doc, "x.yaml")

@@ -24,6 +24,7 @@ from typing import Any
 import numpy as np
 
 from rfsas_hw.angles import relative_to_compass
+from rfsas_hw.df.arraycsi import array_df_result
 from rfsas_hw.df.calibration import Calibration
 from rfsas_hw.df.estimate import DfFlag, DfResult, estimate
 from rfsas_hw.df.fovguard import FovGuard
@@ -224,6 +225,15 @@ class SensorPipeline:
             memo = self._memo = _df_memo(self.calibration, self.min_snr_db)
         return memo.estimate(batch)
 
+    def _guard(self, batch: ObservationBatch, result: DfResult) -> DfResult:
+        """The level rule in time (:class:`FovGuard`) on the amplitude or phase bearings."""
+        if self.fov_guard is None:
+            return result
+        rssi = batch.rssi_dbm
+        return self.fov_guard.apply(
+            self.calibration, result, rssi[:, 0], rssi[:, 1], batch.channel, batch.mac, batch.t_ns
+        )
+
     def process(self, batch: ObservationBatch) -> BearingBatch:
         """Valid bearings of ``batch``, in order, after any held frames whose nonce has
         arrived; invalid frames are counted by reason. Never raises for a missing
@@ -239,18 +249,13 @@ class SensorPipeline:
         result = self._estimate(batch)
         if self.calibration.phase is not None and batch.csi is not None:
             # a CSI receiver with a phase calibration: interferometer bearings
-            result = phase_df_result(self.calibration, batch, result)
-        if self.fov_guard is not None:
-            rssi = batch.rssi_dbm
-            result = self.fov_guard.apply(
-                self.calibration,
-                result,
-                rssi[:, 0],
-                rssi[:, 1],
-                batch.channel,
-                batch.mac,
-                batch.t_ns,
-            )
+            result = self._guard(batch, phase_df_result(self.calibration, batch, result))
+        elif self.calibration.array is not None and batch.csi is not None:
+            # an array with a CSI receiver: every antenna in one fit, over its own field
+            # of view (the amplitude pair's level curve says nothing about it)
+            result = array_df_result(self.calibration, batch, result)
+        else:
+            result = self._guard(batch, result)
         n_bad = int(np.count_nonzero(result.flags))
         if n_bad:
             for flag in DfFlag:

@@ -214,3 +214,37 @@ def test_array_calibration_is_stored_with_the_amplitude_tables(tmp_path: Path) -
     doc["array"]["colour"] = "red"
     with pytest.raises(CalibrationError, match="unknown key 'colour'"):
         calibration_from_mapping(doc, "x.yaml")
+
+
+def test_the_pipeline_uses_every_antenna_of_a_csi_array() -> None:
+    import dataclasses
+
+    from rfsas_hw.df import load_calibration
+    from rfsas_hw.df.arraycal import ArrayCalibration, ElementCalibration
+    from rfsas_hw.pipeline import SensorPipeline
+    from rfsas_hw.privacy.hashing import FixedNonce, MacHasher
+    from rfsas_hw.records import CsiBlock, ObservationBatch, Pose
+
+    uca = ArrayGeometry.uca(8, 0.6 * LAM)
+    base = load_calibration(Path(__file__).resolve().parents[2] / "calibration/example_cal.yaml")
+    none = ElementCalibration(np.zeros(8), np.zeros(8))
+    cal = dataclasses.replace(base, array=ArrayCalibration(uca, none, FREQ_MHZ))
+    rng = np.random.default_rng(12)
+    n, n_sc = 300, 16
+    theta = rng.uniform(-180.0, 180.0, n)
+    x = array_snapshots(uca, theta, 15.0, FREQ_MHZ, rng, snapshots=n_sc)  # (n, 16, 8)
+    h = np.moveaxis(x, 2, 1)[:, :, None, :]  # (n, antennas, 1 stream, subcarriers)
+    batch = ObservationBatch(
+        t_ns=1_700_000_000_000_000_000 + np.arange(n) * 1_000_000,
+        mac=np.full(n, 0x0200_0000_0001, np.uint64),
+        freq_mhz=np.full(n, int(FREQ_MHZ)),
+        channel=np.full(n, 7),
+        rssi_dbm=np.full((n, 8), -60.0),
+        csi=CsiBlock(h, np.arange(-8, 8)),
+    )
+    pipe = SensorPipeline(cal, MacHasher(FixedNonce(b"k" * 16)), "arr", Pose(0.0, 0.0, 0.0))
+    out = pipe.process(batch)
+    assert len(out) == n  # full circle: no bearing refused
+    err = _wrap(np.asarray(out.azimuth_deg) - theta)
+    crb = crb_deg(uca, theta, 15.0, FREQ_MHZ, snapshots=n_sc)
+    assert np.sqrt(np.mean(err**2)) <= 1.2 * np.sqrt(np.mean(crb**2))

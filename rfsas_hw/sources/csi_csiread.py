@@ -307,7 +307,8 @@ def read_nexmon(path: str | Path, freq_mhz: int = 0, chip: str | None = None) ->
     notes["packets"] = n
     caplen = np.asarray(d.caplen[:n])
     notes["packets longer than the CSI they carry"] = int(np.sum(caplen > np.median(caplen)))
-    return CsiCapture(name, "nexmon", [frames], "dBm", [], notes)
+    unit = "dBm" if new else "none (old nexmon format)"
+    return CsiCapture(name, "nexmon", [frames], unit, [], notes)
 
 
 READERS = {"atheros": "read_atheros", "picoscenes": "read_picoscenes", "nexmon": "read_nexmon"}

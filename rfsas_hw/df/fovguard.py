@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections import OrderedDict
 from typing import Any
 
 import numpy as np
@@ -55,15 +54,25 @@ def boresight_levels(
     """
     n = len(result.angle_deg)
     angle = result.angle_deg.astype(np.float64)
+    has = np.isfinite(angle)
+    out = np.full(n, np.nan)
+    if not has.any():
+        return out
     level = np.zeros(n)
-    ch = np.zeros(n, dtype=np.int64) if channel is None else np.asarray(channel, dtype=np.int64)
-    for c in np.unique(ch).tolist() if n else []:
-        table = cal.table_for(int(c))
+    ch = None if channel is None else np.asarray(channel, dtype=np.int64)
+    if ch is None or ch.min() == ch.max():  # the usual case: one table for the batch
+        groups: list[tuple[int | None, npt.NDArray[np.bool_]]] = [
+            (None if ch is None else int(ch[0]), has)
+        ]
+    else:
+        groups = [(int(c), has & (ch == c)) for c in np.unique(ch).tolist()]
+    for c, mask in groups:
+        table = cal.table_for(c)
         if table is not None:
-            mask = ch == c
-            level[mask] = table.level_at(np.nan_to_num(angle[mask]))
-    out = boresight_equivalent_dbm(np.asarray(rssi1_dbm), np.asarray(rssi2_dbm), level)
-    out[~np.isfinite(angle)] = np.nan
+            level[mask] = table.level_at(angle[mask])
+    r1 = np.asarray(rssi1_dbm, dtype=np.float64)
+    r2 = np.asarray(rssi2_dbm, dtype=np.float64)
+    out[has] = boresight_equivalent_dbm(r1[has], r2[has], level[has])
     return out
 
 
@@ -119,7 +128,7 @@ class FovGuard:
         self.decay_db_per_s = float(decay_db_per_s)
         self.max_emitters = int(max_emitters)
         self.smooth_ns = smooth_s * 1e9
-        self._ref: OrderedDict[int, tuple[float, float, int, int]] = OrderedDict()
+        self._ref: dict[int, tuple[float, float, int, int]] = {}
         """Per emitter: smoothed and reference level (dBm), when it was last updated and
         when first heard (ns)."""
         self.refused = 0
@@ -143,31 +152,36 @@ class FovGuard:
         refs = self._ref
         decay = self.decay_db_per_s * 1e-9
         tau = self.smooth_ns
-        n = len(levels_dbm)
-        smooth, out = np.full(n, np.nan), np.full(n, np.nan)
+        warmup = self.warmup_ns
+        nan, inf = math.nan, math.inf
+        smooth: list[float] = []
+        out: list[float] = []
         rows = zip(
             np.asarray(keys).tolist(), np.asarray(t_ns).tolist(), levels_dbm.tolist(), strict=True
         )
-        for i, (key, t, level) in enumerate(rows):
+        for key, t, level in rows:
             if level != level:  # NaN: no bearing, nothing learned
+                smooth.append(nan)
+                out.append(nan)
                 continue
-            got = refs.get(key)
+            got = refs.pop(key, None)  # re-inserted below: the dict stays in hearing order
             if got is None:
                 s = ref = level
                 first = t
             else:
                 old_s, old_ref, t_old, first = got
-                dt = max(t - t_old, 0)
+                dt = t - t_old if t > t_old else 0
                 keep = math.exp(-dt / tau) if tau > 0 else 0.0
                 s = keep * old_s + (1.0 - keep) * level
-                ref = max(s, old_ref - decay * dt)
-                refs.move_to_end(key)
+                ref = old_ref - decay * dt
+                if s > ref:
+                    ref = s
             refs[key] = (s, ref, t, first)
-            smooth[i] = s
-            out[i] = ref if t - first >= self.warmup_ns else math.inf
+            smooth.append(s)
+            out.append(ref if t - first >= warmup else inf)
         while len(refs) > self.max_emitters:
-            refs.popitem(last=False)
-        return smooth, out
+            del refs[next(iter(refs))]
+        return np.array(smooth, np.float64), np.array(out, np.float64)
 
     def apply(
         self,

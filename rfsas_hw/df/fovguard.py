@@ -20,6 +20,7 @@ import numpy.typing as npt
 
 from rfsas_hw.df.calibration import Calibration
 from rfsas_hw.df.estimate import DfFlag, DfResult
+from rfsas_hw.df.fovchannels import ChannelConsistency
 from rfsas_hw.df.fovrule import LEVEL_MARGIN_DB, boresight_equivalent_dbm, weak_against
 
 Array = npt.NDArray[np.floating[Any]]
@@ -80,13 +81,18 @@ def refuse_weak(
     result: DfResult, levels_dbm: Array, reference_dbm: Array, margin_db: float = LEVEL_MARGIN_DB
 ) -> DfResult:
     """``result`` with the bearings weak against their reference flagged ``MAY_BE_OUTSIDE``."""
-    weak = weak_against(levels_dbm, reference_dbm, margin_db) & result.valid
-    if not weak.any():
+    return refuse(result, weak_against(levels_dbm, reference_dbm, margin_db))
+
+
+def refuse(result: DfResult, mask: npt.NDArray[np.bool_]) -> DfResult:
+    """``result`` with the valid bearings under ``mask`` flagged ``MAY_BE_OUTSIDE``."""
+    mask = mask & result.valid
+    if not mask.any():
         return result
-    flags = result.flags | (weak.view(np.uint8) * np.uint8(DfFlag.MAY_BE_OUTSIDE))
+    flags = result.flags | (mask.view(np.uint8) * np.uint8(DfFlag.MAY_BE_OUTSIDE))
     angle, sigma = result.angle_deg.copy(), result.sigma_deg.copy()
-    angle[weak] = np.nan
-    sigma[weak] = np.nan
+    angle[mask] = np.nan
+    sigma[mask] = np.nan
     return dataclasses.replace(result, angle_deg=angle, sigma_deg=sigma, flags=flags)
 
 
@@ -102,6 +108,7 @@ class FovGuard:
             emitter show its front before its bearings count; 0 (the default) on a
             fixed mount, where waiting teaches nothing.
         smooth_s: time constant of the level average an emitter is judged by, seconds.
+        channels: the across-channel check (None: one with the default settings).
     """
 
     def __init__(
@@ -111,6 +118,7 @@ class FovGuard:
         max_emitters: int = MAX_EMITTERS,
         warmup_s: float = 0.0,
         smooth_s: float = SMOOTH_S,
+        channels: ChannelConsistency | None = None,
     ) -> None:
         if not (
             margin_db > 0
@@ -128,6 +136,7 @@ class FovGuard:
         self.decay_db_per_s = float(decay_db_per_s)
         self.max_emitters = int(max_emitters)
         self.smooth_ns = smooth_s * 1e9
+        self.channels = ChannelConsistency() if channels is None else channels
         self._ref: dict[int, tuple[float, float, int, int]] = {}
         """Per emitter: smoothed and reference level (dBm), when it was last updated and
         when first heard (ns)."""
@@ -193,12 +202,17 @@ class FovGuard:
         keys: npt.ArrayLike,
         t_ns: npt.ArrayLike,
     ) -> DfResult:
-        """``result`` with the bearings weak against their emitter's reference refused.
+        """``result`` with the bearings weak against their emitter's reference refused,
+        and those that disagree with the emitter's bearing on another channel moments
+        earlier (:mod:`rfsas_hw.df.fovchannels`).
 
         ``keys`` identifies the emitter of each frame, ``t_ns`` its time (ns).
         """
         levels = boresight_levels(cal, result, rssi1_dbm, rssi2_dbm, channel)
         smooth, refs = self.track(keys, t_ns, levels)
         out = refuse_weak(result, smooth, refs, self.margin_db)
+        if channel is not None:
+            mixed = self.channels.inconsistent(keys, t_ns, channel, out.angle_deg, out.sigma_deg)
+            out = refuse(out, mixed)
         self.refused += int(np.count_nonzero(out.flags != result.flags))
         return out

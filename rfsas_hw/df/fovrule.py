@@ -5,7 +5,7 @@ measurement folds back: the amplitude ratio of a squinted pair beyond the
 FoV edge repeats a value from inside, and behind the antennas both chains
 sit on the back-lobe floor, so their ratio looks like boresight. The
 estimator then returns an angle inside the FoV with the σ of a good frame,
-and the error can be 100° or more. Two rules keep such bearings out:
+and the error can be 100° or more. Three rules keep such bearings out:
 
 1. **Edge rule** (per frame, every method). A bearing is refused when its
    interval ``θ̂ ± k·σ`` (``k`` = :data:`EDGE_SIGMAS`) reaches past either
@@ -24,6 +24,10 @@ and the error can be 100° or more. Two rules keep such bearings out:
    The reference is the brightest ``e`` of the same emitter recently
    (:class:`~rfsas_hw.df.fovguard.FovGuard`, in time) or, for a turntable
    check at one range, the brightest of the run.
+
+3. **Channel rule** (:mod:`rfsas_hw.df.fovchannels`): a bearing that disagrees
+   with the same emitter's bearing on another channel moments earlier is
+   refused; outside the FoV the folds differ from channel to channel.
 
 What the rules cannot see: an emitter that never shows its front (static
 behind a fixed sensor) has no brighter reference; mount a two-antenna sensor

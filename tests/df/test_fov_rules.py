@@ -228,3 +228,56 @@ def test_check_warns_on_few_samples_and_constant_guess(cal) -> None:  # type: ig
     # every true angle within 2°: answering 1° always beats bearings of σ ≈ 3°
     assert report.constant_beats_bearings and not report.consistent
     assert constant_guess_rms_deg(np.array([170.0, -170.0])) == pytest.approx(10.0)
+
+
+def test_channel_consistency_marks_a_disagreement() -> None:
+    from rfsas_hw.df.fovchannels import ChannelConsistency
+
+    cc = ChannelConsistency(window_s=0.5, k_sigma=3.0, allowance_deg=2.0)
+    t = np.array([0, 100, 200, 300, 2_000]) * 1_000_000
+    ch = np.array([1, 6, 1, 6, 1])
+    angle = np.array([10.0, 11.0, 10.5, 40.0, -30.0])
+    sigma = np.full(5, 2.0)
+    got = cc.inconsistent(np.zeros(5), t, ch, angle, sigma)
+    # 40° on channel 6 against 10.5° on channel 1 0.1 s before: 29.5° > 3·2.8° + 2°;
+    # −30° 1.7 s later has nothing recent on another channel to disagree with
+    assert got.tolist() == [False, False, False, True, False]
+
+
+def test_an_emitter_beside_the_antennas_disagrees_across_channels() -> None:  # type: ignore[no-untyped-def]
+    # two channels whose antennas differ only outside the field of view: a 25 dB and a
+    # 15 dB back lobe fold an emitter at 60–70° onto different angles inside it
+    sweeps = []
+    for ftb, ch in ((25.0, 1), (15.0, 6)):
+        ant = GaussianBeamPair(squint_deg=20.0, beamwidth_deg=45.0, peak_gain_dbi=3.0,
+                               front_to_back_db=ftb)  # fmt: skip
+        sweeps.append(turntable_sweep(np.arange(-90.0, 90.5, 1.0), 20, -50.0, ant, RX, ch, ch))
+    both = TurntableSamples(
+        *(np.concatenate([getattr(s, k) for s in sweeps]) for k in
+          ("angle_deg", "rssi1_dbm", "rssi2_dbm", "channel"))
+    )  # fmt: skip
+    two = fit_calibration(both, "linear")
+    assert [t.channel for t in two.tables] == [1, 6]
+    rng = np.random.default_rng(30)
+
+    def run(true_deg: float) -> float:
+        n = 400
+        ch = np.where(np.arange(n) % 2 == 0, 1, 6)
+        ftb = np.where(ch == 1, 25.0, 15.0)
+        r = np.empty((n, 2))
+        for c, f in ((1, 25.0), (6, 15.0)):
+            ant = GaussianBeamPair(squint_deg=20.0, beamwidth_deg=45.0, peak_gain_dbi=3.0,
+                                   front_to_back_db=f)  # fmt: skip
+            sel = ftb == f
+            r[sel] = rssi_pairs(np.full(int(sel.sum()), true_deg), -50.0, ant, RX, rng)
+            del c
+        t_ns = (np.arange(n) * 0.05e9).astype(np.int64)
+        # the level rule off: only the channels can tell
+        guard = FovGuard(margin_db=100.0)
+        res = guard.apply(two, estimate(two, r[:, 0], r[:, 1], ch), r[:, 0], r[:, 1], ch,
+                          np.zeros(n), t_ns)  # fmt: skip
+        return float(res.valid.mean())
+
+    assert run(10.0) > 0.97  # inside: the two channels agree
+    # beside: channel 1 folds 65° onto about 27°, channel 6 onto about 6°
+    assert run(65.0) < 0.2

@@ -23,6 +23,9 @@ measured DF RMS (what the fix can do with the bearings it got).
 Interferometer: CSI from the same twin against its CRB, and the hybrid's
 choice of phase branch for a 2λ baseline (bench/accuracy_interferometer.py).
 
+Arrays: an 8-element circular and a 4-element line array against their CRB,
+and front/back on the circle (bench/accuracy_array.py).
+
 Honest σ: with multipath and blockage on, the reading-noise σ against the
 σ with the environment floor that ``calibrate --check`` measured on the
 first half of the frames, both checked on the second half (goal: error/σ
@@ -34,6 +37,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from accuracy_array import print_array
 from accuracy_interferometer import print_interferometer
 
 from rfsas_hw.angles import wrap_deg_180
@@ -314,6 +318,7 @@ def main() -> None:
     print(f"(per-sensor DF: RMS {f['df_rms']:.3f}°, CRB {f['df_crb']:.3f}°)")
     print_honest_sigma()
     print_interferometer()
+    print_array()
 
 
 if __name__ == "__main__":

@@ -24,8 +24,10 @@ from typing import Any
 import numpy as np
 
 from rfsas_hw.angles import relative_to_compass
+from rfsas_hw.df.arraycsi import array_df_result
 from rfsas_hw.df.calibration import Calibration
 from rfsas_hw.df.estimate import DfFlag, DfResult, estimate
+from rfsas_hw.df.fovguard import FovGuard
 from rfsas_hw.df.hybrid import phase_df_result
 from rfsas_hw.privacy.hashing import MacHasher, NonceExpiredError, NonceUnavailableError
 from rfsas_hw.records import BearingBatch, ObservationBatch, Pose
@@ -181,6 +183,8 @@ class SensorPipeline:
         min_snr_db: frames whose stronger antenna is below this are rejected (None: keep all).
         hold_max: most frames held while their epoch's nonce is missing; beyond it
             the oldest are dropped (counted as ``hold_overflow``).
+        fov_guard: the level rule in time (:class:`~rfsas_hw.df.fovguard.FovGuard`), keyed
+            by the raw MAC inside this process; None: one with the default settings.
     """
 
     def __init__(
@@ -192,8 +196,10 @@ class SensorPipeline:
         *,
         min_snr_db: float | None = None,
         hold_max: int = DEFAULT_HOLD_MAX,
+        fov_guard: FovGuard | None = None,
     ) -> None:
         self.calibration = calibration
+        self.fov_guard = FovGuard() if fov_guard is None else fov_guard
         self.hasher = hasher
         self.sensor_id = sensor_id
         self.pose = pose
@@ -224,6 +230,15 @@ class SensorPipeline:
             memo = self._memo = _df_memo(self.calibration, self.min_snr_db)
         return memo.estimate(batch)
 
+    def _guard(self, batch: ObservationBatch, result: DfResult) -> DfResult:
+        """The level rule in time (:class:`FovGuard`) on the amplitude or phase bearings."""
+        if self.fov_guard is None:
+            return result
+        rssi = batch.rssi_dbm
+        return self.fov_guard.apply(
+            self.calibration, result, rssi[:, 0], rssi[:, 1], batch.channel, batch.mac, batch.t_ns
+        )
+
     def process(self, batch: ObservationBatch) -> BearingBatch:
         """Valid bearings of ``batch``, in order, after any held frames whose nonce has
         arrived; invalid frames are counted by reason. Never raises for a missing
@@ -239,7 +254,13 @@ class SensorPipeline:
         result = self._estimate(batch)
         if self.calibration.phase is not None and batch.csi is not None:
             # a CSI receiver with a phase calibration: interferometer bearings
-            result = phase_df_result(self.calibration, batch, result)
+            result = self._guard(batch, phase_df_result(self.calibration, batch, result))
+        elif self.calibration.array is not None and batch.csi is not None:
+            # an array with a CSI receiver: every antenna in one fit, over its own field
+            # of view (the amplitude pair's level curve says nothing about it)
+            result = array_df_result(self.calibration, batch, result)
+        else:
+            result = self._guard(batch, result)
         n_bad = int(np.count_nonzero(result.flags))
         if n_bad:
             for flag in DfFlag:

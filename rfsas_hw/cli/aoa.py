@@ -10,6 +10,7 @@ from pathlib import Path
 
 import click
 
+from rfsas_hw.cli.aoa_bleiq import emulate_bleiq
 from rfsas_hw.cli.board import serving_endpoint
 from rfsas_hw.sources.kraken_emulator import KrakenEmulator, KrakenServer, Vfo
 from rfsas_hw.sources.ublox_emulator import Tag, UbloxEmulator, UbloxServer
@@ -27,6 +28,8 @@ def aoa() -> None:
 def emulate() -> None:
     """Run a software AoA unit; prints the URL a source reads it from."""
 
+
+emulate.add_command(emulate_bleiq)
 
 _seed_option = click.option("--seed", type=int, default=0, show_default=True, help="Random seed.")
 _duration_option = click.option(

@@ -16,7 +16,10 @@ from rfsas_hw.cli.exitcodes import WorkFailed
 from rfsas_hw.df import MODES, fit_calibration, load_calibration, read_samples_csv, save_calibration
 from rfsas_hw.df.calibration import Calibration
 from rfsas_hw.df.check import (
+    CONFIDENT_WRONG_MAX,
+    CONFIDENT_WRONG_SIGMAS,
     CONSISTENT_RATIO,
+    MIN_FLOOR_SAMPLES,
     CheckReport,
     check_calibration,
     with_environment_floor,
@@ -53,15 +56,23 @@ def _check_table(report: CheckReport, cal_path: Path, samples_path: Path) -> Tab
     table.add_column("value", justify="right")
     table.add_row("samples", str(report.samples))
     table.add_row("inside field of view", str(report.inside_fov))
-    table.add_row("valid bearings", str(report.valid))
+    table.add_row("bearings (all scored)", str(report.valid))
+    table.add_row("  of them from outside the FoV", str(report.outside_bearings))
     for reason, count in sorted(report.rejected.items()):
         table.add_row(f"  rejected: {reason}", str(count))
     table.add_row("RMS bearing error", _fmt(report.rms_error_deg, "°"))
     table.add_row("RMS predicted σ", _fmt(report.rms_sigma_deg, "°"))
     table.add_row("error / σ", _fmt(report.ratio, "", 3))
     table.add_row("max |error|", _fmt(report.max_abs_error_deg, "°"))
+    share = report.confident_wrong_share
+    table.add_row(
+        f"confident-wrong (error > {CONFIDENT_WRONG_SIGMAS:g}σ)",
+        "—" if math.isnan(share) else f"{report.confident_wrong} ({share:.1%})",
+    )
+    table.add_row("RMS error of a constant guess", _fmt(report.constant_rms_deg, "°"))
+    limits = f"σ within {CONSISTENT_RATIO}×, ≤ {CONFIDENT_WRONG_MAX:.0%} confident-wrong"
     verdict = "consistent" if report.consistent else "NOT consistent"
-    table.add_row("σ honest within 1.2×", f"{verdict} (limit {CONSISTENT_RATIO}×)")
+    table.add_row("verdict", f"{verdict} ({limits})")
     _sigma_rows(table, report)
     return table
 
@@ -109,7 +120,15 @@ def check_record(report: CheckReport, cal_path: Path, samples_path: Path) -> dic
         "error_over_sigma": _num(report.ratio),
         "max_abs_error_deg": _num(report.max_abs_error_deg),
         "limit": CONSISTENT_RATIO,
+        "outside_fov_bearings": report.outside_bearings,
+        "confident_wrong": report.confident_wrong,
+        "confident_wrong_share": _num(report.confident_wrong_share),
+        "confident_wrong_limit": CONFIDENT_WRONG_MAX,
+        "constant_guess_rms_deg": _num(report.constant_rms_deg),
+        "nothing_to_check": report.nothing_to_check,
+        "few_samples": report.few_samples,
         "consistent": bool(report.consistent),
+        "problems": report.problems(),
         "sigma_terms_deg": {
             "noise": _num(report.terms.noise_deg),
             "model": _num(report.terms.model_deg),
@@ -238,10 +257,15 @@ def calibrate(
                            "(−128 dBm, out of range) left out of the check")])  # fmt: skip
         _warn(raise_on_errors(check_samples(samples, str(inputs[1])), "check data"))
         report = check_calibration(cal, samples)
+        if report.few_samples:
+            rough = f"only {report.valid} bearings (under {MIN_FLOOR_SAMPLES}): rough floor, ratios"
+            _warn([Finding("warning", str(inputs[1]), rough)])
         if as_json:
             click.echo(json.dumps(check_record(report, inputs[0], inputs[1])))
         else:
             console.print(_check_table(report, inputs[0], inputs[1]))
+        if report.nothing_to_check:
+            raise WorkFailed(f"nothing to check: no sample of {inputs[1]} gave a bearing")
         if output is not None:
             save_calibration(with_environment_floor(cal, report), output)
             console.print(f"calibration with the measured environment floor written to {output}")
@@ -250,8 +274,7 @@ def calibrate(
             console.print(f"plot written to {plot_path}")
         if not report.consistent:
             raise WorkFailed(
-                f"{inputs[0]} is NOT consistent with {inputs[1]}: error/σ "
-                f"{_fmt(report.ratio, '', 3)} (limit {CONSISTENT_RATIO}×)"
+                f"{inputs[0]} is NOT consistent with {inputs[1]}: " + "; ".join(report.problems())
             )
         return
     if capture is not None:

@@ -322,6 +322,28 @@ _HINTS = {
 }
 
 
+def _hint(reason: str, extra: dict[str, Any]) -> str:
+    """What to do about the commonest rejection, naming the option a CSI file lacks."""
+    fmt, unit = str(extra.get("csi_format", "")), str(extra.get("rssi_unit", "dBm"))
+    if reason == "saturated" and fmt and unit.startswith("dB "):
+        return (
+            f"the {fmt} file's RSSI is on the tool's relative scale ({unit}), not dBm: "
+            "give csi:FILE?rssi_offset=DB (the card's noise floor, e.g. -95)"
+        )
+    if reason == "no_table" and fmt in ("intel5300", "feitcsi"):
+        return (
+            f"the {fmt} file does not record the channel: give csi:FILE?freq=MHz "
+            "(e.g. ?freq=2437 for channel 6)"
+        )
+    if reason == "missing_chain" and unit.startswith("none"):
+        return (
+            f"the {fmt} file records no RSSI ({unit}), so there is no amplitude pair: "
+            "use a calibration with a phase section (rfsas calibrate --phase) or capture "
+            "with firmware that writes the new format"
+        )
+    return _HINTS.get(reason, reason)
+
+
 def failure(summary: RunSummary) -> str | None:
     """Why the run's declared work failed, or None: an output failed (write error,
     nothing sent), or it produced no bearings at all (with a hint from the reasons)."""
@@ -337,7 +359,7 @@ def failure(summary: RunSummary) -> str | None:
     if not summary.rejected:
         return f"0 bearings from {summary.observations:,} observations"
     reason, count = summary.rejected.most_common(1)[0]
-    hint = _HINTS.get(reason, reason)
+    hint = _hint(reason, summary.extra)
     return f"0 bearings from {summary.observations:,} observations ({reason} {count:,}): {hint}"
 
 

@@ -2,7 +2,11 @@
 
 Version 1 files may carry two optional per-table keys of the σ model,
 ``model_sigma_deg`` (the fit's model error) and ``env_floor_deg`` (the
-environment floor a check measured), both degrees, both 0 when absent.
+environment floor a check measured), both degrees, both 0 when absent, and
+``level_db`` (the stronger chain's reading relative to boresight on the grid,
+dB), which the field-of-view rules use (:mod:`rfsas_hw.df.fovrule`). An optional
+``array:`` section holds an array's geometry and per-element phase and gain
+(:mod:`rfsas_hw.df.arraycal`).
 
 Every problem names the file and the key, e.g.
 ``cal.yaml: tables[0].psi: 40 values for a grid of 41``.
@@ -21,6 +25,7 @@ import numpy as np
 import yaml
 
 from rfsas_hw.config import from_mapping, read_yaml
+from rfsas_hw.df.arraycal import array_from_mapping, array_to_mapping
 from rfsas_hw.df.calibration import (
     FORMAT_NAME,
     FORMAT_VERSION,
@@ -55,6 +60,7 @@ class _TableDoc:
     residual_rms_deg: float | None = None
     model_sigma_deg: float = 0.0
     env_floor_deg: float = 0.0
+    level_db: list[float] | None = None
 
 
 @dataclass
@@ -67,6 +73,7 @@ class _FileDoc:
     antenna: dict[str, Any] = field(default_factory=dict)
     receiver: _ReceiverDoc = field(default_factory=_ReceiverDoc)
     phase: Any = None
+    array: Any = None
 
 
 def _check_table(doc: _TableDoc, where: str) -> CalibrationTable:
@@ -98,6 +105,13 @@ def _check_table(doc: _TableDoc, where: str) -> CalibrationTable:
         value = getattr(doc, key)
         if not (math.isfinite(value) and value >= 0):
             raise CalibrationError(f"{where}.{key}: must be a number ≥ 0 degrees, got {value}")
+    level = None
+    if doc.level_db is not None:
+        level = np.asarray(doc.level_db, dtype=np.float64)
+        if len(level) != len(grid) or not np.all(np.isfinite(level)):
+            raise CalibrationError(
+                f"{where}.level_db: {len(level)} values for a grid of {len(grid)}, all finite"
+            )
     rms = float("nan") if doc.residual_rms_deg is None else doc.residual_rms_deg
     try:
         return CalibrationTable(
@@ -111,6 +125,7 @@ def _check_table(doc: _TableDoc, where: str) -> CalibrationTable:
             rms,
             doc.model_sigma_deg,
             doc.env_floor_deg,
+            level,
         )
     except CalibrationError as err:
         raise CalibrationError(f"{where}: {err}") from err
@@ -140,6 +155,7 @@ def calibration_from_mapping(data: Any, where: str = "calibration") -> Calibrati
         raise CalibrationError(str(err)) from err
     tables = tuple(_check_table(t, f"{where}: tables[{i}]") for i, t in enumerate(doc.tables))
     phase = None if doc.phase is None else phase_from_mapping(doc.phase, f"{where}: phase")
+    array = None if doc.array is None else array_from_mapping(doc.array, f"{where}: array")
     try:
         return Calibration(
             mode=doc.mode,
@@ -150,6 +166,7 @@ def calibration_from_mapping(data: Any, where: str = "calibration") -> Calibrati
             antenna=doc.antenna,
             created=doc.created,
             phase=phase,
+            array=array,
         )
     except CalibrationError as err:
         raise CalibrationError(f"{where}: tables: {err}") from err
@@ -216,6 +233,11 @@ def calibration_to_mapping(cal: Calibration) -> dict[str, Any]:
                 **sigma_terms,
                 "grid_deg": _FlowList([round(float(v), 6) for v in t.grid_deg]),
                 "psi": _FlowList([float(f"{v:.9g}") for v in t.psi]),
+                **(
+                    {}
+                    if t.level_db is None
+                    else {"level_db": _FlowList([round(float(v), 3) for v in t.level_db])}
+                ),
             }
         )
     return {
@@ -231,6 +253,7 @@ def calibration_to_mapping(cal: Calibration) -> dict[str, Any]:
         },
         "tables": tables,
         **({} if cal.phase is None else {"phase": phase_to_mapping(cal.phase)}),
+        **({} if cal.array is None else {"array": array_to_mapping(cal.array)}),
     }
 
 

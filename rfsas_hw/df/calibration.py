@@ -21,6 +21,7 @@ import numpy as np
 import numpy.typing as npt
 from scipy.interpolate import make_smoothing_spline
 
+from rfsas_hw.df.arraycal import ArrayCalibration
 from rfsas_hw.df.monopulse import Mode, balance_k_d, ratio, ratio_gradient
 from rfsas_hw.df.phasecal import PhaseCalibration
 from rfsas_hw.errors import CalibrationError
@@ -58,6 +59,10 @@ class CalibrationTable:
     env_floor_deg: float = 0.0
     """Environment floor (multipath, unmodelled scatter) measured by
     ``calibrate --check`` on held-back data, degrees (0 until measured)."""
+    level_db: Array | None = None
+    """The stronger chain's smoothed reading on the grid relative to its value at
+    boresight, dB (≤ a few dB inside the FoV, far below it behind the antennas);
+    None for files that predate it (then taken as 0 dB)."""
     _inv_psi: Array = field(init=False, repr=False, compare=False)
     _inv_deg: Array = field(init=False, repr=False, compare=False)
     _slope: Array = field(init=False, repr=False, compare=False)
@@ -78,6 +83,13 @@ class CalibrationTable:
         object.__setattr__(self, "_inv_psi", np.ascontiguousarray(p[order]))
         object.__setattr__(self, "_inv_deg", np.ascontiguousarray(g[order]))
         object.__setattr__(self, "_slope", np.gradient(psi, grid))
+        if self.level_db is not None:
+            level = np.asarray(self.level_db, dtype=np.float64)
+            if level.shape != grid.shape or not np.all(np.isfinite(level)):
+                raise CalibrationError(
+                    f"level_db: {level.size} values for a grid of {grid.size}, all finite"
+                )
+            object.__setattr__(self, "level_db", level)
         for name in ("model_sigma_deg", "env_floor_deg"):
             value = float(getattr(self, name))
             if not (math.isfinite(value) and value >= 0.0):
@@ -92,6 +104,14 @@ class CalibrationTable:
         """Inverse interpolation ψ → θ inside the FoV; second value marks ψ outside the curve."""
         outside = (psi < self._inv_psi[0]) | (psi > self._inv_psi[-1]) | ~np.isfinite(psi)
         return np.interp(psi, self._inv_psi, self._inv_deg), outside
+
+    def level_at(self, angle_deg: Array) -> Array:
+        """The stronger chain's reading at the given angles relative to boresight, dB
+        (0 where the table has no level curve)."""
+        if self.level_db is None:
+            return np.zeros_like(np.asarray(angle_deg, dtype=np.float64))
+        out: Array = np.interp(angle_deg, self.grid_deg, self.level_db)
+        return out
 
     def slope_at(self, angle_deg: Array) -> Array:
         """dψ_D/dθ at the given angles, per degree."""
@@ -132,6 +152,8 @@ class Calibration:
     """When the calibration was made, ISO 8601 UTC."""
     phase: PhaseCalibration | None = None
     """Interferometer phase offsets of the antenna pairs (CSI receivers), or None."""
+    array: ArrayCalibration | None = None
+    """An array's geometry and per-element phase and gain (array DF), or None."""
 
     def __post_init__(self) -> None:
         seen: set[int | None] = set()
@@ -310,7 +332,11 @@ def fit_table(
     model = _model_sigma_deg(
         table, mode, uniq, means, counts.astype(np.float64), step_db, noise_floor_dbm
     )
-    return CalibrationTable(channel, k_d, grid, psi, fov, noise_db, len(angle), rms, model)
+    stronger = np.fmax(r1g, r2g)
+    level = stronger - max(r1_0, r2_0)
+    return CalibrationTable(
+        channel, k_d, grid, psi, fov, noise_db, len(angle), rms, model, 0.0, level
+    )
 
 
 def fit_calibration(

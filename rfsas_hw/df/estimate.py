@@ -32,6 +32,7 @@ import numpy as np
 import numpy.typing as npt
 
 from rfsas_hw.df.calibration import Calibration, CalibrationTable
+from rfsas_hw.df.fovrule import EDGE_SIGMAS, near_edge
 from rfsas_hw.df.lut import lut_for
 from rfsas_hw.df.monopulse import ratio, ratio_gradient
 from rfsas_hw.rf.noise import THERMAL_K_DB, quantisation_variance_db2
@@ -56,6 +57,9 @@ class DfFlag(enum.IntFlag):
     """The stronger antenna is below the minimum SNR."""
     AMBIGUOUS = 0x20
     """Interferometer only: more than one phase branch fits and nothing decides."""
+    MAY_BE_OUTSIDE = 0x40
+    """The emitter may lie outside the FoV: the bearing's ±k·σ reaches past an edge, or
+    both chains are weak against the emitter's boresight level (:mod:`rfsas_hw.df.fovrule`)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -79,8 +83,8 @@ class DfResult:
 
 
 def _estimate_table(
-    cal: Calibration, table: CalibrationTable, r1: Array, r2: Array
-) -> tuple[Array, Array, npt.NDArray[np.bool_]]:
+    cal: Calibration, table: CalibrationTable, r1: Array, r2: Array, edge_sigmas: float
+) -> tuple[Array, Array, npt.NDArray[np.uint8]]:
     lut = lut_for(table, cal.mode)
     base_var = np.float32(max(table.noise_db**2, quantisation_variance_db2(cal.step_db)))
     # (10/ln10)²/SNR = K²·exp(−(r − floor)·ln10/10)
@@ -107,7 +111,11 @@ def _estimate_table(
         sigma *= sigma
         sigma += np.float32(extra)
         np.sqrt(sigma, out=sigma)
-    return angle, sigma, outside
+    flags = outside.view(np.uint8) * np.uint8(DfFlag.OUTSIDE_FOV)
+    if edge_sigmas > 0.0:
+        edge = near_edge(angle, sigma, table.fov_deg, edge_sigmas) & ~outside
+        flags |= edge.view(np.uint8) * np.uint8(DfFlag.MAY_BE_OUTSIDE)
+    return angle, sigma, flags
 
 
 def estimate(
@@ -117,11 +125,14 @@ def estimate(
     channel: npt.ArrayLike | None = None,
     *,
     min_snr_db: float | None = None,
+    edge_sigmas: float = EDGE_SIGMAS,
 ) -> DfResult:
     """Angle, σ and validity for RSSI pairs (dBm arrays; ``channel`` per frame or None).
 
     Frames whose channel has no table use the calibration's all-channel
-    table, or are flagged ``NO_TABLE``.
+    table, or are flagged ``NO_TABLE``. A bearing whose ``± edge_sigmas·σ``
+    reaches past the table's FoV is flagged ``MAY_BE_OUTSIDE`` (the edge rule
+    of :mod:`rfsas_hw.df.fovrule`; 0 turns it off).
     """
     # float32 halves memory traffic; readings are whole or half dB anyway
     r1 = np.asarray(rssi1_dbm, dtype=np.float32)
@@ -151,18 +162,18 @@ def estimate(
             if table is None:
                 flags |= np.uint8(DfFlag.NO_TABLE)
             else:
-                angle, sigma, outside = _estimate_table(cal, table, r1, r2)
-                flags |= outside.view(np.uint8) * np.uint8(DfFlag.OUTSIDE_FOV)
+                angle, sigma, fov_flags = _estimate_table(cal, table, r1, r2, edge_sigmas)
+                flags |= fov_flags
             continue
         if angle is None or sigma is None:
             angle, sigma = np.full(n, np.nan, np.float32), np.full(n, np.nan, np.float32)
         if table is None:
             flags[mask] |= np.uint8(DfFlag.NO_TABLE)
             continue
-        a, s, outside = _estimate_table(cal, table, r1[mask], r2[mask])
+        a, s, fov_flags = _estimate_table(cal, table, r1[mask], r2[mask], edge_sigmas)
         angle[mask] = a
         sigma[mask] = s
-        flags[mask] |= outside.view(np.uint8) * np.uint8(DfFlag.OUTSIDE_FOV)
+        flags[mask] |= fov_flags
     if angle is None or sigma is None:
         angle, sigma = np.full(n, np.nan, np.float32), np.full(n, np.nan, np.float32)
     bad = flags != 0

@@ -18,6 +18,7 @@ import numpy.typing as npt
 
 from rfsas_hw.df.calibration import Calibration
 from rfsas_hw.df.estimate import DfFlag, DfResult, estimate
+from rfsas_hw.df.fovrule import near_edge
 from rfsas_hw.df.interferometer import (
     IfFlag,
     InterferometerResult,
@@ -119,6 +120,8 @@ def phase_df_result(cal: Calibration, batch: ObservationBatch, mono: DfResult) -
     ``LOW_SNR`` flag are the monopulse's (the stronger antenna's RSSI). A
     saturated RSSI does not reject a phase bearing. ``mono`` also picks the
     interferometer's branch (its ``LOW_SNR`` frames are rejected either way).
+    A bearing whose ±3σ reaches past the phase field of view is flagged
+    ``MAY_BE_OUTSIDE`` (the edge rule of :mod:`rfsas_hw.df.fovrule`).
 
     Raises:
         CalibrationError: as :func:`estimate_phase`.
@@ -132,6 +135,9 @@ def phase_df_result(cal: Calibration, batch: ObservationBatch, mono: DfResult) -
         (IfFlag.AMBIGUOUS, DfFlag.AMBIGUOUS),
     ):
         flags |= ((res.flags & np.uint8(src)) != 0).astype(np.uint8) * np.uint8(dst)
+    assert cal.phase is not None  # estimate_phase raised otherwise
+    edge = near_edge(res.angle_deg, res.sigma_deg, cal.phase.fov_deg) & (flags == 0)
+    flags |= edge.view(np.uint8) * np.uint8(DfFlag.MAY_BE_OUTSIDE)
     bad = flags != 0
     angle = np.where(bad, np.nan, res.angle_deg).astype(np.float32)
     sigma = np.where(bad, np.nan, res.sigma_deg).astype(np.float32)

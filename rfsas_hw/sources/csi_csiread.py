@@ -20,7 +20,10 @@ where it fails on a file, the error names the file and the reason.
 
 from __future__ import annotations
 
+import contextlib
+import sys
 from collections import Counter
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -304,7 +307,8 @@ def read_nexmon(path: str | Path, freq_mhz: int = 0, chip: str | None = None) ->
     notes["packets"] = n
     caplen = np.asarray(d.caplen[:n])
     notes["packets longer than the CSI they carry"] = int(np.sum(caplen > np.median(caplen)))
-    return CsiCapture(name, "nexmon", [frames], "dBm", [], notes)
+    unit = "dBm" if new else "none (old nexmon format)"
+    return CsiCapture(name, "nexmon", [frames], unit, [], notes)
 
 
 READERS = {"atheros": "read_atheros", "picoscenes": "read_picoscenes", "nexmon": "read_nexmon"}
@@ -323,6 +327,30 @@ def _child(conn: Any, fmt: str, path: str, freq_mhz: int, chip: str | None) -> N
         conn.send(("error", CaptureFormatError(f"{path}: {type(err).__name__}: {err}")))
     finally:
         conn.close()
+
+
+@contextlib.contextmanager
+def _main_not_rerun() -> Iterator[None]:
+    """Start a child without running the caller's script again in it.
+
+    A child started by a fork server re-imports the parent's ``__main__``
+    from its file (multiprocessing's "safe importing of main module"); a plain
+    script without an ``if __name__ == "__main__":`` guard would then open its
+    source again inside the child and fail. The child here only needs this
+    module, so the script's path is hidden while the child starts.
+    """
+    main = sys.modules.get("__main__")
+    if main is None or not hasattr(main, "__file__"):
+        yield  # an interactive session: nothing would be run again
+        return
+    path, spec = main.__file__, getattr(main, "__spec__", None)
+    del main.__file__
+    main.__spec__ = None  # ``python -m script`` would be re-imported by name
+    try:
+        yield
+    finally:
+        main.__file__ = path
+        main.__spec__ = spec
 
 
 def read_isolated(
@@ -348,7 +376,8 @@ def read_isolated(
     ctx.set_forkserver_preload(["csiread", "rfsas_hw.sources.csi_csiread"])
     parent, child = ctx.Pipe(duplex=False)
     proc = ctx.Process(target=_child, args=(child, fmt, str(path), freq_mhz, chip), daemon=True)
-    proc.start()
+    with _main_not_rerun():
+        proc.start()
     child.close()
     try:
         if not parent.poll(CHILD_TIMEOUT_S):

@@ -22,6 +22,7 @@ _LAZY: dict[str, str] = {
     "ublox": "rfsas_hw.sources.ublox:UbloxSource",
     "kraken": "rfsas_hw.sources.kraken:KrakenSource",
     "csi": "rfsas_hw.sources.csi:CsiSource",
+    "bleiq": "rfsas_hw.sources.ble_iq_source:BleIqSource",
 }
 _LOADED: dict[str, type[Source[Any]]] = {}
 

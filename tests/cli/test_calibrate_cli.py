@@ -45,7 +45,7 @@ def test_fit_plot_and_check(
         capsys,
     )
     assert code == 0, err
-    assert "consistent (limit 1.2×)" in out and "NOT" not in out
+    assert "consistent (σ within 1.2×" in out and "NOT" not in out
 
 
 @pytest.mark.parametrize(

@@ -27,8 +27,10 @@ KNOWN_MACS = [
 def known_frames(t0_ns: int) -> ObservationBatch:
     rng = np.random.default_rng(11)
     n = 600
-    macs = np.array(KNOWN_MACS, np.uint64)[rng.integers(0, len(KNOWN_MACS), n)]
-    rssi1 = rng.uniform(-65, -40, n)
+    which = rng.integers(0, len(KNOWN_MACS), n)
+    macs = np.array(KNOWN_MACS, np.uint64)[which]
+    # each transmitter at its own steady level (as from one place), within 3 dB
+    rssi1 = rng.uniform(-65, -40, len(KNOWN_MACS))[which] + rng.uniform(0, 3, n)
     return ObservationBatch(
         t_ns=t0_ns + np.sort(rng.integers(0, 50_000_000, n)),
         mac=macs,

@@ -177,11 +177,13 @@ def sweep_capture(
     n: int, span_s: float, start_ns: int = 1_700_000_000_000_000_000, emitters: int = 3
 ) -> bytes:
     """``n`` beacons from ``emitters`` transmitters over ``span_s`` seconds, two chains each,
-    with the two signals a few dB apart (inside a typical field of view)."""
+    with the two signals a few dB apart (inside a typical field of view) and each
+    transmitter's level steady within 3 dB (as from one place; a transmitter whose level
+    jumps far below its own best is refused as possibly behind the antennas)."""
     frames = []
     for i in range(n):
         t_ns = start_ns + int(i * span_s * 1e9 / max(n - 1, 1))
-        r0 = -50 - (i % 7)
+        r0 = -50 - (i % 7) % 4
         r1 = r0 + (i % 5) - 2
         ta = 0x0200_0000_0000 + (i % emitters)
         frames.append(

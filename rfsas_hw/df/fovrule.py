@@ -1,0 +1,95 @@
+"""The field-of-view rules: no confident bearing from an emitter that may lie outside it.
+
+A direction finder is calibrated over a field of view (FoV). Outside it the
+measurement folds back: the amplitude ratio of a squinted pair beyond the
+FoV edge repeats a value from inside, and behind the antennas both chains
+sit on the back-lobe floor, so their ratio looks like boresight. The
+estimator then returns an angle inside the FoV with the σ of a good frame,
+and the error can be 100° or more. Three rules keep such bearings out:
+
+1. **Edge rule** (per frame, every method). A bearing is refused when its
+   interval ``θ̂ ± k·σ`` (``k`` = :data:`EDGE_SIGMAS`) reaches past either
+   end of the FoV: the emitter is then about as likely just outside (where
+   the curve folds back onto the edge) as inside. ψ beyond the table's ends
+   is refused already (``OUTSIDE_FOV``).
+2. **Level rule** (needs a reference). Inside the FoV the stronger chain is
+   within a few dB of its boresight reading (the table's ``level_db``
+   curve); outside it, the stronger chain is far weaker than the same
+   emitter at boresight. A frame's *boresight-equivalent level* is its
+   stronger reading minus the curve at its bearing,
+   ``e = max(RSSI₁, RSSI₂) − level_db(θ̂)``; with a reference ``e_ref`` (the
+   emitter's level seen from the front, see below) a frame with
+   ``e < e_ref − margin`` is refused: both chains are weak against the
+   boresight level, so the emitter is beside or behind the antennas.
+   The reference is the brightest ``e`` of the same emitter recently
+   (:class:`~rfsas_hw.df.fovguard.FovGuard`, in time) or, for a turntable
+   check at one range, the brightest of the run.
+
+3. **Channel rule** (:mod:`rfsas_hw.df.fovchannels`): a bearing that disagrees
+   with the same emitter's bearing on another channel moments earlier is
+   refused; outside the FoV the folds differ from channel to channel.
+
+What the rules cannot see: an emitter that never shows its front (static
+behind a fixed sensor) has no brighter reference; mount a two-antenna sensor
+with its back to a wall, or use an array that resolves the full circle.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+Array = npt.NDArray[np.floating[Any]]
+
+EDGE_SIGMAS = 3.0
+"""A bearing whose ``θ̂ ± EDGE_SIGMAS·σ`` leaves the FoV is refused."""
+
+LEVEL_MARGIN_DB = 6.0
+"""A frame more than this below the emitter's boresight-equivalent reference is refused, dB.
+
+Twice the spread of a 1 dB-rounded reading in fading plus the few dB the
+stronger chain varies inside the FoV that the level curve does not hold.
+"""
+
+
+def near_edge(
+    angle_deg: Array, sigma_deg: Array, fov_deg: tuple[float, float], k: float = EDGE_SIGMAS
+) -> npt.NDArray[np.bool_]:
+    """True where ``angle ± k·σ`` (degrees) reaches past an end of ``fov_deg``.
+
+    NaN angles or σ give False (they are flagged for their own reason).
+    """
+    angle = np.asarray(angle_deg)
+    reach = np.asarray(sigma_deg) * np.float32(k)
+    lo, hi = fov_deg
+    with np.errstate(invalid="ignore"):
+        out: npt.NDArray[np.bool_] = ((angle - reach) < lo) | ((angle + reach) > hi)
+    return out
+
+
+def boresight_equivalent_dbm(
+    rssi1_dbm: Array, rssi2_dbm: Array, level_at_bearing_db: Array
+) -> Array:
+    """The stronger reading less the calibrated level curve at the bearing, dBm.
+
+    For an emitter inside the FoV this is (up to reading noise) what it would
+    give at boresight; for one outside it is lower by the pattern's drop.
+    """
+    r1 = np.asarray(rssi1_dbm, dtype=np.float64)
+    r2 = np.asarray(rssi2_dbm, dtype=np.float64)
+    out: Array = np.fmax(r1, r2) - np.asarray(level_at_bearing_db, dtype=np.float64)
+    return out
+
+
+def weak_against(
+    level_dbm: Array, reference_dbm: Array, margin_db: float = LEVEL_MARGIN_DB
+) -> npt.NDArray[np.bool_]:
+    """True where a boresight-equivalent level is more than ``margin_db`` below its reference.
+
+    NaN levels or references give False.
+    """
+    with np.errstate(invalid="ignore"):
+        out: npt.NDArray[np.bool_] = np.asarray(level_dbm) < (np.asarray(reference_dbm) - margin_db)
+    return out

@@ -51,6 +51,7 @@ from rfsas_hw.errors import KeyStoreError, LinkError
 from rfsas_hw.link.message import check_sender_id
 from rfsas_hw.link.signing import Signer
 from rfsas_hw.privacy.epochs import EpochSchedule
+from rfsas_hw.privacy.nonce_state import STATE_FILE
 from rfsas_hw.privacy.nonces import NonceAuthority, NonceStore
 
 Role = Literal["sensor", "authority", "backend"]
@@ -439,14 +440,19 @@ class KeyStore:
 
     def nonce_authority(self, schedule: EpochSchedule | None = None) -> NonceAuthority:
         """The nonce authority of an ``authority`` identity, with every sensor and
-        backend in its trust directory enrolled.
+        backend in its trust directory enrolled. Its nonces are kept in the key
+        directory's ``nonces.state``, so that the authority restarted on this
+        directory hands out the nonces it handed out before.
 
         Raises:
-            KeyStoreError: not an authority, or its key cannot be read.
+            KeyStoreError: not an authority, its key cannot be read, or its
+                ``nonces.state`` is unreadable or malformed.
         """
         if self.role != "authority":
             raise KeyStoreError(f"{self.path}: a {self.role} identity is not a nonce authority")
-        authority = NonceAuthority(self.id, self.kx_private(), schedule)
+        authority = NonceAuthority(
+            self.id, self.kx_private(), schedule, state=self.path / STATE_FILE
+        )
         for rid, key in self.trust.receivers().items():
             authority.enroll(rid, key)
         return authority

@@ -86,8 +86,14 @@ def serve(
     resend_s: float,
     duration: float | None,
 ) -> None:
-    """Draw a fresh nonce per epoch and send it, ahead of time, to every enrolled receiver."""
-    authority = KeyStore.open(keys_dir).nonce_authority(_schedule(epoch_s, grace_s))
+    """Draw a fresh nonce per epoch and send it, ahead of time, to every enrolled receiver.
+
+    The nonces are kept in the key directory (nonces.state): restarted on the same
+    directory, the authority hands out the same nonces. Enrolments and revocations
+    in trust/ take effect within 2 s, without a restart.
+    """
+    store = KeyStore.open(keys_dir)
+    authority = store.nonce_authority(_schedule(epoch_s, grace_s))
     destinations: dict[str, Transport] = {}
     for target in targets:
         rid, sep, url = target.partition("=")
@@ -108,6 +114,8 @@ def serve(
     current = None
     try:
         while stop is None or time.monotonic() < stop:
+            if store.trust.refresh():
+                authority.enroll_only(store.trust.receivers())
             dist.tick()
             epoch = authority.schedule.epoch_of(time.time_ns())
             if epoch != current:

@@ -12,7 +12,10 @@ API (for a backend)::
     for msg in rx.receive(timeout=0.1): ...   # everything that arrived, verified
 
 ``trust`` is anything with ``signing_key(sender_id)`` (:class:`TrustedKeys`, or
-the trust directory of a key store). ``nonces`` (optional) takes nonce
+the trust directory of a key store). A trust directory is refreshed by every
+:meth:`Receiver.receive` call (it looks at the disk at most every ``reload_s``,
+2 s by default): a sender revoked with ``rfsas keys revoke`` is refused as
+``unknown_sender`` from then on, without a restart. ``nonces`` (optional) takes nonce
 envelopes that arrive on the same port (see :mod:`rfsas_hw.privacy.nonces`).
 
 Checks run cheapest first and in this order; the first failure decides the
@@ -80,7 +83,7 @@ from rfsas_hw.link.message import (
 )
 from rfsas_hw.link.preauth import NonceSource, PreauthKeys, RateLimiter, TagKey
 from rfsas_hw.link.replay import ReplayGuard
-from rfsas_hw.link.signing import SenderKeys, verify
+from rfsas_hw.link.signing import RefreshingKeys, SenderKeys, verify
 from rfsas_hw.link.topics import ROOT as TOPIC_ROOT
 from rfsas_hw.link.topics import topic_sender
 from rfsas_hw.link.transport import Transport, open_transports
@@ -350,6 +353,7 @@ class Receiver:
         self.limiter = RateLimiter(
             self.config.sender_rate_hz, self.config.sender_burst, time.monotonic
         )
+        self._refresh_trust = trust.refresh if isinstance(trust, RefreshingKeys) else None
 
     @classmethod
     def listen(
@@ -703,6 +707,8 @@ class Receiver:
         """
         if self.transport is None:
             raise LinkError("this receiver has no transport; use Receiver.listen(url, ...)")
+        if self._refresh_trust is not None:
+            self._refresh_trust()
         queued = self.transport.recv_many(timeout, max_datagrams)
         out: list[VerifiedMessage] = []
         overloaded = len(queued) > self.config.backlog

@@ -217,6 +217,14 @@ class NonceAuthority:
         """Stop giving nonces to ``receiver_id`` (it still holds what it was given)."""
         self._receivers.pop(receiver_id, None)
 
+    def enroll_only(self, receivers: Mapping[str, x25519.X25519PublicKey]) -> None:
+        """Make ``receivers`` the enrolled set: enroll the new ones, revoke the others
+        (a trust directory re-read after ``rfsas keys enroll`` or ``revoke``)."""
+        for rid in set(self._receivers) - set(receivers):
+            self.revoke(rid)
+        for rid, key in receivers.items():
+            self.enroll(rid, key)
+
     def nonce_for(self, epoch: int) -> bytes:
         """The nonce of ``epoch``, drawn on first use (and written to the state file
         before it is returned; a failed write is logged and counted, and the nonce

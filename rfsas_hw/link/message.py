@@ -46,6 +46,7 @@ import math
 import re
 import struct
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -145,9 +146,9 @@ class SafetyMessage:
     """The bearings; ``bearings.sensor_id == sender_id``."""
 
 
-@dataclass(frozen=True, slots=True)
-class Peeked:
-    """What :func:`peek` learns from a datagram without parsing the bearings."""
+class Peeked(NamedTuple):
+    """What :func:`peek` learns from a datagram without parsing the bearings (a named
+    tuple: every datagram that reaches a receiver makes one, a flood included)."""
 
     kind: int
     """Message type (``TYPE_SAFETY`` or ``TYPE_NONCE``)."""

@@ -107,6 +107,10 @@ PREFIX_BYTES = _PREFIX.size
 N_BEARINGS_AT = _FIXED.size - 1
 """Offset of the bearing count from the start of the fixed fields, bytes."""
 _SENDER_RE = re.compile(rb"[A-Za-z0-9._-]{1,32}")
+_SENDER_IDS: dict[bytes, str] = {}
+"""Sender ids that passed :data:`_SENDER_RE`, as text: every datagram of a sender
+(a flood's included) is checked against the pattern once."""
+_SENDER_IDS_KEPT = 4096
 _INT64_MAX = (1 << 63) - 1
 _MAX_T_US = _INT64_MAX // 1000
 """Latest capture time that still fits int64 nanoseconds."""
@@ -333,9 +337,16 @@ def peek(datagram: bytes, max_datagram: int = MAX_DATAGRAM) -> Peeked:
     fixed_at = _PREFIX.size + sender_len
     if size < fixed_at + _FIXED.size:
         raise MessageFormatError("truncated", f"{size} bytes, header needs {fixed_at + 33}")
-    sender = bytes(datagram[_PREFIX.size : fixed_at])
-    if not _SENDER_RE.fullmatch(sender):
-        raise MessageFormatError("malformed", f"sender id {sender!r} is not [A-Za-z0-9._-]{{1,32}}")
+    raw = bytes(datagram[_PREFIX.size : fixed_at])
+    sender = _SENDER_IDS.get(raw)
+    if sender is None:
+        if not _SENDER_RE.fullmatch(raw):
+            raise MessageFormatError(
+                "malformed", f"sender id {raw!r} is not [A-Za-z0-9._-]{{1,32}}"
+            )
+        if len(_SENDER_IDS) >= _SENDER_IDS_KEPT:
+            _SENDER_IDS.clear()
+        sender = _SENDER_IDS[raw] = raw.decode("ascii")
     n = datagram[fixed_at + _FIXED.size - 1]
     if n == 0:
         raise MessageFormatError("malformed", "no bearings")
@@ -346,7 +357,7 @@ def peek(datagram: bytes, max_datagram: int = MAX_DATAGRAM) -> Peeked:
         raise MessageFormatError("truncated", f"{size} bytes, {n} bearings need {want}")
     if size > want:
         raise MessageFormatError("oversized", f"{size} bytes, {n} bearings need {want}")
-    return Peeked(TYPE_SAFETY, sender.decode("ascii"), n, version)
+    return Peeked(TYPE_SAFETY, sender, n, version)
 
 
 def decode(datagram: bytes, max_datagram: int = MAX_DATAGRAM) -> SafetyMessage:

@@ -118,8 +118,12 @@ class AtomicFile:
         OSError: the temporary file cannot be created or the rename fails.
     """
 
-    def __init__(self, path: str | Path, *, newline: str | None = "") -> None:
+    def __init__(
+        self, path: str | Path, *, newline: str | None = "", mode: int | None = None
+    ) -> None:
         self.path = Path(path)
+        self.mode = mode
+        """Permissions of the file once renamed (default: 0666 less the umask)."""
         self._tmp: Path | None = None
         direct = self.path.exists() and not self.path.is_file()
         if direct:
@@ -144,7 +148,7 @@ class AtomicFile:
         finally:
             self.stream.close()
         if self._tmp is not None:
-            os.chmod(self._tmp, 0o666 & ~_UMASK)
+            os.chmod(self._tmp, 0o666 & ~_UMASK if self.mode is None else self.mode)
             os.replace(self._tmp, self.path)
             self._tmp = None
 

@@ -174,6 +174,10 @@ class Advisory(enum.StrEnum):
     CLEAR = "clear"
 
 
+ADVISORY_RANK = {"none": 0, "clear": 1, "caution": 2, "brake": 3}
+"""Severity of each advice (``none``: no advice given), for choosing the worst."""
+
+
 @dataclass(frozen=True, slots=True)
 class AdvisoryThresholds:
     """When :func:`advise` says brake or caution.

@@ -230,6 +230,14 @@ def render_table(service: BackendService, alarm: bool) -> Table:
     help="RF activity prior file (counts per tile and hour, no emitter ids): read, or "
     "started when missing, counted with this run's fixes, written back when the run ends.",
 )
+@click.option(
+    "--accept-v1",
+    is_flag=True,
+    help="Also accept version-1 messages (no pre-authentication tag) while an authority "
+    "is enrolled: only for a fleet still migrating, since a version-1 flood under an "
+    "enrolled id then spends that sensor's signature budget. Without an enrolled "
+    "authority version 1 is the only kind that can be checked and is always accepted.",
+)
 @click.option("--no-table", is_flag=True, help="Do not draw the live table.")
 @ros2_options
 def backend(
@@ -258,6 +266,7 @@ def backend(
     vehicle_id: str,
     tile_plan: Path | None,
     prior_file: Path | None,
+    accept_v1: bool,
     no_table: bool,
     **ros2: Any,
 ) -> None:
@@ -314,7 +323,12 @@ def backend(
         store.nonce_store(EpochSchedule(epoch, min(5.0, epoch / 4)))
         if trust.authorities()
         else None,
-        config=ReceiverConfig(epoch_s=epoch, grace_s=min(5.0, epoch / 4)),
+        config=ReceiverConfig(
+            epoch_s=epoch,
+            grace_s=min(5.0, epoch / 4),
+            # with an authority every sensor can send version 2: require it by default
+            accept_v1=accept_v1 or not trust.authorities(),
+        ),
     )
     feed: VehicleFeed | None = None
     sinks: list[ResultSink] = []

@@ -14,7 +14,10 @@ code    meaning
 
 ``live``, ``backend``, ``nonces serve`` and ``board emulate`` run until stopped:
 for them Ctrl-C or SIGTERM is the normal end, and the exit code says whether
-the run did its work (0) or not (1).
+the run did its work (0) or not (1). A fault ridden out on the way (a broker
+outage, sends that failed and then went out again) is counted in the summary and
+logged when it starts and ends, but is not a failed run; a link still failing at
+the end is.
 """
 
 from __future__ import annotations

@@ -53,6 +53,7 @@ import numpy as np
 from cryptography.hazmat.primitives.asymmetric import ec
 
 from rfsas_hw.errors import LinkError
+from rfsas_hw.fleet.advisory_limits import AdvisoryLimiter, AdvisoryLimits
 from rfsas_hw.geo import SiteOrigin
 from rfsas_hw.link.message import (
     MAX_DATAGRAM,
@@ -312,6 +313,8 @@ class AdvisorySinkStats:
     messages: int = 0
     assessments: int = 0
     errors: int = 0
+    limited: int = 0
+    """Assessments held back by the limits (:mod:`rfsas_hw.fleet.advisory_limits`)."""
 
 
 class AdvisorySink:
@@ -328,6 +331,10 @@ class AdvisorySink:
         preauth: the backend's pre-authentication keys (version 2), or None (version 1).
         epoch_s: nonce epoch length, seconds.
         clock: UTC ns.
+        limits: how many assessments go out per emitter and per second
+            (:class:`~rfsas_hw.fleet.advisory_limits.AdvisoryLimits`: by default one
+            per emitter per 0.09 s unless its advice gets more severe, 100 per second).
+        monotonic: monotonic seconds, for the limits.
     """
 
     def __init__(
@@ -341,7 +348,11 @@ class AdvisorySink:
         preauth: PreauthKeys | None = None,
         epoch_s: float = 60.0,
         clock: Callable[[], int] = time.time_ns,
+        limits: AdvisoryLimits | None = None,
+        monotonic: Callable[[], float] = time.monotonic,
     ) -> None:
+        self.limiter = AdvisoryLimiter(limits)
+        self.monotonic = monotonic
         self.signer = signer
         self.transport = transport
         self.router = router
@@ -358,11 +369,13 @@ class AdvisorySink:
         """Publish this step's assessments (nothing when there are none)."""
         if not assessments:
             return
+        chosen = self.limiter.select([AdvisoryItem.of(a) for a in assessments], self.monotonic())
+        self.stats.limited = self.limiter.limited
         by_tile: dict[str, list[AdvisoryItem]] = {}
-        for a in assessments:
-            located = math.isfinite(a.x_m) and math.isfinite(a.y_m)
-            tile = self.router.tile_of(a.x_m, a.y_m) if located else self.home_tile
-            by_tile.setdefault(tile, []).append(AdvisoryItem.of(a))
+        for item in chosen:
+            located = math.isfinite(item.x_m) and math.isfinite(item.y_m)
+            tile = self.router.tile_of(item.x_m, item.y_m) if located else self.home_tile
+            by_tile.setdefault(tile, []).append(item)
         items = [it for group in by_tile.values() for it in group]
         for tile, group in by_tile.items():
             self._send(Route(advisory_topic(tile)), group, "")

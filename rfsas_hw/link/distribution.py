@@ -59,6 +59,8 @@ class NonceDistributor:
         """Envelopes sent, per receiver id."""
         self.errors: Counter[str] = Counter()
         """Sends that failed, per receiver id."""
+        self.failing: set[str] = set()
+        """Receivers whose last send failed (each start and end of a failure is logged)."""
         self._last: dict[tuple[str, int], int] = {}
         self._unreachable: set[str] = set()
 
@@ -84,9 +86,13 @@ class NonceDistributor:
                     transport.send(self.authority.seal(rid, epoch))
                 except (LinkError, NonceEnvelopeError) as err:
                     self.errors[rid] += 1
-                    if self.errors[rid] == 1:
-                        log.warning("nonce for %s: %s", rid, err)
+                    if rid not in self.failing:
+                        self.failing.add(rid)
+                        log.warning("nonces for %s cannot be sent (%s); retrying", rid, err)
                     continue
+                if rid in self.failing:
+                    self.failing.discard(rid)
+                    log.warning("nonces for %s are sent again", rid)
                 self._last[(rid, epoch)] = now
                 self.sent[rid] += 1
                 count += 1

@@ -33,6 +33,7 @@ from __future__ import annotations
 import base64
 import binascii
 import hashlib
+import logging
 import os
 import stat
 import time
@@ -51,7 +52,10 @@ from rfsas_hw.errors import KeyStoreError, LinkError
 from rfsas_hw.link.message import check_sender_id
 from rfsas_hw.link.signing import Signer
 from rfsas_hw.privacy.epochs import EpochSchedule
+from rfsas_hw.privacy.nonce_state import STATE_FILE
 from rfsas_hw.privacy.nonces import NonceAuthority, NonceStore
+
+log = logging.getLogger(__name__)
 
 Role = Literal["sensor", "authority", "backend"]
 ROLES: tuple[str, ...] = get_args(Role)
@@ -233,13 +237,70 @@ class TrustDir:
     """The enrolled cards of one identity (``DIR/trust/*.yaml``).
 
     Also a ``SenderKeys`` for a :class:`~rfsas_hw.link.receiver.Receiver`:
-    :meth:`signing_key` returns an enrolled sensor's key.
+    :meth:`signing_key` returns an enrolled sensor's key. A running receiver
+    calls :meth:`refresh`, so an enrolment or a revocation made by another
+    process (``rfsas keys revoke``) takes effect within ``reload_s`` seconds.
+
+    Args:
+        path: the trust directory.
+        reload_s: least time between two looks at the directory, seconds.
     """
 
-    def __init__(self, path: str | Path) -> None:
+    def __init__(self, path: str | Path, reload_s: float = 2.0) -> None:
         self.path = Path(path)
+        self.reload_s = reload_s
         self._cards: dict[str, KeyCard] = {}
+        self._seen: tuple[tuple[str, int, int, int], ...] | None = None
+        """The card files as last read (None: changed here since, read again)."""
+        self._looked = time.monotonic()
         self.reload()
+
+    def _files(self) -> tuple[tuple[str, int, int, int], ...]:
+        """What the directory holds: (name, mtime ns, size, inode) of every card file."""
+        try:
+            with os.scandir(self.path) as entries:
+                return tuple(
+                    sorted(
+                        (e.name, st.st_mtime_ns, st.st_size, st.st_ino)
+                        for e in entries
+                        if e.name.endswith(".yaml") and (st := e.stat())
+                    )
+                )
+        except OSError:
+            return ()
+
+    def refresh(self, now_s: float | None = None) -> bool:
+        """Re-read the directory when ``reload_s`` has passed since the last look
+        (``now_s``: monotonic seconds, default the clock) and a card file was added,
+        removed or replaced. True when it was re-read. Never raises: when a card no
+        longer reads, the error is logged, the cards whose files are gone are dropped
+        (a revocation is never missed) and the others are kept until it reads again.
+        """
+        now = time.monotonic() if now_s is None else now_s
+        if now - self._looked < self.reload_s:
+            return False
+        self._looked = now
+        files = self._files()
+        if files == self._seen:
+            return False
+        before = {k: c.fingerprint for k, c in self._cards.items()}
+        try:
+            self.reload()
+        except KeyStoreError as err:
+            present = {name for name, *_ in files}
+            self._cards = {k: c for k, c in self._cards.items() if f"{k}.yaml" in present}
+            log.error("trust directory not re-read, enrolled cards kept: %s", err)
+            return False
+        after = {k: c.fingerprint for k, c in self._cards.items()}
+        changed = sorted(k for k in before.keys() | after.keys() if before.get(k) != after.get(k))
+        if changed:
+            log.warning(
+                "trust directory %s re-read: now %d enrolled; changed: %s",
+                self.path,
+                len(after),
+                ", ".join(f"{k} ({'removed' if k not in after else 'enrolled'})" for k in changed),
+            )
+        return True
 
     def reload(self) -> None:
         """Re-read the directory.
@@ -257,6 +318,7 @@ class TrustDir:
                     raise KeyStoreError(f"{file}: holds the card of {card.id!r}")
                 cards[card.id] = card
         self._cards = cards
+        self._seen = self._files()
 
     def enroll(self, card: KeyCard, replace: bool = False) -> Path:
         """File ``card`` as trusted.
@@ -278,6 +340,7 @@ class TrustDir:
         tmp.chmod(0o644)  # whatever the umask: a group-writable card would not be trusted
         tmp.replace(dest)
         self._cards[card.id] = card
+        self._seen = None
         return dest
 
     def revoke(self, ident: str) -> None:
@@ -290,6 +353,7 @@ class TrustDir:
             raise KeyStoreError(f"{self.path}: {ident!r} is not enrolled")
         (self.path / f"{ident}.yaml").unlink(missing_ok=True)
         del self._cards[ident]
+        self._seen = None
 
     def get(self, ident: str) -> KeyCard | None:
         """The card of ``ident``, or None."""
@@ -439,14 +503,19 @@ class KeyStore:
 
     def nonce_authority(self, schedule: EpochSchedule | None = None) -> NonceAuthority:
         """The nonce authority of an ``authority`` identity, with every sensor and
-        backend in its trust directory enrolled.
+        backend in its trust directory enrolled. Its nonces are kept in the key
+        directory's ``nonces.state``, so that the authority restarted on this
+        directory hands out the nonces it handed out before.
 
         Raises:
-            KeyStoreError: not an authority, or its key cannot be read.
+            KeyStoreError: not an authority, its key cannot be read, or its
+                ``nonces.state`` is unreadable or malformed.
         """
         if self.role != "authority":
             raise KeyStoreError(f"{self.path}: a {self.role} identity is not a nonce authority")
-        authority = NonceAuthority(self.id, self.kx_private(), schedule)
+        authority = NonceAuthority(
+            self.id, self.kx_private(), schedule, state=self.path / STATE_FILE
+        )
         for rid, key in self.trust.receivers().items():
             authority.enroll(rid, key)
         return authority

@@ -45,7 +45,9 @@ from __future__ import annotations
 import math
 import re
 import struct
+from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -97,8 +99,7 @@ NATIVE_DTYPE = np.dtype(
 )
 BEARING_BYTES = BEARING_DTYPE.itemsize
 _BEARING = struct.Struct(">qQfffH")
-_FEW_BEARINGS = 8
-"""Messages with at most this many bearings are parsed without numpy (faster for few rows)."""
+"""One bearing row on the wire (the layout of :data:`BEARING_DTYPE`)."""
 HEADER_BYTES = _PREFIX.size + _FIXED.size
 """Header bytes besides the sender id."""
 PREFIX_BYTES = _PREFIX.size
@@ -106,6 +107,10 @@ PREFIX_BYTES = _PREFIX.size
 N_BEARINGS_AT = _FIXED.size - 1
 """Offset of the bearing count from the start of the fixed fields, bytes."""
 _SENDER_RE = re.compile(rb"[A-Za-z0-9._-]{1,32}")
+_SENDER_IDS: dict[bytes, str] = {}
+"""Sender ids that passed :data:`_SENDER_RE`, as text: every datagram of a sender
+(a flood's included) is checked against the pattern once."""
+_SENDER_IDS_KEPT = 4096
 _INT64_MAX = (1 << 63) - 1
 _MAX_T_US = _INT64_MAX // 1000
 """Latest capture time that still fits int64 nanoseconds."""
@@ -145,9 +150,9 @@ class SafetyMessage:
     """The bearings; ``bearings.sensor_id == sender_id``."""
 
 
-@dataclass(frozen=True, slots=True)
-class Peeked:
-    """What :func:`peek` learns from a datagram without parsing the bearings."""
+class Peeked(NamedTuple):
+    """What :func:`peek` learns from a datagram without parsing the bearings (a named
+    tuple: every datagram that reaches a receiver makes one, a flood included)."""
 
     kind: int
     """Message type (``TYPE_SAFETY`` or ``TYPE_NONCE``)."""
@@ -228,7 +233,7 @@ def encode_body(msg: SafetyMessage, version: int = VERSION) -> bytes:
     rows["sigma_deg"] = b.sigma_deg
     rows["snr_db"] = b.snr_db
     rows["channel"] = b.channel
-    problem = _bad_rows(rows)
+    problem = _bad_rows(rows.tolist())
     if problem is not None:
         raise LinkError(f"bad bearing: {problem}")
     head = pack_prefix(version, TYPE_SAFETY, sender)
@@ -275,32 +280,30 @@ def peek_prefix(datagram: bytes, max_datagram: int = MAX_DATAGRAM) -> tuple[int,
     return version, kind, sender.decode("ascii")
 
 
-def _bad_rows(rows: np.ndarray) -> str | None:
-    """What is wrong with native-order bearing rows, or None. One pass when all is well."""
-    az = rows["azimuth_deg"]
-    sigma = rows["sigma_deg"]
-    # comparisons with NaN are false, so NaN fails every range check here
-    ok = (
-        (az >= 0.0)
-        & (az < 360.0)
-        & (sigma > 0.0)
-        & (sigma < np.inf)
-        & (np.abs(rows["snr_db"]) < np.inf)
-        & (rows["t_us"] >= 0)
-        & (rows["t_us"] <= _MAX_T_US)
-        & (rows["channel"] <= 0x7FFF)
-    )
-    if ok.all():
+def _bad_rows(rows: Sequence[Sequence[Any]]) -> str | None:
+    """What is wrong with decoded bearing rows (t_us, emitter, az, sigma, snr, channel),
+    or None. One pass when all is well; comparisons with NaN are false, so NaN fails
+    every range check."""
+    for t_us, _, az, sigma, snr, channel in rows:
+        if not (
+            0.0 <= az < 360.0
+            and 0.0 < sigma < math.inf
+            and -math.inf < snr < math.inf
+            and 0 <= t_us <= _MAX_T_US
+            and channel <= 0x7FFF
+        ):
+            break
+    else:
         return None
-    if not ((az >= 0.0) & (az < 360.0)).all():
+    if not all(0.0 <= r[2] < 360.0 for r in rows):
         return "azimuth outside [0, 360) degrees"
-    if not ((sigma > 0.0) & (sigma < np.inf)).all():
+    if not all(0.0 < r[3] < math.inf for r in rows):
         return "sigma must be finite and positive"
-    if not (np.abs(rows["snr_db"]) < np.inf).all():
+    if not all(-math.inf < r[4] < math.inf for r in rows):
         return "SNR must be finite"
-    if not (rows["t_us"] >= 0).all():
+    if not all(r[0] >= 0 for r in rows):
         return "capture time before 1970"
-    if not (rows["t_us"] <= _MAX_T_US).all():
+    if not all(r[0] <= _MAX_T_US for r in rows):
         return "capture time out of range"
     return "channel number above 32767"
 
@@ -334,9 +337,16 @@ def peek(datagram: bytes, max_datagram: int = MAX_DATAGRAM) -> Peeked:
     fixed_at = _PREFIX.size + sender_len
     if size < fixed_at + _FIXED.size:
         raise MessageFormatError("truncated", f"{size} bytes, header needs {fixed_at + 33}")
-    sender = bytes(datagram[_PREFIX.size : fixed_at])
-    if not _SENDER_RE.fullmatch(sender):
-        raise MessageFormatError("malformed", f"sender id {sender!r} is not [A-Za-z0-9._-]{{1,32}}")
+    raw = bytes(datagram[_PREFIX.size : fixed_at])
+    sender = _SENDER_IDS.get(raw)
+    if sender is None:
+        if not _SENDER_RE.fullmatch(raw):
+            raise MessageFormatError(
+                "malformed", f"sender id {raw!r} is not [A-Za-z0-9._-]{{1,32}}"
+            )
+        if len(_SENDER_IDS) >= _SENDER_IDS_KEPT:
+            _SENDER_IDS.clear()
+        sender = _SENDER_IDS[raw] = raw.decode("ascii")
     n = datagram[fixed_at + _FIXED.size - 1]
     if n == 0:
         raise MessageFormatError("malformed", "no bearings")
@@ -347,7 +357,7 @@ def peek(datagram: bytes, max_datagram: int = MAX_DATAGRAM) -> Peeked:
         raise MessageFormatError("truncated", f"{size} bytes, {n} bearings need {want}")
     if size > want:
         raise MessageFormatError("oversized", f"{size} bytes, {n} bearings need {want}")
-    return Peeked(TYPE_SAFETY, sender.decode("ascii"), n, version)
+    return Peeked(TYPE_SAFETY, sender, n, version)
 
 
 def decode(datagram: bytes, max_datagram: int = MAX_DATAGRAM) -> SafetyMessage:
@@ -377,24 +387,22 @@ def decode_peeked(datagram: bytes, head: Peeked) -> SafetyMessage:
     if epoch > _INT64_MAX:
         raise MessageFormatError("malformed", f"epoch {epoch} out of range")
     at = fixed_at + _FIXED.size
-    if head.n_bearings <= _FEW_BEARINGS:
-        bearings = _few_bearings(datagram, at, head)
-    else:
-        rows = np.frombuffer(datagram, BEARING_DTYPE, count=head.n_bearings, offset=at).astype(
-            NATIVE_DTYPE
-        )
-        problem = _bad_rows(rows)
-        if problem is not None:
-            raise MessageFormatError("malformed", problem)
-        bearings = BearingBatch(
-            sensor_id=head.sender_id,
-            t_ns=rows["t_us"] * 1000,
-            azimuth_deg=rows["azimuth_deg"],
-            sigma_deg=rows["sigma_deg"],
-            snr_db=rows["snr_db"],
-            channel=rows["channel"],
-            emitter=rows["emitter"],
-        )
+    # struct, not numpy: a message holds at most a few dozen rows (one datagram), and
+    # for those a dozen numpy calls cost more than the rows (bench/bench_link.py)
+    rows = list(_BEARING.iter_unpack(datagram[at : at + head.n_bearings * BEARING_BYTES]))
+    problem = _bad_rows(rows)
+    if problem is not None:
+        raise MessageFormatError("malformed", problem)
+    t_us, emitter, az, sigma, snr, channel = zip(*rows, strict=True)
+    bearings = BearingBatch.from_columns(
+        head.sender_id,
+        np.array(t_us, np.int64) * 1000,
+        np.array(az, np.float64),
+        np.array(sigma, np.float64),
+        np.array(snr, np.float64),
+        np.array(channel, np.int16),
+        np.array(emitter, np.uint64),
+    )
     return SafetyMessage(
         sender_id=head.sender_id,
         pose=Pose(x_m, y_m, heading_deg),
@@ -402,38 +410,6 @@ def decode_peeked(datagram: bytes, head: Peeked) -> SafetyMessage:
         seq=seq,
         epoch=epoch,
         bearings=bearings,
-    )
-
-
-def _few_bearings(datagram: bytes, at: int, head: Peeked) -> BearingBatch:
-    """The bearings of a message with a handful of them, parsed and checked in plain
-    Python: for one to a few rows a dozen numpy calls cost more than the rows.
-    Values and errors are those of the vectorised path.
-
-    Raises:
-        MessageFormatError: a value is invalid (reason ``malformed``).
-    """
-    rows = list(_BEARING.iter_unpack(datagram[at : at + head.n_bearings * BEARING_BYTES]))
-    for t_us, _, az, sigma, snr, channel in rows:
-        # comparisons with NaN are false, so NaN fails every range check here
-        if not (
-            0.0 <= az < 360.0
-            and 0.0 < sigma < math.inf
-            and -math.inf < snr < math.inf
-            and 0 <= t_us <= _MAX_T_US
-            and channel <= 0x7FFF
-        ):
-            table = np.array(rows, NATIVE_DTYPE)
-            raise MessageFormatError("malformed", _bad_rows(table) or "bad bearing value")
-    t_us_, emitter, az_, sigma_, snr_, channel_ = zip(*rows, strict=True)
-    return BearingBatch.from_columns(
-        head.sender_id,
-        np.array([t * 1000 for t in t_us_], np.int64),
-        np.array(az_, np.float64),
-        np.array(sigma_, np.float64),
-        np.array(snr_, np.float64),
-        np.array(channel_, np.int16),
-        np.array(emitter, np.uint64),
     )
 
 

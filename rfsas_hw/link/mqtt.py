@@ -342,6 +342,8 @@ class MqttTransport(Transport):
         self._lost_why = ""
         """Set by a caller's read that found the connection lost, for the network thread."""
         self._last_error = "no answer"
+        self._lost_at: float | None = None
+        """When the connection was lost (monotonic seconds), until it is back."""
         self._thread = threading.Thread(
             target=self._run, name=f"mqtt {endpoint.url()}", daemon=True
         )
@@ -397,8 +399,13 @@ class MqttTransport(Transport):
         self._last_error = f"disconnected: {why}"
         if not self._closed.is_set():
             self.stats.disconnects += 1
-            if self.stats.disconnects == 1:
-                log.warning("%s: lost the broker (%s); retrying", self.endpoint.url(), why)
+            self._lost_at = time.monotonic()
+            log.warning(
+                "%s: lost the broker (%s); retrying (loss %d)",
+                self.endpoint.url(),
+                why,
+                self.stats.disconnects,
+            )
 
     def _open(self) -> None:
         """Connect, say CONNECT, wait for CONNACK and SUBACK (blocking, ``connect_s``).
@@ -448,6 +455,14 @@ class MqttTransport(Transport):
         self._last_sent = time.monotonic()
         self._ping_sent = 0.0
         self.stats.connects += 1
+        if self._lost_at is not None:
+            log.warning(
+                "%s: connected to the broker again after %.1f s (loss %d)",
+                self.endpoint.url(),
+                time.monotonic() - self._lost_at,
+                self.stats.disconnects,
+            )
+            self._lost_at = None
         self._handle(early)
         self._connected.set()
 

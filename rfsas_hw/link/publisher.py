@@ -114,6 +114,8 @@ class Publisher:
         self.stats = PublisherStats()
         self.last_error = ""
         """The last send error, for the summary."""
+        self._lost_now: int | None = None
+        """Bearings lost since sending last failed (None: the last send went out)."""
         self._closed = False
 
     @classmethod
@@ -236,9 +238,14 @@ class Publisher:
         except LinkError as err:
             self.last_error = str(err)
             self.stats.dropped["send_error"] += len(rows)
-            if self.stats.dropped["send_error"] == len(rows):
-                log.warning("%s; later send errors are only counted", err)
+            if self._lost_now is None:
+                self._lost_now = 0
+                log.warning("%s: cannot send (%s); lost bearings are counted", self.name, err)
+            self._lost_now += len(rows)
             return
+        if self._lost_now is not None:
+            log.warning("%s: sending again, %d bearings lost meanwhile", self.name, self._lost_now)
+            self._lost_now = None
         self.stats.messages += 1
         self.stats.bearings += len(rows)
         self.stats.bytes += len(datagram)
@@ -266,10 +273,15 @@ class Publisher:
 
     def problem(self) -> str | None:
         """Why the publishing failed, or None: bearings were offered and none were sent,
-        or some could not be sent (a send error is never silent)."""
+        or sending still failed at the end. An outage ridden out (sends failed, then
+        went out again) is not a failure of the run: its losses are counted
+        (``dropped.send_error``) and logged when they start and end."""
         st = self.stats
-        if st.dropped.get("send_error"):
-            return f"{st.dropped['send_error']:,} bearings not sent ({self.last_error})"
+        if self._lost_now is not None:
+            return (
+                f"{st.dropped['send_error']:,} bearings not sent, still failing at the end "
+                f"({self.last_error})"
+            )
         if st.offered and not st.bearings:
             reasons = ", ".join(f"{k} {v:,}" for k, v in sorted(st.dropped.items()))
             return f"none of {st.offered:,} bearings sent ({reasons or 'no reason recorded'})"

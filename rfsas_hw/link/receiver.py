@@ -7,12 +7,17 @@ API (for a backend)::
     verified = rx.feed(datagram, t_recv_ns)   # VerifiedMessage | None, never raises
     rx.stats                                  # ReceiverStats: counts by rejection reason
     rx.latency                                # LatencyWatch: per-sender state (ok/late/silent)
+    rx.refusals                               # RefusalWatch: senders all of whose messages
+                                              # are refused, and why (skew, nonce, unenrolled)
 
     rx = Receiver.listen("udp://127.0.0.1:47000", trust)
     for msg in rx.receive(timeout=0.1): ...   # everything that arrived, verified
 
 ``trust`` is anything with ``signing_key(sender_id)`` (:class:`TrustedKeys`, or
-the trust directory of a key store). ``nonces`` (optional) takes nonce
+the trust directory of a key store). A trust directory is refreshed by every
+:meth:`Receiver.receive` call (it looks at the disk at most every ``reload_s``,
+2 s by default): a sender revoked with ``rfsas keys revoke`` is refused as
+``unknown_sender`` from then on, without a restart. ``nonces`` (optional) takes nonce
 envelopes that arrive on the same port (see :mod:`rfsas_hw.privacy.nonces`).
 
 Checks run cheapest first and in this order; the first failure decides the
@@ -48,28 +53,19 @@ from __future__ import annotations
 
 import logging
 import math
-import struct
 import time
 from collections import Counter
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Literal, Protocol
+from typing import Protocol
 
 from cryptography.hazmat.primitives.asymmetric import ec
 
 from rfsas_hw.errors import LinkError, LinkSecurityError
 from rfsas_hw.link.latency import LatencyConfig, LatencyWatch
 from rfsas_hw.link.message import (
-    BEARING_BYTES,
-    MAGIC,
     MAX_DATAGRAM,
-    N_BEARINGS_AT,
-    PREAUTH_BYTES,
-    PREFIX_BYTES,
-    SIGNATURE_BYTES,
     TYPE_NONCE,
-    TYPE_SAFETY,
-    VERSION_PREAUTH,
     MessageFormatError,
     Peeked,
     SafetyMessage,
@@ -79,8 +75,9 @@ from rfsas_hw.link.message import (
     signed_part,
 )
 from rfsas_hw.link.preauth import NonceSource, PreauthKeys, RateLimiter, TagKey
+from rfsas_hw.link.refusals import RefusalConfig, RefusalWatch
 from rfsas_hw.link.replay import ReplayGuard
-from rfsas_hw.link.signing import SenderKeys, verify
+from rfsas_hw.link.signing import RefreshingKeys, SenderKeys, verify
 from rfsas_hw.link.topics import ROOT as TOPIC_ROOT
 from rfsas_hw.link.topics import topic_sender
 from rfsas_hw.link.transport import Transport, open_transports
@@ -152,6 +149,8 @@ class ReceiverConfig:
     before it sheds the remaining signature checks, seconds."""
     latency: LatencyConfig = field(default_factory=LatencyConfig)
     """Latency watch thresholds."""
+    refusals: RefusalConfig = field(default_factory=RefusalConfig)
+    """Refusal watch thresholds (the alarm for a sender whose messages are all refused)."""
     accept_v1: bool = True
     """Accept version-1 messages (no pre-authentication tag). Turn off once every
     sensor sends version 2: only then does a forged flood cost one HMAC per datagram."""
@@ -234,29 +233,17 @@ class EnvelopeSink(Protocol):
         ...
 
 
-_GEN_SEQ = struct.Struct(">qI")
 _BEARING_TOPICS = f"{TOPIC_ROOT}/bearing/"
-
-
-class _Known:
-    """What the fast path keeps of an enrolled sender in one epoch."""
-
-    __slots__ = ("epoch", "fixed_at", "sender_id", "tag", "topic_prefix")
-
-    def __init__(self, sender_id: str, epoch: int, tag: TagKey) -> None:
-        self.sender_id = sender_id
-        self.epoch = epoch
-        self.tag = tag
-        self.fixed_at = PREFIX_BYTES + len(sender_id)
-        """Offset of the generation time in the sender's messages, bytes."""
-        self.topic_prefix = f"{_BEARING_TOPICS}{sender_id}/"
-        """A bearing topic that starts so names this sender."""
 
 
 def _names_other(topic: str, sender_id: str) -> bool:
     """True when ``topic`` is a bearing topic naming another sender than ``sender_id``
-    (``topic_mismatch``); the slow half of the check, for topics that do not start
-    with the sender's own prefix."""
+    (``topic_mismatch``). A topic under the sender's own prefix is answered without
+    parsing it."""
+    if topic.startswith(_BEARING_TOPICS) and topic.startswith(
+        f"{sender_id}/", len(_BEARING_TOPICS)
+    ):
+        return False
     named = topic_sender(topic)
     return named is not None and named != sender_id
 
@@ -290,9 +277,15 @@ then hold the signature code, not the checks around it, for a run of them."""
 
 
 class _RejectError(Exception):
-    def __init__(self, reason: str, detail: str = "") -> None:
+    def __init__(
+        self, reason: str, detail: str = "", sender: str = "", offset_s: float | None = None
+    ) -> None:
         super().__init__(detail or reason)
         self.reason = reason
+        self.sender = sender
+        """The sender id the message claims (empty when it is not known yet)."""
+        self.offset_s = offset_s
+        """Generation time minus receive time, seconds (``stale`` and ``future``)."""
 
 
 class Receiver:
@@ -332,24 +325,23 @@ class Receiver:
         self.schedule = self.config.schedule
         self.stats = ReceiverStats()
         self.latency = LatencyWatch(self.config.latency)
+        self.refusals = RefusalWatch(self.config.refusals)
+        """Per-sender alarm for runs of refusals (clock skew, nonce mismatch, unenrolled)."""
         self._verify_s = 0.0
         window_us = int((self.config.max_age_s + self.config.max_future_s) * US_PER_S)
         self.replay = ReplayGuard(window_us, self.config.replay_capacity)
         if preauth is None and isinstance(nonces, NonceSource):
             preauth = PreauthKeys(nonces)
         self.preauth = preauth
-        self._tag_keys: dict[tuple[bytes, int], _Known] = {}
-        """(sender id, epoch) → pre-authentication key (made ready for tags) and what
-        else the fast path needs of enrolled senders seen lately."""
-        self.fast_path = True
-        """Take the fast path for version-2 messages of a known (sender, epoch): the same
-        checks in the same order as the full path, inlined (off: every datagram goes
-        the full way; for comparing the two)."""
+        self._tag_keys: dict[tuple[str, int], TagKey] = {}
+        """(sender id, epoch) → pre-authentication key made ready for tags, of the
+        enrolled senders seen lately."""
         self._epochs_ms = -1
         self._epochs_ok: tuple[int, ...] = ()
         self.limiter = RateLimiter(
             self.config.sender_rate_hz, self.config.sender_burst, time.monotonic
         )
+        self._refresh_trust = trust.refresh if isinstance(trust, RefreshingKeys) else None
 
     @classmethod
     def listen(
@@ -419,16 +411,8 @@ class Receiver:
         (sender, seq, generation time) of messages admitted earlier in a batch whose
         signature is not checked yet): :data:`DEFERRED` for a copy of one of them,
         to be checked in full after it. Never raises."""
-        known = self._fast_tag(datagram, now_ns) if self._tag_keys else None
-        if known is False:
-            self.stats.rejected["bad_preauth"] += 1
-            return None
         try:
-            if known is None:
-                return self._check(bytes(datagram), now_ns, shed, topic, staged=staged)
-            if self.fast_path:
-                return self._check_known(bytes(datagram), now_ns, shed, topic, known, staged)
-            return self._check(bytes(datagram), now_ns, shed, topic, True, staged)
+            return self._check(bytes(datagram), now_ns, shed, topic, staged)
         except _DeferError:
             return DEFERRED
         except (_RejectError, MessageFormatError) as rej:
@@ -468,11 +452,14 @@ class Receiver:
             return None
         self.stats.verified += 1
         self.stats.bearings += len(verified.message.bearings)
+        self.refusals.verified(verified.sender_id)
         self.latency.observe(verified.sender_id, verified.age_s, now_ns, verified.message.seq)
         return verified
 
     def _count_rejection(self, reason: str, why: Exception, datagram: bytes) -> None:
         self.stats.rejected[reason] += 1
+        if isinstance(why, _RejectError) and why.sender:
+            self.refusals.refused(why.sender, reason, why.offset_s)
         if log.isEnabledFor(logging.DEBUG):
             log.debug("rejected %d-byte datagram: %s (%s)", len(datagram), reason, why)
 
@@ -487,9 +474,16 @@ class Receiver:
         now_ns: int,
         shed: bool,
         topic: str | None = None,
-        tag_checked: bool = False,
         staged: set[tuple[str, int, int]] | None = None,
     ) -> _Pending | None:
+        """Steps 1 and 2 of the module docstring, in that order: the admitted message,
+        or None for a nonce envelope (taken).
+
+        Raises:
+            _RejectError, MessageFormatError: the reason it is refused.
+            _DeferError: a copy of a message of ``staged`` (admitted earlier in the same
+                batch, signature not checked yet).
+        """
         cfg = self.config
         head = peek(datagram, cfg.max_datagram)  # MessageFormatError is a rejection too
         if head.kind == TYPE_NONCE:
@@ -497,16 +491,19 @@ class Receiver:
                 raise _RejectError("overload", "nonce envelope")
             self._envelope(datagram, now_ns)
             return None
-        if topic is not None:
-            named = topic_sender(topic)
-            if named is not None and named != head.sender_id:
-                raise _RejectError("topic_mismatch", f"{head.sender_id} on {topic}")
-        key = self.trust.signing_key(head.sender_id)
+        sender = head.sender_id
+        if topic is not None and _names_other(topic, sender):
+            raise _RejectError("topic_mismatch", f"{sender} on {topic}")
+        key = self.trust.signing_key(sender)
         if key is None:
-            raise _RejectError("unknown_sender", head.sender_id)
-        self._preauthenticate(datagram, head, now_ns, tag_checked, staged)
+            raise _RejectError("unknown_sender", sender, sender)
+        if not self._preauthenticate(datagram, head, now_ns, staged):
+            # a forged flood's way out: counted here, without raising
+            self.stats.rejected["bad_preauth"] += 1
+            self.refusals.refused(sender, "bad_preauth")
+            return None
         if shed:
-            raise _RejectError("overload", head.sender_id)
+            raise _RejectError("overload", sender)
         return _Pending(datagram, head, key)
 
     def _accept(self, datagram: bytes, head: Peeked, now_ns: int) -> VerifiedMessage:
@@ -516,9 +513,16 @@ class Receiver:
         now_us = now_ns // NS_PER_US
         age_us = now_us - msg.t_gen_us
         if age_us > cfg.max_age_s * US_PER_S:
-            raise _RejectError("stale", f"{msg.sender_id} age {age_us / 1e3:.1f} ms")
+            raise _RejectError(
+                "stale", f"{msg.sender_id} age {age_us / 1e3:.1f} ms", msg.sender_id, -age_us / 1e6
+            )
         if -age_us > cfg.max_future_s * US_PER_S:
-            raise _RejectError("future", f"{msg.sender_id} {-age_us / 1e3:.1f} ms ahead")
+            raise _RejectError(
+                "future",
+                f"{msg.sender_id} {-age_us / 1e3:.1f} ms ahead",
+                msg.sender_id,
+                -age_us / 1e6,
+            )
         self._check_range(msg)
         if cfg.check_epoch:
             self._check_epoch(msg, now_ns)
@@ -526,120 +530,63 @@ class Receiver:
             raise _RejectError("replay", f"{msg.sender_id} seq {msg.seq}")
         return VerifiedMessage(msg, now_ns, age_us / US_PER_S)
 
-    def _check_known(
-        self,
-        datagram: bytes,
-        now_ns: int,
-        shed: bool,
-        topic: str | None,
-        known: _Known,
-        staged: set[tuple[str, int, int]] | None = None,
-    ) -> _Pending | None:
-        """:meth:`_check` for a version-2 safety message whose tag :meth:`_fast_tag`
-        found right under the cached key of its (sender, epoch): the same checks in
-        the same order, without parsing what that check already established. Any
-        check before the replay-copy test that does not pass hands the datagram to
-        :meth:`_check` (nothing is recorded before then), which names the reason.
-
-        Raises:
-            _RejectError, MessageFormatError: as :meth:`_check`.
-        """
-        sender = known.sender_id
-        if (
-            len(datagram) > self.config.max_datagram
-            or datagram[:2] != MAGIC
-            or datagram[4] != 0
-            or (
-                topic is not None
-                and not topic.startswith(known.topic_prefix)
-                and _names_other(topic, sender)
-            )
-        ):
-            return self._check(datagram, now_ns, shed, topic, True, staged)
-        key = self.trust.signing_key(sender)
-        if key is None or self.preauth is None or self.preauth.key_for(sender, known.epoch) is None:
-            return self._check(datagram, now_ns, shed, topic, True, staged)
-        t_gen_us, seq = _GEN_SEQ.unpack_from(datagram, known.fixed_at)
-        fresh = now_ns // NS_PER_US - t_gen_us <= self.config.max_age_s * US_PER_S
-        if fresh and self.replay.seen(sender, seq, t_gen_us):
-            raise _RejectError("replay", f"{sender} seq {seq} (copy)")
-        if staged is not None and (sender, seq, t_gen_us) in staged:
-            raise _DeferError
-        if not self.limiter.allow(sender):
-            raise _RejectError("rate_limited", sender)
-        if shed:
-            raise _RejectError("overload", sender)
-        n_bearings = datagram[known.fixed_at + N_BEARINGS_AT]
-        head = Peeked(TYPE_SAFETY, sender, n_bearings, VERSION_PREAUTH)
-        return _Pending(datagram, head, key)
-
     def _preauthenticate(
         self,
         datagram: bytes,
         head: Peeked,
         now_ns: int,
-        tag_checked: bool = False,
         staged: set[tuple[str, int, int]] | None = None,
-    ) -> None:
-        """The cheap checks before the signature: pre-authentication tag (unless
-        ``tag_checked``: :meth:`_fast_tag` found it right), exact copies of verified
-        messages, the sender's budget of signature checks."""
+    ) -> bool:
+        """The cheap checks before the signature: pre-authentication tag, exact copies
+        of verified messages, the sender's budget of signature checks. False when the
+        tag is wrong (``bad_preauth``).
+
+        Raises:
+            _RejectError: another reason; _DeferError: a copy of a staged message.
+        """
+        sender = head.sender_id
         t_gen_us, seq, epoch = header_epoch(datagram, head)
         if head.preauth:
             if self.config.check_epoch and epoch not in self._accepted_epochs(now_ns):
-                raise _RejectError("wrong_epoch", f"{head.sender_id} epoch {epoch}")
-            key = None if self.preauth is None else self.preauth.key_for(head.sender_id, epoch)
-            if key is None:
+                raise _RejectError("wrong_epoch", f"{sender} epoch {epoch}", sender)
+            tag = self._tag_key(sender, epoch)
+            if tag is None:
                 # without the epoch's nonce the tag cannot be checked: a receiver that
                 # requires pre-authentication refuses, one that reads version 1 treats
                 # the message like version 1 (the signature still decides)
                 if not self.config.accept_v1:
-                    raise _RejectError("no_preauth_key", f"{head.sender_id} epoch {epoch}")
-            else:
-                # an enrolled sender's key for an accepted epoch: later datagrams of the
-                # same pair may be refused by the fast check in _fast_tag
-                pair = (head.sender_id.encode("ascii"), epoch)
-                known = self._tag_keys.get(pair)
-                if known is None or known.tag.key != key:
-                    if len(self._tag_keys) >= 4096:
-                        self._tag_keys.clear()
-                    known = self._tag_keys[pair] = _Known(head.sender_id, epoch, TagKey(key))
-                if not tag_checked and not known.tag.tag_ok(datagram):
-                    raise _RejectError("bad_preauth", head.sender_id)
+                    raise _RejectError("no_preauth_key", f"{sender} epoch {epoch}", sender)
+            elif not tag.tag_ok(datagram):
+                return False
         elif not self.config.accept_v1:
             raise _RejectError(
                 "v1_refused",
-                f"{head.sender_id}: version 1 has no pre-authentication tag; "
+                f"{sender}: version 1 has no pre-authentication tag; "
                 "this receiver requires version 2",
             )
         fresh = now_ns // NS_PER_US - t_gen_us <= self.config.max_age_s * US_PER_S
-        if fresh and self.replay.seen(head.sender_id, seq, t_gen_us):
-            raise _RejectError("replay", f"{head.sender_id} seq {seq} (copy)")
-        if staged is not None and (head.sender_id, seq, t_gen_us) in staged:
+        if fresh and self.replay.seen(sender, seq, t_gen_us):
+            raise _RejectError("replay", f"{sender} seq {seq} (copy)")
+        if staged is not None and (sender, seq, t_gen_us) in staged:
             # a copy of a message whose signature is not checked yet: decide after it
             raise _DeferError
-        if not self.limiter.allow(head.sender_id):
-            raise _RejectError("rate_limited", head.sender_id)
+        if not self.limiter.allow(sender):
+            raise _RejectError("rate_limited", sender)
+        return True
 
-    def _fast_tag(self, datagram: bytes, now_ns: int) -> _Known | Literal[False] | None:
-        """The tag of a well-formed version-2 safety message of a sender and epoch whose
-        key is already known: False when it is wrong (the flood's fast way out, with
-        no parsing beyond the lengths), the cached sender state when it is right (the
-        full check need not compute it again). None for anything else: that goes the
-        full way."""
-        if len(datagram) < 48 or datagram[2] != VERSION_PREAUTH or datagram[3] != TYPE_SAFETY:
+    def _tag_key(self, sender_id: str, epoch: int) -> TagKey | None:
+        """The pre-authentication key of an enrolled sender in an accepted epoch, made
+        ready for tags once and kept (None: the epoch's nonce is not held)."""
+        key = None if self.preauth is None else self.preauth.key_for(sender_id, epoch)
+        if key is None:
             return None
-        at = 6 + datagram[5]
-        n = datagram[at + 32] if len(datagram) > at + 32 else 0
-        if n == 0 or len(datagram) != at + 33 + n * BEARING_BYTES + SIGNATURE_BYTES + PREAUTH_BYTES:
-            return None
-        epoch = int.from_bytes(datagram[at + 12 : at + 20], "big")
-        known = self._tag_keys.get((datagram[6:at], epoch))
-        if known is None or (
-            self.config.check_epoch and epoch not in self._accepted_epochs(now_ns)
-        ):
-            return None
-        return known if known.tag.tag_ok(datagram) else False
+        pair = (sender_id, epoch)
+        tag = self._tag_keys.get(pair)
+        if tag is None or tag.key != key:
+            if len(self._tag_keys) >= 4096:
+                self._tag_keys.clear()
+            tag = self._tag_keys[pair] = TagKey(key)
+        return tag
 
     def _accepted_epochs(self, now_ns: int) -> tuple[int, ...]:
         # a flood asks this for every datagram: answer from the last millisecond's result
@@ -703,13 +650,15 @@ class Receiver:
         """
         if self.transport is None:
             raise LinkError("this receiver has no transport; use Receiver.listen(url, ...)")
+        if self._refresh_trust is not None:
+            self._refresh_trust()
         queued = self.transport.recv_many(timeout, max_datagrams)
         out: list[VerifiedMessage] = []
         overloaded = len(queued) > self.config.backlog
         if overloaded:
             queued.reverse()
         self._verify_s = 0.0
-        if not overloaded and self.fast_path:
+        if not overloaded:
             out = self._check_batch(queued)
             self.latency.poll(self.clock())
             return out

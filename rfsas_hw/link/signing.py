@@ -8,7 +8,7 @@ header and a receiver can reject bad lengths before any cryptography.
 from __future__ import annotations
 
 from collections.abc import Iterator, Mapping
-from typing import Protocol
+from typing import Protocol, runtime_checkable
 
 from cryptography.exceptions import InvalidSignature
 from cryptography.hazmat.primitives import hashes
@@ -108,6 +108,15 @@ class SenderKeys(Protocol):
 
     def signing_key(self, sender_id: str) -> ec.EllipticCurvePublicKey | None:
         """The enrolled P-256 key of ``sender_id``, or None if it is not enrolled."""
+        ...
+
+
+@runtime_checkable
+class RefreshingKeys(SenderKeys, Protocol):
+    """Enrolled keys that can change while a receiver runs (a trust directory)."""
+
+    def refresh(self, now_s: float | None = None) -> bool:
+        """Take up enrolments and revocations made meanwhile; never raises."""
         ...
 
 

@@ -38,12 +38,14 @@ another receiver.
 
 from __future__ import annotations
 
+import logging
 import os
 import re
 import struct
 import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
+from pathlib import Path
 
 from cryptography.exceptions import InvalidTag
 from cryptography.hazmat.primitives import hashes, serialization
@@ -51,9 +53,12 @@ from cryptography.hazmat.primitives.asymmetric import x25519
 from cryptography.hazmat.primitives.ciphers.aead import ChaCha20Poly1305
 from cryptography.hazmat.primitives.kdf.hkdf import HKDF
 
-from rfsas_hw.errors import LinkSecurityError
+from rfsas_hw.errors import KeyStoreError, LinkSecurityError
 from rfsas_hw.privacy.epochs import EpochSchedule
 from rfsas_hw.privacy.hashing import NonceExpiredError, NonceUnavailableError
+from rfsas_hw.privacy.nonce_state import load_nonces, save_nonces
+
+log = logging.getLogger(__name__)
 
 MAGIC = b"RF"
 VERSION = 1
@@ -155,12 +160,22 @@ class NonceAuthority:
     Also a :class:`~rfsas_hw.privacy.hashing.NonceProvider`, so the sensor that
     hosts the authority hashes with the same nonces it hands out.
 
+    With a ``state`` file every nonce is written there before it is handed out,
+    and an authority started on the same file hands out the same nonces: a
+    restart does not split the deployment (:mod:`rfsas_hw.privacy.nonce_state`).
+    One authority process per state file: two running at once would each draw
+    their own nonce for a new epoch.
+
     Args:
         authority_id: the authority's id (as on its key card).
         private_key: the authority's X25519 key.
         schedule: the deployment's epochs.
         random_bytes: source of randomness (``os.urandom``; injectable for tests).
         keep_epochs: how many epochs of nonces to keep.
+        state: the state file (None: nonces live in memory only).
+
+    Raises:
+        KeyStoreError: the state file exists but cannot be read or is malformed.
     """
 
     def __init__(
@@ -171,6 +186,7 @@ class NonceAuthority:
         *,
         random_bytes: Callable[[int], bytes] = os.urandom,
         keep_epochs: int = 8,
+        state: str | Path | None = None,
     ) -> None:
         self.authority_id = authority_id
         self._id = _id_bytes(authority_id, "authority")
@@ -179,7 +195,12 @@ class NonceAuthority:
         self.schedule = schedule or EpochSchedule()
         self._random = random_bytes
         self._keep = keep_epochs
-        self._nonces: dict[int, bytes] = {}
+        self.state = None if state is None else Path(state)
+        self.state_errors = 0
+        """Nonces that could not be written to the state file (each one is logged)."""
+        self._nonces: dict[int, bytes] = (
+            {} if self.state is None else load_nonces(self.state, authority_id)
+        )
         self._receivers: dict[str, x25519.X25519PublicKey] = {}
 
     @property
@@ -196,8 +217,18 @@ class NonceAuthority:
         """Stop giving nonces to ``receiver_id`` (it still holds what it was given)."""
         self._receivers.pop(receiver_id, None)
 
+    def enroll_only(self, receivers: Mapping[str, x25519.X25519PublicKey]) -> None:
+        """Make ``receivers`` the enrolled set: enroll the new ones, revoke the others
+        (a trust directory re-read after ``rfsas keys enroll`` or ``revoke``)."""
+        for rid in set(self._receivers) - set(receivers):
+            self.revoke(rid)
+        for rid, key in receivers.items():
+            self.enroll(rid, key)
+
     def nonce_for(self, epoch: int) -> bytes:
-        """The nonce of ``epoch``, drawn on first use."""
+        """The nonce of ``epoch``, drawn on first use (and written to the state file
+        before it is returned; a failed write is logged and counted, and the nonce
+        is still used: a restart before the next good write would split)."""
         nonce = self._nonces.get(epoch)
         if nonce is None:
             nonce = self._random(NONCE_BYTES)
@@ -206,6 +237,12 @@ class NonceAuthority:
             self._nonces[epoch] = nonce
             for old in sorted(self._nonces)[: -self._keep]:
                 del self._nonces[old]
+            if self.state is not None:
+                try:
+                    save_nonces(self.state, self.authority_id, self._nonces)
+                except KeyStoreError as err:
+                    self.state_errors += 1
+                    log.error("nonce of epoch %d not persisted: %s", epoch, err)
         return nonce
 
     def seal(self, receiver_id: str, epoch: int) -> bytes:

@@ -16,6 +16,17 @@ Bearer …``) and is refused with 403 without it. The ``Host`` check keeps a
 web page elsewhere from reaching a localhost dashboard through DNS rebinding.
 Bound to anything but loopback, the server always has a token (a random one
 unless given).
+
+A request whose ``Origin`` is not this server (a browser sends it with every
+WebSocket and cross-site request) is refused with 403, so a web page open in the
+operator's browser cannot read the live snapshot over ``/ws``. The WebSocket
+asks the token whenever the server has one, from loopback too (the page passes
+it on).
+
+Connections are admitted by :class:`~rfsas_hw.web.limits.ConnectionGate`: at
+most ``limits.max_connections`` open, and plain HTTP ones closed
+``limits.request_timeout_s`` after they were accepted (idle or partial requests
+included).
 """
 
 from __future__ import annotations
@@ -33,6 +44,7 @@ from urllib.parse import urlsplit
 
 from rfsas_hw.errors import ConfigError
 from rfsas_hw.optional import require
+from rfsas_hw.web.limits import ConnectionGate, ConnectionLimits
 from rfsas_hw.web.state import DashboardState
 
 log = logging.getLogger(__name__)
@@ -79,6 +91,15 @@ def _host_of(header: str) -> str:
     return urlsplit(f"//{header}").hostname or ""
 
 
+def same_origin(origin: str | None, host_header: str) -> bool:
+    """True when a request's ``Origin`` (None: not sent, as by non-browser clients) is the
+    page this server serves: ``http(s)://`` plus the request's own ``Host``."""
+    if origin is None:
+        return True
+    parts = urlsplit(origin)
+    return parts.scheme in ("http", "https") and parts.netloc.lower() == host_header.lower()
+
+
 class DashboardServer:
     """Serves the dashboard of ``state`` (see the module docstring).
 
@@ -87,8 +108,9 @@ class DashboardServer:
         site: the ``/api/site`` payload.
         host: address to bind (default loopback).
         port: TCP port (0: any free one).
-        token: access token for non-local clients (default: none on loopback,
-            a random one elsewhere).
+        token: access token for non-local clients and the WebSocket (default: none
+            on loopback, a random one elsewhere).
+        limits: connection cap and request deadline (default :class:`ConnectionLimits`).
 
     Raises:
         MissingDependencyError: aiohttp is not installed.
@@ -101,8 +123,12 @@ class DashboardServer:
         host: str = "127.0.0.1",
         port: int = 0,
         token: str | None = None,
+        limits: ConnectionLimits | None = None,
     ) -> None:
         self._web = require("aiohttp.web")
+        self.limits = limits or ConnectionLimits()
+        self.gate: ConnectionGate | None = None
+        """Admits connections once serving (its counters: open, refused, timed out)."""
         self.state = state
         self.site = site
         self.host = host
@@ -140,9 +166,12 @@ class DashboardServer:
 
     def allows(self, remote: str | None, host_header: str, given: str | None) -> bool:
         """Whether a request from ``remote`` with this ``Host`` and token is served."""
-        if self.token and given and secrets.compare_digest(given, self.token):
+        if self._token_ok(given):
             return True
         return is_loopback(remote) and is_loopback(_host_of(host_header))
+
+    def _token_ok(self, given: str | None) -> bool:
+        return bool(self.token and given and secrets.compare_digest(given, self.token))
 
     def start(self, timeout_s: float = 10.0) -> None:
         """Bind and serve on a thread of its own; returns once listening.
@@ -183,7 +212,7 @@ class DashboardServer:
         loop = asyncio.new_event_loop()
         self._loop = loop
         try:
-            runner = loop.run_until_complete(self._serve())
+            serving = loop.run_until_complete(self._serve())
         except BaseException as err:
             self._error = err
             self._ready.set()
@@ -193,7 +222,7 @@ class DashboardServer:
         try:
             assert self._stop is not None
             loop.run_until_complete(self._stop.wait())
-            loop.run_until_complete(self._shutdown(runner))
+            loop.run_until_complete(self._shutdown(serving))
         finally:
             loop.close()
 
@@ -221,11 +250,13 @@ class DashboardServer:
         app.router.add_get("/ws", self._ws)
         runner = web.AppRunner(app, access_log=None)
         await runner.setup()
-        site = web.TCPSite(runner, self.host, self.port)
-        await site.start()
-        if self.port == 0 and runner.addresses:
-            self.port = int(runner.addresses[0][1])
-        return runner
+        self.gate = ConnectionGate(runner.server, self.limits)
+        listener = await asyncio.get_running_loop().create_server(
+            self.gate, self.host, self.port, reuse_address=True
+        )
+        if self.port == 0 and listener.sockets:
+            self.port = int(listener.sockets[0].getsockname()[1])
+        return runner, listener
 
     async def guard(self, request: Any, handler: Any) -> Any:
         """The access check of every request (see the module docstring): 403 or ``handler``."""
@@ -233,13 +264,24 @@ class DashboardServer:
         auth = request.headers.get("Authorization", "")
         if auth.startswith("Bearer "):
             given = auth[7:].strip()
-        if not self.allows(request.remote, request.headers.get("Host", ""), given):
+        host = request.headers.get("Host", "")
+        if not same_origin(request.headers.get("Origin"), host):
+            return self._web.json_response(
+                {"error": "forbidden: a request from another site's page"}, status=403
+            )
+        if not self.allows(request.remote, host, given):
             return self._web.json_response(
                 {"error": "forbidden: a token is needed from another host"}, status=403
             )
+        if request.path == "/ws" and self.token and not self._token_ok(given):
+            return self._web.json_response(
+                {"error": "forbidden: the live feed needs the token"}, status=403
+            )
         return await handler(request)
 
-    async def _shutdown(self, runner: Any) -> None:
+    async def _shutdown(self, serving: tuple[Any, asyncio.Server]) -> None:
+        runner, listener = serving
+        listener.close()
         for ws in list(self._clients):
             with contextlib.suppress(Exception):
                 await ws.close(code=1001, message=b"server stopping")
@@ -270,6 +312,8 @@ class DashboardServer:
     async def _ws(self, request: Any) -> Any:
         ws = self._web.WebSocketResponse(heartbeat=10.0)
         await ws.prepare(request)
+        if self.gate is not None:
+            self.gate.keep(request.transport)  # upgraded: its heartbeat watches it now
         self._clients.add(ws)
         try:
             await ws.send_str(self._snapshot_text())

@@ -23,13 +23,13 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
+from rfsas_hw.backend.risk import ADVISORY_RANK
 from rfsas_hw.backend.site import DEFAULT_FOV_DEG, SiteConfig
 from rfsas_hw.backend.vehicle import VehicleState
 from rfsas_hw.exports.shapes import ELLIPSE_SIGMA, ellipse_of
 from rfsas_hw.records import Assessment, BearingBatch, Fix, Pose, emitter_hex
 
 NS = 1_000_000_000
-ADVISORY_RANK = {"none": 0, "clear": 1, "caution": 2, "brake": 3}
 """Worse advisories rank higher; the vehicle shows the worst over all emitters."""
 
 __all__ = ["ADVISORY_RANK", "DashboardLimits", "DashboardState"]
@@ -150,6 +150,11 @@ class DashboardState:
             keep = now - int(self.limits.fix_keep_s * NS)
             for emitter in [e for e, f in self._fixes.items() if f.t_ns < keep]:
                 del self._fixes[emitter]
+            # emitter ids change every nonce epoch: bearings no longer drawn must go, or
+            # the store grows by every (sensor, emitter) pair ever heard
+            oldest = now - int(self.limits.bearing_keep_s * NS)
+            for pair in [k for k, b in self._bearings.items() if b["t_ns"] < oldest]:
+                del self._bearings[pair]
             for emitter in [e for e in self._tracks if e not in self._assessments]:
                 del self._tracks[emitter]
             self.version += 1

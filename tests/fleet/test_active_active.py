@@ -74,7 +74,7 @@ def _backend(
     cmd += ["--listen", broker.url(ident), "--tile-plan", str(_tile_plan(log.with_suffix(".yaml")))]
     cmd += ["--keys", str(deployment.backends[ident].path), "--vehicle", str(vehicle)]
     cmd += ["--advise", broker.url(ident), "--vehicle-id", "car-7", "--origin", ORIGIN]
-    cmd += ["--no-table", "--duration", "30"]
+    cmd += ["--no-table", "--duration", "30", "--accept-v1"]  # the sensors send version 1
     with log.open("wb") as fh:
         return subprocess.Popen(cmd, stdout=fh, stderr=subprocess.STDOUT)
 

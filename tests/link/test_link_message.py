@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 import struct
 from pathlib import Path
 
@@ -214,42 +215,44 @@ def test_value_corruptions_are_malformed(offset: int, fmt: str, value: float) ->
     assert info.value.reason == "malformed"
 
 
-@settings(max_examples=60, deadline=None)
-@given(
-    n=st.integers(1, 12),
-    seed=st.integers(0, 2**32 - 1),
-    bad=st.sampled_from(["", "az", "nan_sigma", "inf_snr", "time", "channel"]),
-)
-def test_few_bearing_path_matches_the_vectorised_one(n: int, seed: int, bad: str) -> None:
-    """Messages of up to eight bearings are parsed without numpy: same values, same errors."""
-    import rfsas_hw.link.message as codec
+BAD_VALUES = {
+    "az": (16, ">f", 360.0, "azimuth outside [0, 360) degrees"),
+    "neg_az": (16, ">f", -1e-3, "azimuth outside [0, 360) degrees"),
+    "nan_az": (16, ">f", float("nan"), "azimuth outside [0, 360) degrees"),
+    "zero_sigma": (20, ">f", 0.0, "sigma must be finite and positive"),
+    "nan_sigma": (20, ">f", float("nan"), "sigma must be finite and positive"),
+    "inf_sigma": (20, ">f", float("inf"), "sigma must be finite and positive"),
+    "inf_snr": (24, ">f", float("-inf"), "SNR must be finite"),
+    "nan_snr": (24, ">f", float("nan"), "SNR must be finite"),
+    "time": (0, ">q", -1, "capture time before 1970"),
+    "late": (0, ">q", 2**63 // 1000 + 1, "capture time out of range"),
+    "channel": (28, ">H", 0x8000, "channel number above 32767"),
+}
 
-    raw = bytearray(encode_body(message("rsu-1", n, seed=seed)) + bytes(SIGNATURE_BYTES))
+
+@settings(max_examples=80, deadline=None)
+@given(
+    n=st.integers(1, 40),
+    seed=st.integers(0, 2**32 - 1),
+    bad=st.sampled_from(["", *BAD_VALUES]),
+)
+def test_bearing_values_decode_or_are_named(n: int, seed: int, bad: str) -> None:
+    """Every row is checked, whatever the number of bearings: a bad value anywhere is
+    refused with its name; good rows come back as sent (float32 on the wire)."""
+    sent = message("rsu-1", n, seed=seed)
+    raw = bytearray(encode_body(sent) + bytes(SIGNATURE_BYTES))
     row = HEADER_BYTES + 5 + (seed % n) * BEARING_BYTES
-    if bad == "az":
-        struct.pack_into(">f", raw, row + 16, 360.0)
-    elif bad == "nan_sigma":
-        struct.pack_into(">f", raw, row + 20, float("nan"))
-    elif bad == "inf_snr":
-        struct.pack_into(">f", raw, row + 24, float("-inf"))
-    elif bad == "time":
-        struct.pack_into(">q", raw, row, -1)
-    elif bad == "channel":
-        struct.pack_into(">H", raw, row + 28, 0x8000)
-    outcomes = []
-    for few in (8, 0):
-        old, codec._FEW_BEARINGS = codec._FEW_BEARINGS, few
-        try:
-            outcomes.append(decode(bytes(raw)))
-        except MessageFormatError as err:
-            outcomes.append(str(err))
-        finally:
-            codec._FEW_BEARINGS = old
-    fast, reference = outcomes
-    if isinstance(reference, str):
-        assert fast == reference and bad
+    if bad:
+        at, fmt, value, why = BAD_VALUES[bad]
+        struct.pack_into(fmt, raw, row + at, value)
+        with pytest.raises(MessageFormatError, match=re.escape(why)):
+            decode(bytes(raw))
         return
-    assert isinstance(fast, SafetyMessage) and not bad
-    for name in ("t_ns", "azimuth_deg", "sigma_deg", "snr_db", "channel", "emitter"):
-        a, b = getattr(fast.bearings, name), getattr(reference.bearings, name)
-        assert a.dtype == b.dtype and np.array_equal(a, b), name
+    got = decode(bytes(raw)).bearings
+    assert got.t_ns.tolist() == (sent.bearings.t_ns // 1000 * 1000).tolist()
+    assert got.emitter.tolist() == sent.bearings.emitter.tolist()
+    assert got.channel.tolist() == sent.bearings.channel.tolist()
+    for name in ("azimuth_deg", "sigma_deg", "snr_db"):
+        want = getattr(sent.bearings, name).astype(np.float32).astype(np.float64)
+        assert getattr(got, name).dtype == np.float64
+        assert np.array_equal(getattr(got, name), want), name

@@ -165,7 +165,7 @@ def test_websocket_sends_the_snapshot_then_every_step(
 
     async def client() -> list[dict[str, object]]:
         got = []
-        url = f"http://127.0.0.1:{server.port}/ws"
+        url = f"http://127.0.0.1:{server.port}/ws?token=s3cret"  # as the page passes it on
         async with aiohttp.ClientSession() as session, session.ws_connect(url) as ws:
             got.append(json.loads((await ws.receive(timeout=5)).data))
             await asyncio.get_running_loop().run_in_executor(None, feed, service)

@@ -1,0 +1,99 @@
+"""How many advisories a backend publishes: a bound per vehicle and per emitter.
+
+Every backend step judges every track, and a sink that published every
+assessment of every step would publish without bound: a crowd of new emitters
+(or a flood of forged ids that became tracks) made a backend publish about
+9,700 advisories per second. The limiter between the backend's steps and the
+broker keeps, per vehicle (one advisory sink):
+
+- per emitter: an assessment goes out when the emitter is new, when its advice
+  is more severe than the last one sent for it (``clear`` → ``caution`` →
+  ``brake`` go out at once), or ``min_interval_s`` after the last one sent for
+  it (0.09 s by default: one per step of the default 0.1 s, about 10 Hz, however
+  often the backend steps);
+- per vehicle: at most ``max_per_s`` assessments per second (100 by default, a
+  token bucket with a burst of as many); when a step offers more, the most
+  severe go first (then the highest collision probability), and the others
+  are held back (counted as ``limited``) to go out in a later step.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+from rfsas_hw.backend.risk import ADVISORY_RANK
+
+if TYPE_CHECKING:
+    from rfsas_hw.fleet.advisory import AdvisoryItem
+
+__all__ = ["AdvisoryLimiter", "AdvisoryLimits"]
+
+
+@dataclass(frozen=True, slots=True)
+class AdvisoryLimits:
+    """The limits of :class:`AdvisoryLimiter` (see the module docstring).
+
+    Raises:
+        ValueError: a negative interval or a rate below 1 per second.
+    """
+
+    min_interval_s: float = 0.09
+    """Least time between two assessments of one emitter whose advice did not get
+    more severe, seconds."""
+    max_per_s: float = 100.0
+    """Assessments per second per vehicle, on average (also the burst)."""
+    memory: int = 4096
+    """Emitters remembered; the longest unsent go first."""
+
+    def __post_init__(self) -> None:
+        if self.min_interval_s < 0 or self.max_per_s < 1 or self.memory < 1:
+            raise ValueError("min_interval_s must be >= 0, max_per_s and memory >= 1")
+
+
+class AdvisoryLimiter:
+    """Chooses which of a step's assessments go out (see the module docstring)."""
+
+    def __init__(self, limits: AdvisoryLimits | None = None) -> None:
+        self.limits = limits or AdvisoryLimits()
+        self.limited = 0
+        """Assessments held back by either limit so far."""
+        self._last: dict[str, tuple[float, int]] = {}
+        """Emitter → (when its last assessment went out, monotonic s; its severity)."""
+        self._tokens = self.limits.max_per_s
+        self._filled_at: float | None = None
+
+    def select(self, items: Sequence[AdvisoryItem], now_s: float) -> list[AdvisoryItem]:
+        """The items of one step that go out at ``now_s`` (monotonic seconds), most
+        severe first; the others are counted in :attr:`limited`."""
+        lim = self.limits
+        due = []
+        for item in items:
+            severity = ADVISORY_RANK.get(item.advisory, 0)
+            last = self._last.get(item.emitter)
+            if last is None or severity > last[1] or now_s - last[0] >= lim.min_interval_s:
+                due.append((severity, item))
+        self._refill(now_s)
+        due.sort(key=lambda d: (-d[0], -_finite(d[1].p_collision)))
+        take = min(len(due), int(self._tokens))
+        self._tokens -= take
+        self.limited += len(items) - take
+        chosen = [item for _, item in due[:take]]
+        for severity, item in due[:take]:
+            self._last.pop(item.emitter, None)
+            self._last[item.emitter] = (now_s, severity)
+        while len(self._last) > lim.memory:
+            del self._last[next(iter(self._last))]
+        return chosen
+
+    def _refill(self, now_s: float) -> None:
+        if self._filled_at is not None:
+            rate = self.limits.max_per_s
+            self._tokens = min(rate, self._tokens + (now_s - self._filled_at) * rate)
+        self._filled_at = now_s
+
+
+def _finite(value: float) -> float:
+    return value if math.isfinite(value) else 0.0

@@ -19,10 +19,11 @@ from rich.console import Console
 from rich.progress import BarColumn, DownloadColumn, Progress, TimeRemainingColumn
 from rich.table import Table
 
+from rfsas_hw.apps.ros2 import sensor_scene
 from rfsas_hw.backend.site import parse_origin, pose_from_mapping
 from rfsas_hw.cli.exitcodes import Interrupted, WorkFailed
 from rfsas_hw.cli.linkopts import make_cue_publisher, make_publisher, send_options
-from rfsas_hw.cli.ros2opts import sensor_scene, wants_live
+from rfsas_hw.cli.ros2opts import ros2_config
 from rfsas_hw.df import load_calibration
 from rfsas_hw.errors import ConfigError
 from rfsas_hw.outpaths import STDIO, check_output
@@ -213,7 +214,8 @@ def build_listeners(
         KeyStoreError / LinkError: ``--send`` cannot be set up.
     """
     fanout = Fanout()
-    if out is None and send is None and not wants_live(ros2 or {}):
+    live_opts = ros2_config(ros2 or {})
+    if out is None and send is None and not live_opts.wants_live:
         raise ConfigError("nothing to do: give --out FILE and/or --send URL")
     if out is not None:
         check_output(out, inputs, force=force, what="--out")
@@ -229,7 +231,7 @@ def build_listeners(
     if cue_publisher is not None:
         fanout.add(cue_publisher)
     try:
-        scene, lines = sensor_scene(ros2 or {}, lambda _sensor_id: pose)
+        scene, lines = sensor_scene(live_opts, lambda _sensor_id: pose)
     except Exception:
         fanout.close()
         raise

@@ -45,6 +45,7 @@ def out_option(
     file_okay: bool = True,
     dir_okay: bool = False,
     required: bool = False,
+    default: Path | None = None,
     short: bool = True,
 ) -> Callable[[F], F]:
     """``-o/--out PATH`` (``--output`` also accepted, not shown), passed as ``dest``.
@@ -54,6 +55,7 @@ def out_option(
         dest: name of the command's parameter.
         file_okay / dir_okay: whether the path names a file, a directory (or both).
         required: whether the command needs it.
+        default: the path without the option (shown in ``--help``).
         short: also take ``-o`` (False where ``-o`` means something else).
     """
     names = ["-o", "--out", "--output"] if short else ["--out", "--output"]
@@ -64,7 +66,8 @@ def out_option(
         hidden_aliases=("--output",),
         type=click.Path(file_okay=file_okay, dir_okay=dir_okay, path_type=Path),
         required=required,
-        default=None,
+        default=default,
+        show_default=default is not None,
         help=help,
     )
 

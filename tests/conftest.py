@@ -2,9 +2,12 @@
 
 from __future__ import annotations
 
+import importlib.util
 from pathlib import Path
 
 import pytest
+
+from rfsas_hw.optional import EXTRAS
 
 DATA = Path(__file__).resolve().parent / "data"
 REPO = Path(__file__).resolve().parent.parent
@@ -44,3 +47,24 @@ def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
     for item in items:
         if item.get_closest_marker("slow") and not item.get_closest_marker("timeout"):
             item.add_marker(pytest.mark.timeout(SLOW_TIMEOUT_S))
+
+
+def _missing_extra(extra: str) -> str | None:
+    """The first module of ``extra`` (rfsas_hw.optional.EXTRAS) that is not installed."""
+    modules = [module for module, name in EXTRAS.items() if name == extra]
+    if not modules:
+        raise pytest.UsageError(f"@pytest.mark.extra({extra!r}): no such extra")
+    return next((m for m in modules if importlib.util.find_spec(m) is None), None)
+
+
+@pytest.hookimpl(tryfirst=True)  # before fixtures that would need the extra are set up
+def pytest_runtest_setup(item: pytest.Item) -> None:
+    """Skip a test marked ``extra(NAME)`` when that extra is not installed, naming it."""
+    for mark in item.iter_markers("extra"):
+        for extra in mark.args:
+            missing = _missing_extra(extra)
+            if missing is not None:
+                pytest.skip(
+                    f"needs the {extra} extra ({missing} is not installed): "
+                    f"pip install 'rfsas-hw[{extra}]'"
+                )

@@ -37,6 +37,7 @@ from rfsas_hw.geo import SiteOrigin
 from rfsas_hw.link import Receiver, ReceiverConfig, open_transport
 from rfsas_hw.link.keys import KeyStore
 from rfsas_hw.link.transport import Transport
+from rfsas_hw.optional import require
 from rfsas_hw.outpaths import check_output
 from rfsas_hw.privacy.epochs import EpochSchedule
 from rfsas_hw.records import Assessment
@@ -149,7 +150,8 @@ class BackendApp:
             directory with no enrolled sensors.
         KeyStoreError: the key directory is not usable.
         LinkError: a URL is bad or a socket cannot be bound.
-        MissingDependencyError: an output's optional dependency is not installed.
+        MissingDependencyError: an output's optional dependency is not installed (checked
+            before anything is bound, for the map too, which is drawn after the run).
     """
 
     def __init__(self, config: BackendAppConfig) -> None:
@@ -160,6 +162,8 @@ class BackendApp:
         for target in (config.out, config.plot):
             if target is not None:  # an existing result is replaced: it is this run's output
                 check_output(target, [*inputs, *config.keys_dir.glob("**/*")], force=True)
+        if config.plot is not None:
+            require("matplotlib")  # before the run, not at its end
         self.settings = resolve_settings(config.settings, config.settings_file, config.overrides)
         origin = self.settings.site.origin
         if config.cot is not None and origin is None:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import socket
+import sys
 import threading
 import time
 from dataclasses import replace
@@ -21,7 +22,7 @@ from rfsas_hw.apps.backend import (
 )
 from rfsas_hw.backend.association import AssociationConfig
 from rfsas_hw.backend.service import BackendConfig
-from rfsas_hw.errors import ConfigError
+from rfsas_hw.errors import ConfigError, MissingDependencyError
 from rfsas_hw.link import Publisher
 from rfsas_hw.link.keys import KeyStore
 from rfsas_hw.records import Pose
@@ -111,7 +112,9 @@ def test_an_app_built_in_python_locates_the_emitter(tmp_path: Path) -> None:
         s.bind((host, int(port)))
 
 
-def test_an_app_refuses_bad_combinations_before_binding_anything(tmp_path: Path) -> None:
+def test_an_app_refuses_bad_combinations_before_binding_anything(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
     stores = _keys(tmp_path)
     url = f"udp://127.0.0.1:{_free_port()}"
     settings = tmp_path / "backend.yaml"
@@ -126,6 +129,10 @@ def test_an_app_refuses_bad_combinations_before_binding_anything(tmp_path: Path)
     ]:
         with pytest.raises(ConfigError, match=message):
             BackendApp(replace(base, **bad))
+    # a map needs matplotlib: said before the run rather than after it
+    monkeypatch.setitem(sys.modules, "matplotlib", None)
+    with pytest.raises(MissingDependencyError, match=r"pip install 'rfsas-hw\[plot\]'"):
+        BackendApp(replace(base, plot=tmp_path / "map.png"))
     lonely = KeyStore.create(tmp_path / "lonely", "backend", "obu-2")
     with pytest.raises(ConfigError, match="no enrolled sensors"):
         BackendApp(BackendAppConfig(listen=(url,), keys_dir=lonely.path))

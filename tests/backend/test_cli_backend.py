@@ -57,6 +57,7 @@ def send_rounds(
             feed.close()
 
 
+@pytest.mark.extra("plot")
 @pytest.mark.parametrize("vehicle_from", ["file", "udp"])
 def test_backend_command_locates_and_judges(tmp_path: Path, vehicle_from: str) -> None:
     backend_keys = KeyStore.create(tmp_path / "backend", "backend", "obu-1")

@@ -152,6 +152,7 @@ def browser(tmp_path: Path) -> Iterator[Any]:
         driver.quit()
 
 
+@pytest.mark.extra("web")
 def test_dashboard_live_in_a_browser(
     tmp_path: Path, browser: Any, tile_server: tuple[str, list[tuple[str, str | None]]]
 ) -> None:

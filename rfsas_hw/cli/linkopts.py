@@ -19,6 +19,7 @@ from typing import Any, TypeVar
 import click
 
 from rfsas_hw.apps.sensor import open_cue_publisher, open_nonce_inbox, open_publisher
+from rfsas_hw.cli.options import keys_option
 from rfsas_hw.link.cue_publisher import CuePublisher
 from rfsas_hw.link.distribution import NonceInbox
 from rfsas_hw.link.preauth import NonceSource
@@ -63,11 +64,9 @@ def send_options(func: F) -> F:
         help="Out-of-band path for --send (any URL --send takes): traffic moves there "
         "after repeated send errors on the primary, and back after 2 s without one.",
     )(func)
-    func = click.option(
-        "--keys",
-        "keys_dir",
-        type=click.Path(file_okay=False, path_type=Path),
-        help="Sensor key directory (rfsas keys new --role sensor) that signs what --send sends.",
+    func = keys_option(
+        "Sensor key directory (rfsas keys new --role sensor) that signs what --send sends.",
+        required=False,
     )(func)
     func = click.option(
         "--send",

@@ -156,27 +156,13 @@ class BackendApp:
 
     def __init__(self, config: BackendAppConfig) -> None:
         self.config = config
-        inputs = [p for p in (config.settings_file, config.overrides.site_map) if p is not None]
-        if config.vehicle is not None:
-            inputs.append(Path(config.vehicle))
-        for target in (config.out, config.plot):
-            if target is not None:  # an existing result is replaced: it is this run's output
-                check_output(target, [*inputs, *config.keys_dir.glob("**/*")], force=True)
-        if config.plot is not None:
-            require("matplotlib")  # before the run, not at its end
-        self.settings = resolve_settings(config.settings, config.settings_file, config.overrides)
-        origin = self.settings.site.origin
-        if config.cot is not None and origin is None:
-            raise ConfigError("--cot needs the site origin: --origin LAT,LON or site.origin")
-        if config.advise is not None and origin is None:
-            raise ConfigError("--advise needs the site origin: --origin LAT,LON or site.origin")
-        if config.cues_fallback is not None and config.send_cues is None:
-            raise ConfigError("--cues-fallback is the out-of-band path of --send-cues")
+        self.settings = self._checked_settings()
         self.store = KeyStore.open(config.keys_dir)
         if len(self.store.trust) == 0:
             raise ConfigError(
                 f"{config.keys_dir}: no enrolled sensors in trust/ (rfsas keys enroll)"
             )
+        vehicle = self._vehicle()
         self.notes: list[str] = []
         """What to tell the user about the outputs started (URLs, topics)."""
         with ExitStack() as stack:
@@ -190,7 +176,7 @@ class BackendApp:
                 self.vehicle_feed = feed
             with ExitStack() as sink_stack:
                 sinks = self._open_sinks(sink_stack)
-                self.service = BackendService(self.settings, vehicle=self._vehicle(), sinks=sinks)
+                self.service = BackendService(self.settings, vehicle=vehicle, sinks=sinks)
                 sink_stack.pop_all()  # the service closes its sinks from now on
             stack.callback(self.service.close)
             self.service.link_stats = self.receiver.counters
@@ -213,6 +199,28 @@ class BackendApp:
                 self.dashboard_url = dashboard.url
                 self.notes.append(f"dashboard at {dashboard.url}")
             self._closing = stack.pop_all()
+
+    def _checked_settings(self) -> BackendConfig:
+        """The service's settings, once the outputs, the optional dependencies and the
+        options that need each other are checked (nothing is opened yet)."""
+        config = self.config
+        inputs = [p for p in (config.settings_file, config.overrides.site_map) if p is not None]
+        if config.vehicle is not None:
+            inputs.append(Path(config.vehicle))
+        for target in (config.out, config.plot):
+            if target is not None:  # an existing result is replaced: it is this run's output
+                check_output(target, [*inputs, *config.keys_dir.glob("**/*")], force=True)
+        if config.plot is not None:
+            require("matplotlib")  # before the run, not at its end
+        settings = resolve_settings(config.settings, config.settings_file, config.overrides)
+        origin = settings.site.origin
+        if config.cot is not None and origin is None:
+            raise ConfigError("--cot needs the site origin: --origin LAT,LON or site.origin")
+        if config.advise is not None and origin is None:
+            raise ConfigError("--advise needs the site origin: --origin LAT,LON or site.origin")
+        if config.cues_fallback is not None and config.send_cues is None:
+            raise ConfigError("--cues-fallback is the out-of-band path of --send-cues")
+        return settings
 
     @property
     def enrolled(self) -> int:

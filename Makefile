@@ -10,7 +10,7 @@ STAMP  := $(VENV)/.installed-core
 TORCH_PIN := torch==2.13.0
 RL_STAMP  := $(VENV)/.installed-rl
 # Every integration extra, so that its tests run in CI (MetaDrive has its own venv).
-EXTRAS    := sumo,highway,carla,mqtt,csi,ros2,web
+EXTRAS    := sumo,highway,carla,mqtt,csi,ros2,web,v2x
 INT_STAMP := $(VENV)/.installed-integrations
 
 .PHONY: demo calibration-demo test lint pytest pytest-nodispatch ctest bench fuzz clean venv rl integrations metadrive metadrive-ci
@@ -58,8 +58,12 @@ metadrive-ci:
 	@$(MAKE) --no-print-directory $(MD_STAMP) || echo "SKIPPED tests/metadrive_sim: could not build $(MD_VENV) (pip output above)"
 	@if [ -f $(MD_STAMP) ]; then $(MD_PY) -m pytest -q -ra -p no:cacheprovider tests/metadrive_sim; fi
 
+# `make demo DEMO_ARGS="--cpm udp://127.0.0.1:2009?btp=1"` also sends the tracks as CPMs
+# (needs the v2x extra: .venv/bin/pip install -e '.[v2x]').
+DEMO_ARGS ?=
+
 demo: $(STAMP)
-	$(VENV)/bin/rfsas demo
+	$(VENV)/bin/rfsas demo $(DEMO_ARGS)
 
 calibration-demo: $(STAMP)
 	mkdir -p out

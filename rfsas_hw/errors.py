@@ -43,6 +43,11 @@ class BoardProtocolError(RfsasError):
     """A DF-board frame or message violates the firmware protocol."""
 
 
+class CpmFormatError(DataFormatError):
+    """A Collective Perception Message (or the GeoNetworking/BTP frame around it)
+    cannot be decoded or encoded; the message says which field and why."""
+
+
 class LinkError(RfsasError):
     """A safety message cannot be built, sent or received."""
 

@@ -15,6 +15,7 @@ EXTRAS = {
     "PIL": "plot",
     "csiread": "csi",
     "aiohttp": "web",
+    "asn1tools": "v2x",
 }
 
 

@@ -126,6 +126,14 @@ class BackendAppConfig:
     """Token other hosts must give the dashboard (None: random when not on loopback)."""
     cot: str | None = None
     """Send Cursor-on-Target events to this TAK server (needs the site origin)."""
+    cpm: str | None = None
+    """Send the tracks as ETSI Collective Perception Messages to this URL (needs the site
+    origin and the v2x extra)."""
+    cpm_station_id: int = 1
+    """StationId of this backend in its CPMs."""
+    cpm_from_vehicle: bool = False
+    """The CPMs come from the vehicle (its position their reference, its heading their
+    orientation) rather than from a roadside unit at the site origin."""
     advise: str | None = None
     """Publish signed assessments to this broker (needs the site origin)."""
     send_cues: str | None = None
@@ -163,6 +171,8 @@ class BackendApp:
                 f"{config.keys_dir}: no enrolled sensors in trust/ (rfsas keys enroll)"
             )
         vehicle = self._vehicle()
+        self.cpm_sink: Any = None
+        """The CPM sender (its ``counters()``), or None."""
         self.notes: list[str] = []
         """What to tell the user about the outputs started (URLs, topics)."""
         with ExitStack() as stack:
@@ -179,6 +189,9 @@ class BackendApp:
                 self.service = BackendService(self.settings, vehicle=vehicle, sinks=sinks)
                 sink_stack.pop_all()  # the service closes its sinks from now on
             stack.callback(self.service.close)
+            if self.cpm_sink is not None and config.cpm_from_vehicle:
+                service = self.service
+                self.cpm_sink.vehicle = lambda: service.vehicle
             self.service.link_stats = self.receiver.counters
             ros2_out: Ros2Outputs = attach_scene(self.service, config.out, config.ros2)
             stack.callback(ros2_out.close)
@@ -216,6 +229,8 @@ class BackendApp:
         origin = settings.site.origin
         if config.cot is not None and origin is None:
             raise ConfigError("--cot needs the site origin: --origin LAT,LON or site.origin")
+        if config.cpm is not None and origin is None:
+            raise ConfigError("--cpm needs the site origin: --origin LAT,LON or site.origin")
         if config.advise is not None and origin is None:
             raise ConfigError("--advise needs the site origin: --origin LAT,LON or site.origin")
         if config.cues_fallback is not None and config.send_cues is None:
@@ -270,6 +285,16 @@ class BackendApp:
             from rfsas_hw.exports.tak import CotSender
 
             add(CotSender(cfg.cot, origin))
+        if cfg.cpm is not None:
+            from rfsas_hw.v2x.sink import backend_cpm_sink
+
+            self.cpm_sink = backend_cpm_sink(
+                cfg.cpm,
+                cfg.cpm_station_id,
+                self.settings.site,
+                vehicle_station=cfg.cpm_from_vehicle,
+            )
+            add(self.cpm_sink)
         if cfg.advise is not None and origin is not None:
             from rfsas_hw.fleet.advisory import AdvisorySink
 

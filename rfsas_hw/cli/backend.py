@@ -152,6 +152,25 @@ def render_table(service: BackendService, alarm: bool) -> Table:
     help="Send fixes and tracks as Cursor-on-Target events to a TAK server (needs an origin).",
 )
 @click.option(
+    "--cpm",
+    metavar="URL",
+    help="Send the tracks as ETSI Collective Perception Messages: udp://HOST:PORT[?btp=1] "
+    "or mqtt(s)://HOST[:PORT]/TOPIC (needs the site origin and the v2x extra; docs/v2x.md).",
+)
+@click.option(
+    "--cpm-station-id",
+    type=click.IntRange(0, 2**32 - 1),
+    default=1,
+    show_default=True,
+    help="StationId of this backend in its CPMs.",
+)
+@click.option(
+    "--cpm-from-vehicle",
+    is_flag=True,
+    help="The CPMs come from the vehicle (--vehicle) rather than a roadside unit: "
+    "the vehicle's position is their reference, its heading their orientation.",
+)
+@click.option(
     "--advise",
     metavar="mqtts://HOST?…",
     help="Publish signed assessments (advisories) to a broker, on the tile topics of "
@@ -206,6 +225,9 @@ def backend(
     web: str | None,
     web_token: str | None,
     cot: str | None,
+    cpm: str | None,
+    cpm_station_id: int,
+    cpm_from_vehicle: bool,
     advise: str | None,
     send_cues: str | None,
     cues_fallback: str | None,
@@ -242,6 +264,9 @@ def backend(
         web=web,
         web_token=web_token,
         cot=cot,
+        cpm=cpm,
+        cpm_station_id=cpm_station_id,
+        cpm_from_vehicle=cpm_from_vehicle,
         advise=advise,
         send_cues=send_cues,
         cues_fallback=cues_fallback,
@@ -266,6 +291,8 @@ def backend(
     elapsed = time.monotonic() - started
     stats = app.stats()
     console.print(f"ran {elapsed:.1f} s: " + ", ".join(f"{k} {v}" for k, v in stats.items()))
+    if app.cpm_sink is not None:
+        console.print(", ".join(f"{k} {v}" for k, v in app.cpm_sink.counters().items()))
     if out is not None:
         click.echo(f"wrote {out}")
     drawn = app.draw_map()

@@ -95,8 +95,28 @@ def _table(result: DemoResult, every_s: float) -> Table:
     help="Table row spacing, s of scenario time.",
 )
 @click.option("--no-plot", is_flag=True, help="Skip the map PNG.")
+@click.option(
+    "--cpm",
+    "cpm_url",
+    metavar="URL",
+    help="Also send the backend's tracks as ETSI CPMs: udp://HOST:PORT[?btp=1] or "
+    "mqtt://HOST[:PORT]/TOPIC (docs/v2x.md).",
+)
+@click.option(
+    "--cpm-station-id",
+    type=click.IntRange(0, 2**32 - 1),
+    default=1,
+    show_default=True,
+    help="StationId of the demo's roadside unit in its CPMs.",
+)
 def demo(
-    scenario: Path | None, out_dir: Path, reaction_s: float, every_s: float, no_plot: bool
+    scenario: Path | None,
+    out_dir: Path,
+    reaction_s: float,
+    every_s: float,
+    no_plot: bool,
+    cpm_url: str | None,
+    cpm_station_id: int,
 ) -> None:
     """Scenario → captures → two sensor pipelines → signed UDP → backend: table, map, JSONL."""
     console = Console()
@@ -109,6 +129,8 @@ def demo(
         reaction_s=reaction_s,
         plot=not no_plot,
         progress=lambda msg: console.print(f"[dim]{msg}[/dim]"),
+        cpm_url=cpm_url,
+        cpm_station_id=cpm_station_id,
     )
     console.print(_table(result, every_s))
     c = result.counters
@@ -149,5 +171,11 @@ def demo(
         f"frame arrival → assessment per 0.1 s step: median {np.median(lat):.1f} ms, "
         f"p99 {np.percentile(lat, 99):.1f} ms; whole demo {result.wall_s:.1f} s"
     )
+    if "cpm" in c:
+        cpm = c["cpm"]
+        console.print(
+            f"CPMs to {cpm_url}: generated {cpm['cpm.generated']}, sent {cpm['cpm.sent']}, "
+            f"dropped {cpm['cpm.dropped']}"
+        )
     for role, path in result.files.items():
         console.print(f"  {role}: {path}")

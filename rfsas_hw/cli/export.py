@@ -16,6 +16,7 @@ import click
 from rfsas_hw.cli.exportmaps import export_map
 from rfsas_hw.cli.options import out_option
 from rfsas_hw.cli.sensoropts import parse_pose
+from rfsas_hw.cli.v2x import export_cpm
 from rfsas_hw.errors import ConfigError
 from rfsas_hw.outpaths import check_output
 from rfsas_hw.records import Pose
@@ -66,10 +67,17 @@ FORMATS: dict[str, Callable[[tuple[Path, ...], Path, str, dict[str, Any]], list[
     "geojson": export_map,
     "kml": export_map,
     "cot": export_map,
+    "cpm": export_cpm,
 }
 """Export function of each ``--to`` format."""
 
-DEFAULT_SUFFIX = {"mcap": ".mcap", "geojson": ".geojson", "kml": ".kml", "cot": ".cot"}
+DEFAULT_SUFFIX = {
+    "mcap": ".mcap",
+    "geojson": ".geojson",
+    "kml": ".kml",
+    "cot": ".cot",
+    "cpm": ".pcap",
+}
 """Suffix of the default output file per format (rosbag2, a directory, has none)."""
 
 
@@ -99,7 +107,7 @@ DEFAULT_SUFFIX = {"mcap": ".mcap", "geojson": ".geojson", "kml": ".kml", "cot": 
 @click.option(
     "--origin",
     metavar="LAT,LON[,HEIGHT]",
-    help="geojson/kml/cot: the site origin (WGS-84 degrees, ellipsoid metres) when the "
+    help="geojson/kml/cot/cpm: the site origin (WGS-84 degrees, ellipsoid metres) when the "
     "run log carries none, or to override it.",
 )
 @click.option("--flagged", is_flag=True, help="geojson/kml/cot: also export flagged fixes.")
@@ -119,6 +127,7 @@ def export(
     rfsas export bearings.jsonl --to rosbag2 --out run_bag --pose rsu-1=0,0,90
     rfsas export run.jsonl --to geojson        # writes run.geojson
     rfsas export run.jsonl --to kml --out run.kml --origin 52.2053,0.1218
+    rfsas export run.jsonl --to cpm            # writes run.pcap (GeoNetworking CPMs)
     """
     if out is None:
         if fmt not in DEFAULT_SUFFIX:

@@ -44,6 +44,7 @@ COMMANDS: list[str] = [
     "rfsas_hw.cli.export:export",
     "rfsas_hw.cli.board:board",
     "rfsas_hw.cli.aoa:aoa",
+    "rfsas_hw.cli.v2x:v2x",
 ]
 
 

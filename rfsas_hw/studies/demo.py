@@ -30,10 +30,11 @@ from cryptography.hazmat.primitives.asymmetric import ec
 
 from rfsas_hw.backend.encounter import EncounterConfig
 from rfsas_hw.backend.risk import BRAKE_DECEL_MPS2, stopping_distance
-from rfsas_hw.backend.service import BackendConfig, BackendService, JsonlSink
+from rfsas_hw.backend.service import BackendConfig, BackendService, JsonlSink, ResultSink
 from rfsas_hw.backend.triangulation import TriangulationOptions
 from rfsas_hw.backend.vehicle import VehicleState
 from rfsas_hw.errors import SimulationError
+from rfsas_hw.geo import SiteOrigin
 from rfsas_hw.link import Publisher, Receiver, Signer, TrustedKeys, open_transport
 from rfsas_hw.pipeline import SensorPipeline
 from rfsas_hw.privacy.hashing import FixedNonce, MacHasher
@@ -50,6 +51,8 @@ NS = 1_000_000_000
 
 EXAMPLE_SCENARIO = Path(__file__).resolve().parents[2] / "examples" / "crossing.yaml"
 """The bundled scenario (in a source checkout)."""
+DEMO_ORIGIN = SiteOrigin(52.20530, 0.12180, 12.0)
+"""Where the demo's crossing is placed on the globe for outputs that need it (CPMs)."""
 
 
 class SimClock:
@@ -193,6 +196,9 @@ def run_demo(
     pose_slice_s: float = 0.02,
     plot: bool = True,
     progress: Callable[[str], None] | None = None,
+    cpm_url: str | None = None,
+    cpm_station_id: int = 1,
+    cpm_origin: SiteOrigin = DEMO_ORIGIN,
 ) -> DemoResult:
     """Run the end-to-end demo and write its outputs under ``out_dir``.
 
@@ -210,6 +216,10 @@ def run_demo(
             with its pose at that time (a message carries one pose), seconds.
         plot: draw the map PNG (needs matplotlib).
         progress: called with a short line as each stage starts.
+        cpm_url: also send the backend's tracks as ETSI CPMs here (``udp://HOST:PORT``
+            with an optional ``?btp=1``, or ``mqtt://HOST/TOPIC``; see
+            :mod:`rfsas_hw.v2x.sink`), as roadside station ``cpm_station_id`` at the
+            site origin ``cpm_origin``.
 
     Raises:
         ConfigError: bad scenario.
@@ -251,6 +261,21 @@ def run_demo(
     host, port = receiver.transport.address  # type: ignore[union-attr]
     url = f"udp://{host}:{port}"
     jsonl_path = out / "backend.jsonl"
+    sinks: list[ResultSink] = [JsonlSink(jsonl_path)]
+    cpm_sink = None
+    if cpm_url is not None:
+        from rfsas_hw.v2x.perception import CpmConfig
+        from rfsas_hw.v2x.sink import CpmSink
+
+        try:
+            cpm_sink = CpmSink.to_url(
+                cpm_url, CpmConfig(station_id=cpm_station_id, origin=cpm_origin), clock=clock
+            )
+        except Exception:
+            sinks[0].close()
+            receiver.close()
+            raise
+        sinks.append(cpm_sink)
     backend = BackendService(
         BackendConfig(
             step_s=step_s,
@@ -261,7 +286,7 @@ def run_demo(
                 else TriangulationOptions(max_range_fraction=max_range_fraction)
             ),
         ),
-        sinks=[JsonlSink(jsonl_path)],
+        sinks=sinks,
         clock=clock,
         link_alarm=lambda: bool(receiver.latency.alarm),
     )
@@ -406,6 +431,8 @@ def run_demo(
         "receiver": receiver.stats.as_dict(),
         "backend": backend.stats.as_dict(),
     }
+    if cpm_sink is not None:
+        counters["cpm"] = cpm_sink.counters()
     t_map = np.linspace(0.0, world.duration_s, 200)
     tracks = {m.id: world.tracks[m.id].position(t_map) for m in spec.movers}
     result = DemoResult(

@@ -262,7 +262,7 @@ class SensorApp:
             if config.nonces is not None and config.nonce_secret is not None:
                 raise ConfigError("give --nonces or --nonce-secret, not both")
             if config.nonces is not None:
-                inbox = self._inbox(schedule)
+                inbox = self._inbox(config.nonces, schedule)
                 options["hasher"] = MacHasher(inbox, config.epoch_s)
             elif config.nonce_secret is not None:
                 nonces = DerivedNonces.from_file(config.nonce_secret)
@@ -287,16 +287,16 @@ class SensorApp:
             stack.pop_all()
         self._closed = False
 
-    def _inbox(self, schedule: EpochSchedule) -> NonceInbox:
+    def _inbox(self, url: str, schedule: EpochSchedule) -> NonceInbox:
+        """The authority's nonces arriving at ``url``."""
         # no waiting inside the hasher: frames without a nonce yet wait in the
         # pipeline's hold queue, and the sensor keeps reading
-        return open_nonce_inbox(
-            str(self.config.nonces), self.config.keys_dir, schedule.epoch_s, schedule.grace_s, 0.0
-        )
+        keys = self.config.keys_dir
+        return open_nonce_inbox(url, keys, schedule.epoch_s, schedule.grace_s, wait_s=0.0)
 
     def _pipeline(self, schedule: EpochSchedule) -> SensorPipeline:
         cfg = self.config
-        inbox = self._inbox(schedule) if cfg.nonces is not None else None
+        inbox = self._inbox(cfg.nonces, schedule) if cfg.nonces is not None else None
         pipeline = build_pipeline(
             cfg.calibration,
             cfg.sensor_id,

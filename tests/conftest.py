@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import importlib.util
+import os
 from pathlib import Path
 
 import pytest
@@ -14,7 +15,8 @@ REPO = Path(__file__).resolve().parent.parent
 
 SLOW_TIMEOUT_S = 1200
 """Time limit of a test marked ``slow`` without a timeout of its own, seconds (the
-default for the others is pyproject.toml's ``timeout``)."""
+default for the others is pyproject.toml's ``timeout``; ``fuzz`` tests: see
+:func:`fuzz_timeout_s`)."""
 
 
 def pytest_addoption(parser: pytest.Parser) -> None:
@@ -42,10 +44,21 @@ def repo_root() -> Path:
     return REPO
 
 
+def fuzz_timeout_s() -> float:
+    """Time limit of a ``fuzz`` test: :data:`SLOW_TIMEOUT_S` per 100,000 cases of
+    ``RFSAS_FUZZ_CASES`` (``make fuzz`` runs a million), at least :data:`SLOW_TIMEOUT_S`."""
+    cases = int(os.environ.get("RFSAS_FUZZ_CASES", "100000") or 0)
+    return SLOW_TIMEOUT_S * max(1.0, cases / 100_000)
+
+
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
-    """Give tests marked ``slow`` a longer time limit unless they set their own."""
+    """Give tests marked ``slow`` or ``fuzz`` a longer time limit unless they set their own."""
     for item in items:
-        if item.get_closest_marker("slow") and not item.get_closest_marker("timeout"):
+        if item.get_closest_marker("timeout"):
+            continue
+        if item.get_closest_marker("fuzz"):
+            item.add_marker(pytest.mark.timeout(fuzz_timeout_s()))
+        elif item.get_closest_marker("slow"):
             item.add_marker(pytest.mark.timeout(SLOW_TIMEOUT_S))
 
 

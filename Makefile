@@ -13,7 +13,7 @@ RL_STAMP  := $(VENV)/.installed-rl
 EXTRAS    := sumo,highway,carla,mqtt,csi,ros2,web,v2x
 INT_STAMP := $(VENV)/.installed-integrations
 
-.PHONY: demo calibration-demo test lint pytest ctest bench fuzz clean venv rl integrations metadrive metadrive-ci
+.PHONY: demo calibration-demo test lint pytest pytest-nodispatch ctest bench fuzz clean venv rl integrations metadrive metadrive-ci
 
 venv: $(STAMP)
 
@@ -83,7 +83,17 @@ ctest:
 pytest: $(INT_STAMP)
 	$(PY) -m pytest -q -n 2
 
-test: lint ctest pytest metadrive-ci
+# The numeric tests once more with numpy's run-time SIMD dispatch switched off (every
+# target above the build's baseline: on x86-64 AVX2 and AVX-512; numpy names them
+# itself, so this holds on any CPU), so that what they assert holds on whichever path
+# a machine takes: implementations are compared within tolerances, never bit for bit.
+NUMERIC_TESTS := tests/backend tests/df tests/core tests/twin
+NPY_DISPATCH   = $(shell $(PY) -c "import numpy as np; s = np.show_config(mode='dicts')['SIMD Extensions']; print(' '.join(s['found'] + s['not found']))")
+
+pytest-nodispatch: $(INT_STAMP)
+	NPY_DISABLE_CPU_FEATURES="$(NPY_DISPATCH)" $(PY) -m pytest -q -n 2 $(NUMERIC_TESTS)
+
+test: lint ctest pytest pytest-nodispatch metadrive-ci
 
 bench: $(INT_STAMP)
 	@for f in bench/bench_*.py; do echo "== $$f"; $(PY) $$f || exit 1; done

@@ -162,7 +162,7 @@ def _classes() -> dict[str, type]:
         cfg = engine.global_config
         return float(cfg["physics_world_step_size"]) * int(cfg["decision_repeat"])
 
-    class CrosserManager(BaseManager):  # type: ignore[misc]
+    class CrosserManager(BaseManager):
         """Spawns the planned crossers and moves them along their paths."""
 
         PRIORITY = 20
@@ -212,7 +212,7 @@ def _classes() -> dict[str, type]:
                     self.plans.pop(name, None)
             return {}
 
-    class RfsasSensor(BaseSensor):  # type: ignore[misc]
+    class RfsasSensor(BaseSensor):
         """Reads the ego, the vehicles and the traffic participants in the rfsas frame."""
 
         def __init__(self, engine: Any) -> None:
@@ -247,7 +247,7 @@ def _classes() -> dict[str, type]:
         def destroy(self) -> None:
             self._ids = {}
 
-    class RfsasMetaDriveEnv(MetaDriveEnv):  # type: ignore[misc]
+    class RfsasMetaDriveEnv(MetaDriveEnv):
         """MetaDrive with the crosser manager and the RF-SAS sensor."""
 
         def reset(self, seed: int | None = None) -> Any:

@@ -10,6 +10,7 @@ from pathlib import Path
 import click
 
 from rfsas_hw.cli.linkopts import join_urls, split_urls
+from rfsas_hw.cli.options import duration_option, json_option
 from rfsas_hw.errors import ConfigError
 from rfsas_hw.fleet.advisory import AdvisoryItem, AdvisoryReceiver
 from rfsas_hw.link.keys import TrustDir
@@ -53,12 +54,8 @@ def _line(item: AdvisoryItem, backend: str) -> dict[str, object]:
     help="Directory of the enrolled backends' key cards (ID.yaml).",
 )
 @click.option("--vehicle-id", default="", metavar="ID", help="Refuse advisories for others.")
-@click.option(
-    "--duration",
-    type=click.FloatRange(min=0, min_open=True),
-    help="Stop after this many seconds (default: Ctrl-C).",
-)
-@click.option("--json", "as_json", is_flag=True, help="One JSON object per assessment.")
+@duration_option("Stop after this many seconds (default: Ctrl-C).")
+@json_option("One JSON object per assessment.")
 def advisories(
     listen: str,
     trust_dir: Path,

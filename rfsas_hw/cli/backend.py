@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -15,23 +14,14 @@ from rich.console import Console
 from rich.live import Live
 from rich.table import Table
 
+from rfsas_hw.apps.backend import BackendApp, BackendAppConfig, SettingsOverrides
 from rfsas_hw.backend.collision import THREAT_SIZES
-from rfsas_hw.backend.service import (
-    BackendConfig,
-    BackendService,
-    JsonlSink,
-    ResultSink,
-    load_backend_config,
-)
+from rfsas_hw.backend.service import BackendService
 from rfsas_hw.backend.site import parse_origin
-from rfsas_hw.backend.vehicle import VehicleFeed, load_vehicle
 from rfsas_hw.cli.linkopts import join_urls, split_urls
-from rfsas_hw.cli.ros2opts import attach_scene, ros2_options
-from rfsas_hw.errors import ConfigError
-from rfsas_hw.link import Receiver, ReceiverConfig, open_transport
-from rfsas_hw.link.keys import KeyStore
-from rfsas_hw.outpaths import check_output
-from rfsas_hw.privacy.epochs import DEFAULT_EPOCH_S, EpochSchedule
+from rfsas_hw.cli.options import duration_option, keys_option, out_option
+from rfsas_hw.cli.ros2opts import ros2_config, ros2_options
+from rfsas_hw.privacy.epochs import DEFAULT_EPOCH_S
 from rfsas_hw.records import Assessment
 
 ADVISORY_STYLE = {"brake": "bold red", "caution": "yellow", "clear": "green", "none": "dim"}
@@ -95,33 +85,19 @@ def render_table(service: BackendService, alarm: bool) -> Table:
     help="Where signed safety messages arrive: udp://HOST:PORT, or a broker "
     "(mqtts://HOST?ca=…&cert=…&key=…&tiles=…); repeat to take several at once.",
 )
-@click.option(
-    "--keys",
-    "keys_dir",
-    type=click.Path(file_okay=False, path_type=Path),
-    required=True,
-    help="The backend's key directory; its trust/ holds the enrolled sensors' cards.",
-)
+@keys_option("The backend's key directory; its trust/ holds the enrolled sensors' cards.")
 @click.option(
     "--vehicle",
     metavar="FILE|udp://HOST:PORT",
     help="Vehicle state: a YAML/JSON file, or a UDP port receiving JSON states.",
 )
-@click.option(
-    "--out",
-    type=click.Path(dir_okay=False, path_type=Path),
-    help="Write every fix and assessment as JSON lines (and a final stats line).",
-)
+@out_option("Write every fix and assessment as JSON lines (and a final stats line).")
 @click.option(
     "--plot",
     type=click.Path(dir_okay=False, path_type=Path),
     help="At the end, draw a map PNG with 2σ covariance ellipses (needs the plot extra).",
 )
-@click.option(
-    "--duration",
-    type=click.FloatRange(min=0, min_open=True),
-    help="Stop after this many seconds (default: Ctrl-C).",
-)
+@duration_option()
 @click.option(
     "--config",
     "config_file",
@@ -277,193 +253,70 @@ def backend(
     more sensors within the window become a fix with its covariance; fixes feed
     a track per emitter; every track is judged against the vehicle state.
     """
-    inputs = [p for p in (config_file, site_map, vehicle) if p is not None]
-    for target in (out, plot):
-        if target is not None:  # an existing result is replaced: it is this run's output
-            check_output(target, [*inputs, *Path(keys_dir).glob("**/*")], force=True)
-    config = BackendConfig() if config_file is None else load_backend_config(config_file)
-    assoc, enc = config.association, config.encounter
-    config = replace(
-        config,
-        association=replace(
-            assoc,
-            window_s=assoc.window_s if window is None else window,
-            epoch_s=assoc.epoch_s if epoch is None else epoch,
-        ),
-        encounter=replace(
-            enc,
-            threat_kind=enc.threat_kind if threat is None else threat,
-            reaction_s=enc.reaction_s if reaction is None else reaction,
-        ),
-        site=replace(
-            config.site,
-            origin=config.site.origin if origin is None else parse_origin(origin),
-            map=config.site.map if site_map is None else site_map,
-        ),
-    )
-    if cot is not None and config.site.origin is None:
-        raise ConfigError("--cot needs the site origin: --origin LAT,LON or site.origin")
-    epoch = config.association.epoch_s
-    store = KeyStore.open(keys_dir)
-    trust = store.trust
-    if len(trust) == 0:
-        raise ConfigError(f"{keys_dir}: no enrolled sensors in trust/ (rfsas keys enroll)")
-    state = None if vehicle is None or vehicle.startswith("udp://") else load_vehicle(vehicle)
-    urls = split_urls(listen)
-    if tile_plan is not None:
-        from rfsas_hw.fleet.tiles import load_tile_plan, with_tiles
-
-        plan = load_tile_plan(tile_plan)
-        urls = [with_tiles(u, plan, store.id) for u in urls]
-    receiver = Receiver.listen(
-        urls,
-        trust,
-        # with an authority enrolled, envelopes arriving on the link (a broker's
-        # retained nonce topic) give the keys that pre-authenticate version-2 messages
-        store.nonce_store(EpochSchedule(epoch, min(5.0, epoch / 4)))
-        if trust.authorities()
-        else None,
-        config=ReceiverConfig(
+    config = BackendAppConfig(
+        listen=tuple(split_urls(listen)),
+        keys_dir=keys_dir,
+        settings_file=config_file,
+        overrides=SettingsOverrides(
+            window_s=window,
             epoch_s=epoch,
-            grace_s=min(5.0, epoch / 4),
-            # with an authority every sensor can send version 2: require it by default
-            accept_v1=accept_v1 or not trust.authorities(),
+            threat_kind=threat,
+            reaction_s=reaction,
+            origin=None if origin is None else parse_origin(origin),
+            site_map=site_map,
         ),
+        vehicle=vehicle,
+        vehicle_id=vehicle_id,
+        out=out,
+        plot=plot,
+        duration_s=duration,
+        web=web,
+        web_token=web_token,
+        cot=cot,
+        cpm=cpm,
+        cpm_station_id=cpm_station_id,
+        cpm_from_vehicle=cpm_from_vehicle,
+        advise=advise,
+        send_cues=send_cues,
+        cues_fallback=cues_fallback,
+        tile_plan=tile_plan,
+        prior_file=prior_file,
+        accept_v1=accept_v1,
+        ros2=ros2_config(ros2),
     )
-    feed: VehicleFeed | None = None
-    sinks: list[ResultSink] = []
-    cpm_sink = None
-    try:
-        if vehicle is not None and vehicle.startswith("udp://"):
-            feed = VehicleFeed.listen(vehicle)
-        if out is not None and out.suffix.lower() != ".mcap":
-            sinks.append(JsonlSink(out, origin=config.site.origin, bearings=True))
-        if prior_file is not None:
-            from rfsas_hw.backend.prior import PriorSink
-
-            sinks.append(PriorSink(prior_file))
-        if cot is not None and config.site.origin is not None:
-            from rfsas_hw.exports.tak import CotSender
-
-            sinks.append(CotSender(cot, config.site.origin))
-        if cpm is not None:
-            from rfsas_hw.v2x.sink import backend_cpm_sink
-
-            cpm_sink = backend_cpm_sink(
-                cpm, cpm_station_id, config.site, vehicle_station=cpm_from_vehicle
-            )
-            sinks.append(cpm_sink)
-        if advise is not None:
-            if config.site.origin is None:
-                raise ConfigError("--advise needs the site origin: --origin LAT,LON or site.origin")
-            from rfsas_hw.fleet.advisory import AdvisorySink
-
-            sinks.append(
-                AdvisorySink.to_url(
-                    advise,
-                    store.signer(),
-                    config.site.origin,
-                    vehicle_id=vehicle_id,
-                    epoch_s=epoch,
-                )
-            )
-        if cues_fallback is not None and send_cues is None:
-            raise ConfigError("--cues-fallback is the out-of-band path of --send-cues")
-        if send_cues is not None:
-            from rfsas_hw.backend.cuer import BackendCuer
-            from rfsas_hw.link.fallback import FallbackSender
-            from rfsas_hw.link.transport import Transport
-
-            cue_link: Transport = open_transport(send_cues, "send")
-            if cues_fallback is not None:
-                try:
-                    secondary = open_transport(cues_fallback, "send")
-                except BaseException:
-                    cue_link.close()
-                    raise
-                # a jammed channel is jammed both ways: what arrives late here says
-                # what we send on the same channel arrives late too
-                cue_link = FallbackSender(cue_link, secondary, alarm=lambda: receiver.latency.alarm)
-            sinks.append(BackendCuer(store.signer(), cue_link, epoch_s=epoch))
-    except Exception:
-        for sink in sinks:
-            sink.close()
-        receiver.close()
-        if feed is not None:
-            feed.close()
-        raise
-    service = BackendService(config, vehicle=state, sinks=sinks)
-    if cpm_sink is not None and cpm_from_vehicle:
-        cpm_sink.vehicle = lambda: service.vehicle
-    service.link_stats = receiver.counters
-    try:
-        ros2_out = attach_scene(service, out, ros2)
-    except Exception:
-        receiver.close()
-        if feed is not None:
-            feed.close()
-        service.close()
-        raise
-    for line in ros2_out.lines:
+    app = BackendApp(config)
+    for line in app.notes:
         click.echo(line, err=True)
-    vehicle_feed = feed or ros2_out.vehicle_feed
-    dashboard = None
-    if web is not None:
-        from rfsas_hw.web import start_dashboard
-
-        try:
-            dashboard = start_dashboard(service, web, latency=receiver.latency, token=web_token)
-        except Exception:
-            receiver.close()
-            if feed is not None:
-                feed.close()
-            service.close()
-            raise
-        click.echo(f"dashboard at {dashboard.url}", err=True)
     console = Console()
-    click.echo(f"listening on {listen}; {len(trust)} enrolled sender(s)", err=True)
+    click.echo(f"listening on {listen}; {app.enrolled} enrolled sender(s)", err=True)
     started = time.monotonic()
-    try:
-        if no_table:
-            service.run(receiver, duration_s=duration, vehicle_feed=vehicle_feed)
-        else:
-            with Live(render_table(service, False), console=console, auto_refresh=False) as live:
-
-                def redraw(_: list[Assessment]) -> None:
-                    live.update(render_table(service, receiver.latency.alarm), refresh=True)
-
-                service.run(
-                    receiver,
-                    duration_s=duration,
-                    vehicle_feed=vehicle_feed,
-                    on_step=redraw,
-                )
-            console.print()
-    except KeyboardInterrupt:
-        click.echo("stopped", err=True)
-    finally:
-        if dashboard is not None:
-            dashboard.stop()
-        ros2_out.close()
-        receiver.close()
-        if feed is not None:
-            feed.close()
-        service.close()
+    with app:
+        try:
+            if no_table:
+                app.run()
+            else:
+                _run_with_table(app, console)
+        except KeyboardInterrupt:
+            click.echo("stopped", err=True)
     elapsed = time.monotonic() - started
-    stats = service.all_stats()
+    stats = app.stats()
     console.print(f"ran {elapsed:.1f} s: " + ", ".join(f"{k} {v}" for k, v in stats.items()))
-    if cpm_sink is not None:
-        console.print(", ".join(f"{k} {v}" for k, v in cpm_sink.counters().items()))
+    if app.cpm_sink is not None:
+        console.print(", ".join(f"{k} {v}" for k, v in app.cpm_sink.counters().items()))
     if out is not None:
         click.echo(f"wrote {out}")
-    if plot is not None:
-        from rfsas_hw.backend.plot import plot_map
+    drawn = app.draw_map()
+    if drawn is not None:
+        click.echo(f"wrote {drawn}")
 
-        plot_map(
-            plot,
-            stations=service.stations,
-            assessments=service.assessments.values(),
-            fixes=service.fixes.values(),
-            vehicle=service.vehicle,
-        )
-        click.echo(f"wrote {plot}")
+
+def _run_with_table(app: BackendApp, console: Console) -> None:
+    """Run ``app``, redrawing the live table after every step."""
+    service, receiver = app.service, app.receiver
+    with Live(render_table(service, False), console=console, auto_refresh=False) as live:
+
+        def redraw(_: list[Assessment]) -> None:
+            live.update(render_table(service, receiver.latency.alarm), refresh=True)
+
+        app.run(on_step=redraw)
+    console.print()

@@ -22,6 +22,7 @@ from rfsas_hw.board.faults import Faults
 from rfsas_hw.board.messages import Capability, Measurement, MeasurementBatch
 from rfsas_hw.board.reader import FrameReader
 from rfsas_hw.board.transport import EmulatorRunner, PtyEndpoint, TcpEndpoint
+from rfsas_hw.cli.options import json_option
 from rfsas_hw.errors import ConfigError, DataFormatError, SourceError
 
 log = logging.getLogger(__name__)
@@ -68,7 +69,7 @@ def list_ports() -> None:
     show_default=True,
     help="Seconds to wait per answer.",
 )
-@click.option("--json", "as_json", is_flag=True, help="Print one JSON object instead of a table.")
+@json_option("Print one JSON object instead of a table.")
 def info(url: str, baud: int, timeout: float, as_json: bool) -> None:
     """Handshake with the board at URL (device path or pyserial URL) and show what it says.
 

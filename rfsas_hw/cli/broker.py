@@ -6,6 +6,7 @@ from pathlib import Path
 
 import click
 
+from rfsas_hw.cli.options import keys_option, out_option
 from rfsas_hw.fleet.broker import DEFAULT_PORT, write_broker_config
 
 
@@ -15,18 +16,12 @@ def broker() -> None:
 
 
 @broker.command("config")
-@click.option(
-    "--keys",
-    "keys_dir",
-    type=click.Path(file_okay=False, path_type=Path),
+@keys_option("Key directory whose trust/ enrols everyone (usually the nonce authority's).")
+@out_option(
+    "Output directory (the CA and certificates already in it are kept).",
+    file_okay=False,
+    dir_okay=True,
     required=True,
-    help="Key directory whose trust/ enrols everyone (usually the nonce authority's).",
-)
-@click.option(
-    "--out",
-    type=click.Path(file_okay=False, path_type=Path),
-    required=True,
-    help="Output directory (the CA and certificates already in it are kept).",
 )
 @click.option("--host", default="localhost", show_default=True, help="Broker address.")
 @click.option(

@@ -13,6 +13,7 @@ from rich.table import Table
 
 from rfsas_hw.cli.calibrate_phase import phase_options, run_phase
 from rfsas_hw.cli.exitcodes import WorkFailed
+from rfsas_hw.cli.options import json_option, out_option
 from rfsas_hw.df import MODES, fit_calibration, load_calibration, read_samples_csv, save_calibration
 from rfsas_hw.df.calibration import Calibration
 from rfsas_hw.df.check import (
@@ -145,11 +146,9 @@ def check_record(report: CheckReport, cal_path: Path, samples_path: Path) -> dic
 
 @click.command()
 @click.argument("inputs", nargs=-1, type=click.Path(path_type=Path))
-@click.option(
-    "-o",
-    "--output",
-    type=click.Path(dir_okay=False, path_type=Path),
-    help="Calibration YAML to write (with --check: CAL.yaml with the measured environment floor).",
+@out_option(
+    "Calibration YAML to write (with --check: CAL.yaml with the measured environment floor).",
+    dest="output",
 )
 @click.option(
     "--plot",
@@ -206,9 +205,7 @@ def check_record(report: CheckReport, cal_path: Path, samples_path: Path) -> dic
 )
 @click.option("--emitter", help="MAC address of the reference emitter in --capture.")
 @click.option("--force", is_flag=True, help="Replace an existing -o/--plot file (never an input).")
-@click.option(
-    "--json", "as_json", is_flag=True, help="--check: print the report as one JSON object."
-)
+@json_option("--check: print the report as one JSON object.")
 @phase_options
 def calibrate(
     inputs: tuple[Path, ...],

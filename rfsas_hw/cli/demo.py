@@ -11,6 +11,7 @@ from rich import box
 from rich.console import Console
 from rich.table import Table
 
+from rfsas_hw.cli.options import out_option
 from rfsas_hw.studies.demo import DemoResult, run_demo
 
 
@@ -70,14 +71,12 @@ def _table(result: DemoResult, every_s: float) -> Table:
     default=None,
     help="Scenario file (default: the bundled examples/crossing.yaml).",
 )
-@click.option(
-    "-o",
-    "--output",
-    "out_dir",
-    type=click.Path(file_okay=False, path_type=Path),
+@out_option(
+    "Where the outputs go.",
+    dest="out_dir",
+    file_okay=False,
+    dir_okay=True,
     default=Path("out/demo"),
-    show_default=True,
-    help="Where the outputs go.",
 )
 @click.option(
     "--reaction",

@@ -14,6 +14,7 @@ from typing import Any
 import click
 
 from rfsas_hw.cli.exportmaps import export_map
+from rfsas_hw.cli.options import out_option
 from rfsas_hw.cli.sensoropts import parse_pose
 from rfsas_hw.cli.v2x import export_cpm
 from rfsas_hw.errors import ConfigError
@@ -83,12 +84,10 @@ DEFAULT_SUFFIX = {
 @click.command("export")
 @click.argument("runs", nargs=-1, required=True, type=click.Path(dir_okay=False, path_type=Path))
 @click.option("--to", "fmt", required=True, type=click.Choice(sorted(FORMATS)), help="Format.")
-@click.option(
-    "--out",
-    "-o",
-    type=click.Path(path_type=Path),
-    help="Output file (a directory for rosbag2) [default: the run's name with the format's "
+@out_option(
+    "Output file (a directory for rosbag2) [default: the run's name with the format's "
     "suffix; rosbag2 needs it].",
+    dir_okay=True,
 )
 @click.option(
     "--pose",

@@ -6,6 +6,7 @@ from pathlib import Path
 
 import click
 
+from rfsas_hw.cli.options import out_option
 from rfsas_hw.errors import KeyStoreError
 from rfsas_hw.link.keys import CARD_FILE, ROLES, KeyCard, KeyStore
 
@@ -23,13 +24,12 @@ def keys() -> None:
 @keys.command("new")
 @click.option("--role", type=click.Choice(ROLES), required=True, help="What this identity does.")
 @click.option("--id", "ident", help="Identity id, 1-32 of A-Z a-z 0-9 . _ - (default: DIR name).")
-@click.option(
-    "-o",
-    "--output",
-    "directory",
-    type=click.Path(file_okay=False, path_type=Path),
+@out_option(
+    "Key directory to create (existing key files are never overwritten).",
+    dest="directory",
+    file_okay=False,
+    dir_okay=True,
     required=True,
-    help="Key directory to create (existing key files are never overwritten).",
 )
 def new(role: str, ident: str | None, directory: Path) -> None:
     """Generate the private keys and public card of a new identity."""
@@ -59,11 +59,9 @@ def show(directory: Path) -> None:
 
 @keys.command("export")
 @click.argument("directory", type=click.Path(file_okay=False, path_type=Path))
-@click.option(
-    "-o",
-    "--output",
-    type=click.Path(dir_okay=False, path_type=Path),
-    help="Write the card here (refuses to overwrite); default: standard output.",
+@out_option(
+    "Write the card here (refuses to overwrite); default: standard output.",
+    dest="output",
 )
 def export(directory: Path, output: Path | None) -> None:
     """Export the public card of an identity (no private key ever leaves DIR)."""

@@ -14,6 +14,7 @@ from rich.live import Live
 from rich.table import Table
 
 from rfsas_hw.cli.linkopts import join_urls, split_urls
+from rfsas_hw.cli.options import duration_option, json_option, keys_option
 from rfsas_hw.link import Receiver, ReceiverConfig
 from rfsas_hw.link.fallback import FallbackReceiver
 from rfsas_hw.link.keys import KeyStore
@@ -67,13 +68,7 @@ def link() -> None:
     help="Where safety messages arrive: udp://HOST:PORT (unicast or multicast) or a "
     "broker (mqtt://, mqtts://…); repeat to take several at once.",
 )
-@click.option(
-    "--keys",
-    "keys_dir",
-    type=click.Path(file_okay=False, path_type=Path),
-    required=True,
-    help="Key directory whose trust/ holds the sensors' cards.",
-)
+@keys_option("Key directory whose trust/ holds the sensors' cards.")
 @click.option(
     "--expect",
     multiple=True,
@@ -92,14 +87,8 @@ def link() -> None:
     is_flag=True,
     help="Accept messages of any nonce epoch (recorded captures sent by replay).",
 )
-@click.option(
-    "--duration",
-    type=click.FloatRange(min=0, min_open=True),
-    help="Stop after this many seconds (default: Ctrl-C).",
-)
-@click.option(
-    "--json", "as_json", is_flag=True, help="No live table; one JSON status line at the end."
-)
+@duration_option("Stop after this many seconds (default: Ctrl-C).")
+@json_option("No live table; one JSON status line at the end.")
 @click.option(
     "--fallback",
     metavar="URL",

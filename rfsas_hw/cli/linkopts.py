@@ -12,22 +12,19 @@ Usage in a command::
 
 from __future__ import annotations
 
-import weakref
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any, TypeVar
 
 import click
 
-from rfsas_hw.errors import ConfigError
+from rfsas_hw.apps.sensor import open_cue_publisher, open_nonce_inbox, open_publisher
+from rfsas_hw.cli.options import keys_option
 from rfsas_hw.link.cue_publisher import CuePublisher
 from rfsas_hw.link.distribution import NonceInbox
-from rfsas_hw.link.fallback import FallbackSender
-from rfsas_hw.link.keys import KeyStore
 from rfsas_hw.link.preauth import NonceSource
 from rfsas_hw.link.publisher import Publisher
-from rfsas_hw.link.transport import open_transport, open_transports
-from rfsas_hw.privacy.epochs import DEFAULT_EPOCH_S, DEFAULT_GRACE_S, EpochSchedule
+from rfsas_hw.privacy.epochs import DEFAULT_EPOCH_S, DEFAULT_GRACE_S
 from rfsas_hw.records import Pose
 
 F = TypeVar("F", bound=Callable[..., Any])
@@ -67,11 +64,9 @@ def send_options(func: F) -> F:
         help="Out-of-band path for --send (any URL --send takes): traffic moves there "
         "after repeated send errors on the primary, and back after 2 s without one.",
     )(func)
-    func = click.option(
-        "--keys",
-        "keys_dir",
-        type=click.Path(file_okay=False, path_type=Path),
-        help="Sensor key directory (rfsas keys new --role sensor) that signs what --send sends.",
+    func = keys_option(
+        "Sensor key directory (rfsas keys new --role sensor) that signs what --send sends.",
+        required=False,
     )(func)
     func = click.option(
         "--send",
@@ -99,6 +94,15 @@ def split_urls(value: str) -> list[str]:
     return value.split()
 
 
+def kept_link_options() -> tuple[str | None, str | None]:
+    """``--fallback`` and ``--send-cues`` of the running command (kept in the click
+    context by :func:`send_options`), or Nones outside a command."""
+    ctx = click.get_current_context(silent=True)
+    if ctx is None:
+        return None, None
+    return ctx.meta.get(FALLBACK_KEY), ctx.meta.get(SEND_CUES_KEY)
+
+
 def make_publisher(
     send: str | None,
     keys_dir: Path | None,
@@ -106,40 +110,18 @@ def make_publisher(
     epoch_s: float = DEFAULT_EPOCH_S,
     preauth: NonceSource | None = None,
 ) -> Publisher | None:
-    """The publisher ``--send``/``--keys`` ask for, or None without ``--send``.
-    ``send`` may hold several URLs (see :func:`join_urls`); with the deployment's
-    epoch nonces in ``preauth`` it sends version-2 (pre-authenticated) messages.
-
-    With ``--fallback URL`` the publisher sends through a
-    :class:`~rfsas_hw.link.fallback.FallbackSender` (``--send`` is its primary).
+    """The publisher ``--send``/``--keys``/``--fallback`` ask for, or None without
+    ``--send`` (see :func:`rfsas_hw.apps.sensor.open_publisher`); ``send`` may hold
+    several URLs (see :func:`join_urls`).
 
     Raises:
         ConfigError: ``--send`` without ``--keys``, or ``--fallback`` without ``--send``.
         KeyStoreError: the key directory is not a usable sensor identity.
         LinkError: bad URL or socket failure.
     """
-    ctx = click.get_current_context(silent=True)
-    fallback = ctx.meta.get(FALLBACK_KEY) if ctx is not None else None
-    if send is None:
-        if fallback is not None:
-            raise ConfigError("--fallback is the out-of-band path of --send: give --send too")
-        return None
-    if keys_dir is None:
-        raise ConfigError("--send needs --keys DIR: messages are signed with the sensor's key")
-    if fallback is None:
-        return Publisher.from_keys(
-            split_urls(send), keys_dir, pose, epoch_s=epoch_s, preauth=preauth
-        )
-    signer = KeyStore.open(keys_dir).signer()
-    primary = open_transports(split_urls(send), "send")
-    try:
-        secondary = open_transport(fallback, "send")
-    except BaseException:
-        primary.close()
-        raise
-    return Publisher(
-        signer, FallbackSender(primary, secondary), pose, epoch_s=epoch_s, preauth=preauth
-    )
+    fallback, _ = kept_link_options()
+    urls = split_urls(send) if send is not None else []
+    return open_publisher(urls, keys_dir, pose, epoch_s, preauth, fallback)
 
 
 def make_cue_publisher(
@@ -152,14 +134,8 @@ def make_cue_publisher(
         KeyStoreError: the key directory is not a usable sensor identity.
         LinkError: bad URL or socket failure.
     """
-    ctx = click.get_current_context(silent=True)
-    url = ctx.meta.get(SEND_CUES_KEY) if ctx is not None else None
-    if url is None:
-        return None
-    if keys_dir is None:
-        raise ConfigError("--send-cues needs --keys DIR: cues are signed with the sensor's key")
-    signer = KeyStore.open(keys_dir).signer()
-    return CuePublisher(signer, open_transport(url, "send"), pose, epoch_s=epoch_s)
+    _, url = kept_link_options()
+    return open_cue_publisher(url, keys_dir, pose, epoch_s)
 
 
 NONCES_HELP = (
@@ -175,18 +151,12 @@ def nonce_inbox(
     grace_s: float = DEFAULT_GRACE_S,
     wait_s: float = 10.0,
 ) -> NonceInbox:
-    """The nonce provider ``--nonces udp://HOST:PORT --keys DIR`` asks for: it listens for
-    the authority's envelopes and waits up to ``wait_s`` for a missing epoch's nonce.
+    """The nonce provider ``--nonces udp://HOST:PORT --keys DIR`` asks for (see
+    :func:`rfsas_hw.apps.sensor.open_nonce_inbox`).
 
     Raises:
         ConfigError: ``--nonces`` without ``--keys``.
         KeyStoreError: the key directory has no enrolled authority or no usable key.
         LinkError: bad URL or socket failure.
     """
-    if keys_dir is None:
-        raise ConfigError("--nonces needs --keys DIR: envelopes are sealed to the sensor's key")
-    store = KeyStore.open(keys_dir).nonce_store(EpochSchedule(epoch_s, grace_s))
-    inbox = NonceInbox(store, open_transport(nonces, "recv"), wait_s=wait_s)
-    # the command keeps the inbox for its whole run; close the socket when it goes
-    weakref.finalize(inbox, inbox.transport.close)
-    return inbox
+    return open_nonce_inbox(nonces, keys_dir, epoch_s, grace_s, wait_s)

@@ -8,26 +8,13 @@ from typing import Any
 import click
 from rich.console import Console
 
-import rfsas_hw.sources
-from rfsas_hw.cli.linkopts import NONCES_HELP, nonce_inbox
+from rfsas_hw.cli.linkopts import NONCES_HELP
+from rfsas_hw.cli.options import duration_option
 from rfsas_hw.cli.ros2opts import live_options
-from rfsas_hw.cli.sensoropts import (
-    build_listeners,
-    build_pipeline,
-    deployment_nonces,
-    epoch_schedule,
-    finish_run,
-    parse_pose,
-    sensor_options,
-)
+from rfsas_hw.cli.sensoropts import finish_run, sensor_config, sensor_options, start_sensor
 from rfsas_hw.errors import ConfigError
-from rfsas_hw.link.cue_receiver import CueInbox, CueReceiver
-from rfsas_hw.link.keys import KeyStore
-from rfsas_hw.link.transport import open_transport
-from rfsas_hw.privacy.hashing import DerivedNonces, MacHasher
-from rfsas_hw.runner import Runner
-from rfsas_hw.sources.registry import parse_spec, source_class
-from rfsas_hw.sources.schedule import NoteHeard, SchedulerConfig
+from rfsas_hw.sources.registry import parse_spec
+from rfsas_hw.sources.schedule import SchedulerConfig
 
 
 def parse_channels(text: str) -> list[int]:
@@ -50,11 +37,7 @@ def parse_channels(text: str) -> list[int]:
 @sensor_options
 @live_options
 @click.option("--nonces", metavar="udp://HOST:PORT", help=NONCES_HELP)
-@click.option(
-    "--duration",
-    type=click.FloatRange(min=0, min_open=True),
-    help="Stop after this many seconds.",
-)
+@duration_option("Stop after this many seconds.")
 @click.option("--channels", help="Hop over these channels (wifi: sources), e.g. 1,6,11.")
 @click.option(
     "--dwell",
@@ -105,84 +88,44 @@ def live(
     rfsas live wifi:wlan0mon --channels 1,6,11 --dwell 0.2 --calibration cal.yaml --out b.csv
     tcpdump -i wlan0mon -w - | rfsas live pcap:- --calibration cal.yaml --out b.jsonl
     """
-    console = Console(stderr=True)
-    where = parse_pose(pose, origin)
     scheme, _ = parse_spec(spec)
-    pipeline = None
-    schedule = epoch_schedule(epoch_s)
-    if not source_class(scheme).yields_bearings:
-        # no waiting inside the hasher: frames without a nonce yet wait in the
-        # pipeline's hold queue, and the sensor keeps reading
-        inbox = (
-            nonce_inbox(nonces, keys_dir, schedule.epoch_s, schedule.grace_s, wait_s=0.0)
-            if nonces is not None
-            else None
-        )
-        pipeline = build_pipeline(
-            calibration_path,
-            sensor_id,
-            where,
-            min_snr_db,
-            inbox,
-            nonce_secret=nonce_secret,
-            epoch_s=epoch_s,
-        )
-        if inbox is not None:
-            pipeline.end_wait_s = 10.0  # a short input may end before the first envelope
     options: dict[str, Any] = {"errors": errors}
-    if pipeline is None and getattr(source_class(scheme), "hashes_ids", False):
-        # the unit names its transmitters (BLE tag addresses): the source hashes
-        # them with the deployment's epoch nonces, as the pipeline does for frames
-        if nonces is not None and nonce_secret is not None:
-            raise ConfigError("give --nonces or --nonce-secret, not both")
-        if nonces is not None:
-            inbox = nonce_inbox(nonces, keys_dir, schedule.epoch_s, schedule.grace_s, wait_s=0.0)
-            options["hasher"] = MacHasher(inbox, epoch_s)
-        elif nonce_secret is not None:
-            options["hasher"] = MacHasher(DerivedNonces.from_file(nonce_secret), epoch_s)
     if channels is not None:
         if scheme != "wifi":
             raise ConfigError("--channels needs a wifi: source (it hops the interface with iw)")
         options["channels"] = parse_channels(channels)
         options["dwell_s"] = dwell
     if cues is not None:
-        if channels is None or keys_dir is None:
-            raise ConfigError("--cues needs --channels (the plan cues interrupt) and --keys")
         options["cues"] = SchedulerConfig()
     if any_link_type:
         if scheme != "wifi":
             raise ConfigError("--any-link-type applies to wifi: sources only")
         options["any_link_type"] = True
-    source = rfsas_hw.sources.open(spec, **options)
     _, _, target = spec.partition(":")
-    inputs = [target if scheme == "pcap" else "", calibration_path or "", nonce_secret or ""]
-    try:
-        listeners = build_listeners(
-            out,
-            fmt,
-            send,
-            keys_dir,
-            where,
-            inputs=inputs,
-            force=force,
-            epoch_s=epoch_s,
-            ros2=ros2,
-            preauth=deployment_nonces(pipeline),
-        )
-    except BaseException:
-        source.close()
-        raise
-    scheduler = getattr(source, "scheduler", None)
-    if cues is not None and scheduler is not None and keys_dir is not None:
-        try:
-            trust = KeyStore.open(keys_dir).trust
-            scheduler.inbox = CueInbox(CueReceiver(trust, transport=open_transport(cues, "recv")))
-        except BaseException:
-            source.close()
-            raise
-        listeners.add(NoteHeard(scheduler, source.now_s))  # type: ignore[attr-defined]
-    console.print(f"reading {spec}; Ctrl-C ends the run", highlight=False)
-    summary = Runner(source, pipeline, listeners, duration_s=duration).run()
+    config = sensor_config(
+        spec,
+        source_options=options,
+        inputs=[target if scheme == "pcap" else "", calibration_path or "", nonce_secret or ""],
+        calibration_path=calibration_path,
+        out=out,
+        force=force,
+        epoch_s=epoch_s,
+        fmt=fmt,
+        sensor_id=sensor_id,
+        pose=pose,
+        origin=origin,
+        min_snr_db=min_snr_db,
+        nonce_secret=nonce_secret,
+        send=send,
+        keys_dir=keys_dir,
+        ros2=ros2,
+        nonces=nonces,
+        cues=cues,
+        duration_s=duration,
+    )
+    app = start_sensor(config)
+    Console(stderr=True).print(f"reading {spec}; Ctrl-C ends the run", highlight=False)
+    summary = app.run()
     finish_run(
         summary,
         f"live on {spec}",

@@ -8,6 +8,7 @@ from pathlib import Path
 import click
 
 from rfsas_hw.cli.exitcodes import WorkFailed
+from rfsas_hw.cli.options import duration_option, keys_option, out_option
 from rfsas_hw.errors import ConfigError
 from rfsas_hw.link.distribution import NonceDistributor, NonceInbox
 from rfsas_hw.link.keys import KeyStore
@@ -41,13 +42,7 @@ def nonces() -> None:
 
 
 @nonces.command("serve")
-@click.option(
-    "--keys",
-    "keys_dir",
-    type=click.Path(file_okay=False, path_type=Path),
-    required=True,
-    help=KEYS_HELP,
-)
+@keys_option(KEYS_HELP)
 @click.option(
     "--to",
     "targets",
@@ -73,11 +68,7 @@ def nonces() -> None:
     show_default=True,
     help="Send each envelope again after this many seconds.",
 )
-@click.option(
-    "--duration",
-    type=click.FloatRange(min=0, min_open=True),
-    help="Stop after this many seconds (default: Ctrl-C).",
-)
+@duration_option("Stop after this many seconds (default: Ctrl-C).")
 def serve(
     keys_dir: Path,
     targets: tuple[str, ...],
@@ -139,13 +130,7 @@ def serve(
 
 
 @nonces.command("listen")
-@click.option(
-    "--keys",
-    "keys_dir",
-    type=click.Path(file_okay=False, path_type=Path),
-    required=True,
-    help=KEYS_HELP,
-)
+@keys_option(KEYS_HELP)
 @click.option(
     "--listen",
     "url",
@@ -162,13 +147,7 @@ def serve(
     show_default=True,
     help="Grace period at a boundary, seconds.",
 )
-@click.option(
-    "--duration",
-    type=click.FloatRange(min=0, min_open=True),
-    default=10.0,
-    show_default=True,
-    help="How long to listen, seconds.",
-)
+@duration_option("How long to listen, seconds.", default=10.0)
 def listen(keys_dir: Path, url: str, epoch_s: float, grace_s: float, duration: float) -> None:
     """Check that this sensor or backend receives its nonces (prints epochs, never nonces)."""
     store = KeyStore.open(keys_dir).nonce_store(_schedule(epoch_s, grace_s))
@@ -191,12 +170,10 @@ def listen(keys_dir: Path, url: str, epoch_s: float, grace_s: float, duration: f
 
 
 @nonces.command("secret")
-@click.option(
-    "-o",
-    "--output",
+@out_option(
+    "File to create (mode 0600; an existing file is never overwritten).",
+    dest="output",
     required=True,
-    type=click.Path(dir_okay=False, path_type=Path),
-    help="File to create (mode 0600; an existing file is never overwritten).",
 )
 def secret(output: Path) -> None:
     """Create a shared nonce secret for sensors without a nonce authority.

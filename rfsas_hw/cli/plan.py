@@ -9,6 +9,7 @@ import click
 from rich.console import Console
 from rich.table import Table
 
+from rfsas_hw.cli.options import json_option
 from rfsas_hw.errors import ConfigError
 from rfsas_hw.twin.intercept import plan_report, receiver_plans
 
@@ -85,7 +86,7 @@ def _s(value: float) -> str:
     help="Give up after this long, s.",
 )
 @click.option("--seed", type=int, default=0, show_default=True, help="Random seed.")
-@click.option("--json", "as_json", is_flag=True, help="Print one JSON object.")
+@json_option("Print one JSON object.")
 def plan(
     channels: str,
     dwell_ms: float,

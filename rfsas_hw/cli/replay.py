@@ -8,21 +8,16 @@ from typing import Any
 import click
 from rich.console import Console
 
-import rfsas_hw.sources
 from rfsas_hw.cli.ros2opts import live_options
 from rfsas_hw.cli.sensoropts import (
     PROGRESS_MIN_BYTES,
-    build_listeners,
-    build_pipeline,
-    deployment_nonces,
-    epoch_schedule,
     finish_run,
-    parse_pose,
     progress_bar,
+    sensor_config,
     sensor_options,
+    start_sensor,
 )
 from rfsas_hw.errors import ConfigError
-from rfsas_hw.runner import Runner
 from rfsas_hw.sources.registry import schemes
 
 
@@ -97,52 +92,41 @@ def replay(
     rfsas replay old.pcap --calibration cal.yaml --keys keys/rsu-1 --send udp://HOST:47000 --retime
     rfsas replay capture.pcap --calibration cal.yaml --out - --json | jq .
     """
-    console = Console(stderr=True)
-    where = parse_pose(pose, origin)
-    epoch_schedule(epoch_s)
-    pipeline = build_pipeline(
-        calibration_path, sensor_id, where, min_snr_db, nonce_secret=nonce_secret, epoch_s=epoch_s
-    )
     if speed is not None and speed <= 0:
         raise ConfigError(f"--speed must be positive, got {speed}")
     spec = capture_spec(capture)
     options: dict[str, Any] = {"errors": errors}
     if spec.startswith("pcap:"):
         options["n_antennas"] = n_antennas
-    source = rfsas_hw.sources.open(spec, **options)
-    inputs = [*capture_paths(capture), calibration_path or "", nonce_secret or ""]
-    try:
-        listeners = build_listeners(
-            out,
-            fmt,
-            send,
-            keys_dir,
-            where,
-            inputs=inputs,
-            force=force,
-            epoch_s=epoch_s,
-            ros2=ros2,
-            preauth=deployment_nonces(pipeline),
-        )
-    except BaseException:
-        source.close()
-        raise
-    total = source.stats.extra.get("bytes_total")
-    runner = Runner(
-        source,
-        pipeline,
-        listeners,
-        realtime=realtime or retime or speed is not None,
+    config = sensor_config(
+        spec,
+        source_options=options,
+        inputs=[*capture_paths(capture), calibration_path or "", nonce_secret or ""],
+        calibration_path=calibration_path,
+        out=out,
+        force=force,
+        epoch_s=epoch_s,
+        fmt=fmt,
+        sensor_id=sensor_id,
+        pose=pose,
+        origin=origin,
+        min_snr_db=min_snr_db,
+        nonce_secret=nonce_secret,
+        send=send,
+        keys_dir=keys_dir,
+        ros2=ros2,
+        realtime=realtime or speed is not None,
         speed=speed or 1.0,
         retime=retime,
     )
+    app = start_sensor(config)
+    total = app.source.stats.extra.get("bytes_total")
     if total and total >= PROGRESS_MIN_BYTES:
-        with progress_bar(console) as bar:
+        with progress_bar(Console(stderr=True)) as bar:
             task = bar.add_task(f"replay {Path(capture).name}", total=total)
-            runner.progress = lambda done, _total: bar.update(task, completed=done)
-            summary = runner.run()
+            summary = app.run(progress=lambda done, _total: bar.update(task, completed=done))
     else:
-        summary = runner.run()
+        summary = app.run()
     finish_run(
         summary,
         f"replay of {capture}",

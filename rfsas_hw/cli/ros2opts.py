@@ -2,18 +2,19 @@
 
 :func:`live_options` (``--foxglove``, ``--ros2``) serves the sensor commands
 and the backend; :func:`ros2_options` adds the backend's ``--rosbag2`` and
-``--odom``. :func:`attach_scene` hangs one scene sink on the backend service;
-:func:`sensor_scene` gives the sensor commands a bearing listener.
+``--odom``. :func:`ros2_config` maps their values onto the applications'
+:class:`~rfsas_hw.apps.ros2.Ros2Options`.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, TypeVar
 
 import click
+
+from rfsas_hw.apps.ros2 import Ros2Options
 
 F = TypeVar("F", bound=Callable[..., Any])
 
@@ -86,104 +87,15 @@ def ros2_options(func: F) -> F:
     return func
 
 
-def wants_live(opts: dict[str, Any]) -> bool:
-    """Whether the options ask for a live ROS 2 output (Foxglove or DDS)."""
-    return opts.get("foxglove_port") is not None or bool(opts.get("ros2_publish"))
-
-
-def live_writers(opts: dict[str, Any], writers: list[Any], lines: list[str]) -> None:
-    """Append the Foxglove server and the DDS publisher the options ask for to ``writers``,
-    and what to tell the user to ``lines``.
-
-    Raises:
-        ConfigError / MissingDependencyError: a server cannot start.
-    """
-    if opts.get("foxglove_port") is not None:
-        from rfsas_hw.ros2.foxglove_live import LAYOUT_FILE, FoxgloveServer
-
-        server = FoxgloveServer(opts["foxglove_host"], opts["foxglove_port"])
-        writers.append(server)
-        lines.append(f"foxglove: open {server.url} in the Foxglove app")
-        lines.append(f"foxglove: layout {LAYOUT_FILE}")
-    if opts.get("ros2_publish"):
-        from rfsas_hw.ros2.dds import DdsConfig, DdsPublisher
-
-        dds = DdsConfig(domain_id=opts["ros2_domain"], interface=opts.get("ros2_interface"))
-        writers.append(DdsPublisher(dds))
-        lines.append(f"ros2: publishing on domain {dds.domain_id}")
-
-
-def sensor_scene(opts: dict[str, Any], pose_of: Callable[[str], Any]) -> tuple[Any, list[str]]:
-    """A bearing listener publishing to the live outputs the options ask for, or None,
-    and what to tell the user.
-
-    Raises:
-        ConfigError / MissingDependencyError: a server cannot start.
-    """
-    if not wants_live(opts):
-        return None, []
-    writers: list[Any] = []
-    lines: list[str] = []
-    try:
-        live_writers(opts, writers, lines)
-    except Exception:
-        for w in writers:
-            w.close()
-        raise
-    from rfsas_hw.ros2.sink import SceneSink, SensorScene
-
-    return SensorScene(SceneSink(writers), pose_of), lines
-
-
-@dataclass
-class Ros2Outputs:
-    """What :func:`attach_scene` started; close it when the service is closed."""
-
-    lines: list[str] = field(default_factory=list)
-    """What to tell the user (URLs, topics)."""
-    vehicle_feed: Any = None
-    """An odometry subscription with ``poll()``, or None."""
-    closers: list[Callable[[], None]] = field(default_factory=list)
-
-    def close(self) -> None:
-        """Stop the subscription (the scene's writers close with the service's sinks)."""
-        for close in self.closers:
-            close()
-
-
-def attach_scene(service: Any, out: Path | None, opts: dict[str, Any]) -> Ros2Outputs:
-    """Add a scene sink to ``service`` for every ROS 2 output the options ask for.
-
-    Raises:
-        ConfigError / MissingDependencyError: an output cannot be started.
-    """
-    result = Ros2Outputs()
-    writers: list[Any] = []
-    try:
-        if out is not None and out.suffix.lower() == ".mcap":
-            from rfsas_hw.ros2.bag import McapFileWriter
-
-            writers.append(McapFileWriter(out))
-        if opts.get("rosbag2_dir") is not None:
-            from rfsas_hw.ros2.bag import Rosbag2Writer
-
-            writers.append(Rosbag2Writer(opts["rosbag2_dir"]))
-        live_writers(opts, writers, result.lines)
-        if opts.get("odom_topic"):
-            from rfsas_hw.ros2.dds import DdsConfig, OdometryFeed
-
-            dds = DdsConfig(domain_id=opts["ros2_domain"], interface=opts.get("ros2_interface"))
-            feed = OdometryFeed(opts["odom_topic"], dds)
-            result.vehicle_feed = feed
-            result.closers.append(feed.close)
-            result.lines.append(f"ros2: vehicle state from {opts['odom_topic']}")
-    except Exception:
-        for w in writers:
-            w.close()
-        result.close()
-        raise
-    if writers:
-        from rfsas_hw.ros2.sink import BackendScene, SceneSink
-
-        service.sinks.append(BackendScene.for_service(SceneSink(writers), service))
-    return result
+def ros2_config(opts: dict[str, Any]) -> Ros2Options:
+    """The :class:`~rfsas_hw.apps.ros2.Ros2Options` that the values of
+    :func:`live_options` / :func:`ros2_options` ask for (missing keys: defaults)."""
+    return Ros2Options(
+        foxglove_port=opts.get("foxglove_port"),
+        foxglove_host=opts.get("foxglove_host") or "127.0.0.1",
+        publish=bool(opts.get("ros2_publish")),
+        domain_id=int(opts.get("ros2_domain") or 0),
+        interface=opts.get("ros2_interface"),
+        rosbag2_dir=opts.get("rosbag2_dir"),
+        odom_topic=opts.get("odom_topic"),
+    )

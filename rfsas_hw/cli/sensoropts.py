@@ -1,15 +1,15 @@
 """Options and building blocks shared by the commands that run a sensor (``replay``, ``live``).
 
-A command adds :func:`sensor_options`, then calls :func:`build_pipeline` and
-:func:`build_listeners`; a new output (another listener) is one option here
-and one line in :func:`build_listeners`, and every sensor command gets it.
+A command adds :func:`sensor_options`, maps the values onto a
+:class:`~rfsas_hw.apps.sensor.SensorAppConfig` with :func:`sensor_config` and
+runs the :class:`~rfsas_hw.apps.sensor.SensorApp`; a new output is one option
+here and one field of the application, and every sensor command gets it.
 """
 
 from __future__ import annotations
 
 import json
 import math
-import os
 from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import Any, TypeVar
@@ -19,20 +19,17 @@ from rich.console import Console
 from rich.progress import BarColumn, DownloadColumn, Progress, TimeRemainingColumn
 from rich.table import Table
 
+from rfsas_hw.apps.sensor import SensorApp, SensorAppConfig
 from rfsas_hw.backend.site import parse_origin, pose_from_mapping
 from rfsas_hw.cli.exitcodes import Interrupted, WorkFailed
-from rfsas_hw.cli.linkopts import make_cue_publisher, make_publisher, send_options
-from rfsas_hw.cli.ros2opts import sensor_scene, wants_live
-from rfsas_hw.df import load_calibration
+from rfsas_hw.cli.linkopts import kept_link_options, send_options, split_urls
+from rfsas_hw.cli.options import json_option, out_option
+from rfsas_hw.cli.ros2opts import ros2_config
 from rfsas_hw.errors import ConfigError
-from rfsas_hw.outpaths import STDIO, check_output
-from rfsas_hw.output import BearingWriter
-from rfsas_hw.pipeline import SensorPipeline
-from rfsas_hw.privacy.epochs import DEFAULT_EPOCH_S, EpochSchedule
-from rfsas_hw.privacy.hashing import DerivedNonces, FixedNonce, MacHasher, NonceProvider
+from rfsas_hw.outpaths import STDIO
+from rfsas_hw.privacy.epochs import DEFAULT_EPOCH_S
 from rfsas_hw.records import Pose
 from rfsas_hw.runner import RunSummary
-from rfsas_hw.stream import Fanout
 
 F = TypeVar("F", bound=Callable[..., Any])
 
@@ -81,21 +78,16 @@ def sensor_options(func: F) -> F:
             help="Calibration YAML of the antenna pair (rfsas calibrate); "
             "required unless the source gives bearings itself (agrelo:).",
         ),
-        click.option(
-            "--out",
-            "out",
-            type=click.Path(dir_okay=False, path_type=Path),
-            help="Write bearings here: .jsonl or .csv (or set --format); - for standard "
-            "output (the summary then goes to stderr). An existing file needs --force.",
+        out_option(
+            "Write bearings here: .jsonl or .csv (or set --format); - for standard "
+            "output (the summary then goes to stderr). An existing file needs --force."
         ),
         click.option(
             "--force", is_flag=True, help="Replace an existing --out file (never an input)."
         ),
-        click.option(
-            "--json",
-            "json_summary",
-            is_flag=True,
-            help="Print the end-of-run summary as one JSON object instead of a table.",
+        json_option(
+            "Print the end-of-run summary as one JSON object instead of a table.",
+            dest="json_summary",
         ),
         click.option(
             "--epoch",
@@ -154,90 +146,66 @@ def sensor_options(func: F) -> F:
     return func
 
 
-def build_pipeline(
+def sensor_config(
+    spec: str,
+    *,
+    source_options: dict[str, Any],
+    inputs: Iterable[str | Path],
     calibration_path: Path | None,
-    sensor_id: str,
-    pose: Pose,
-    min_snr_db: float | None,
-    nonces: NonceProvider | None = None,
-    nonce_secret: Path | None = None,
-    epoch_s: float = DEFAULT_EPOCH_S,
-) -> SensorPipeline:
-    """The pipeline hashing with ``nonces`` (the deployment's epoch nonces), with
-    nonces derived from the secret in ``nonce_secret``, or by default with a
-    per-run random key (ids unlinkable across runs).
-
-    Raises:
-        CalibrationError / ConfigError: the calibration file is unusable.
-        KeyStoreError: the secret file is unreadable, too short or not private.
-    """
-    if nonces is not None and nonce_secret is not None:
-        raise ConfigError("give --nonces or --nonce-secret, not both")
-    if calibration_path is None:
-        raise ConfigError("--calibration CAL.yaml is required to turn RSSI pairs into bearings")
-    calibration = load_calibration(calibration_path)
-    if nonce_secret is not None:
-        nonces = DerivedNonces.from_file(nonce_secret)
-    hasher = MacHasher(nonces if nonces is not None else FixedNonce(os.urandom(32)), epoch_s)
-    return SensorPipeline(calibration, hasher, sensor_id, pose, min_snr_db=min_snr_db)
-
-
-def deployment_nonces(pipeline: SensorPipeline | None) -> NonceProvider | None:
-    """The deployment's epoch nonces the pipeline hashes with (from the authority or a
-    shared secret), which also pre-authenticate what ``--send`` sends (version-2
-    messages); None for a per-run random key, which no receiver holds."""
-    if pipeline is None or isinstance(pipeline.hasher.nonces, FixedNonce):
-        return None
-    return pipeline.hasher.nonces
-
-
-def build_listeners(
     out: Path | None,
+    force: bool,
+    epoch_s: float,
     fmt: str | None,
+    sensor_id: str,
+    pose: str,
+    origin: str | None,
+    min_snr_db: float | None,
+    nonce_secret: Path | None,
     send: str | None,
     keys_dir: Path | None,
-    pose: Pose,
-    *,
-    inputs: Iterable[str | Path] = (),
-    force: bool = False,
-    epoch_s: float = DEFAULT_EPOCH_S,
-    ros2: dict[str, Any] | None = None,
-    preauth: NonceProvider | None = None,
-) -> Fanout:
-    """Every listener the options ask for (``ros2``: the options of
-    :func:`rfsas_hw.cli.ros2opts.live_options`).
+    ros2: dict[str, Any],
+    **specific: Any,
+) -> SensorAppConfig:
+    """The :class:`~rfsas_hw.apps.sensor.SensorAppConfig` that the values of
+    :func:`sensor_options` (and the ROS 2 options) ask for; ``specific``: the command's
+    own fields of it (``duration_s``, ``realtime``, ``nonces`` …).
 
     Raises:
-        ConfigError: no output at all, a bad output name, an output that is one of
-            ``inputs``, or an existing output without ``force``.
-        KeyStoreError / LinkError: ``--send`` cannot be set up.
+        ConfigError: a bad ``--pose`` or ``--origin``.
     """
-    fanout = Fanout()
-    if out is None and send is None and not wants_live(ros2 or {}):
-        raise ConfigError("nothing to do: give --out FILE and/or --send URL")
-    if out is not None:
-        check_output(out, inputs, force=force, what="--out")
-    publisher = make_publisher(send, keys_dir, pose, epoch_s, preauth)
-    cue_publisher = make_cue_publisher(keys_dir, pose, epoch_s)
-    if out is not None:
-        from rfsas_hw.ros2.outputs import sensor_recording
+    fallback, send_cues = kept_link_options()
+    return SensorAppConfig(
+        spec=spec,
+        source_options=source_options,
+        calibration=calibration_path,
+        sensor_id=sensor_id,
+        pose=parse_pose(pose, origin),
+        min_snr_db=min_snr_db,
+        epoch_s=epoch_s,
+        nonce_secret=nonce_secret,
+        keys_dir=keys_dir,
+        out=out,
+        fmt=fmt,
+        force=force,
+        inputs=tuple(str(i) for i in inputs if str(i)),
+        send=tuple(split_urls(send)) if send is not None else (),
+        fallback=fallback,
+        send_cues=send_cues,
+        ros2=ros2_config(ros2),
+        **specific,
+    )
 
-        recording = sensor_recording(out, fmt, lambda _sensor_id: pose)
-        fanout.add(recording if recording is not None else BearingWriter(out, fmt))
-    if publisher is not None:
-        fanout.add(publisher)
-    if cue_publisher is not None:
-        fanout.add(cue_publisher)
-    try:
-        scene, lines = sensor_scene(ros2 or {}, lambda _sensor_id: pose)
-    except Exception:
-        fanout.close()
-        raise
-    if scene is not None:
-        fanout.add(scene)
-        for line in lines:
-            click.echo(line, err=True)
-    return fanout
+
+def start_sensor(config: SensorAppConfig) -> SensorApp:
+    """The sensor application of ``config``, telling the user where its live outputs are.
+
+    Raises:
+        See :class:`~rfsas_hw.apps.sensor.SensorApp`.
+    """
+    app = SensorApp(config)
+    for line in app.notes:
+        click.echo(line, err=True)
+    return app
 
 
 def summary_table(summary: RunSummary, title: str) -> Table:
@@ -292,19 +260,6 @@ def progress_bar(console: Console) -> Progress:
         console=console,
         transient=True,
     )
-
-
-def epoch_schedule(epoch_s: float) -> EpochSchedule:
-    """The deployment's epochs for ``--epoch`` (default grace period, capped below half
-    an epoch for short test epochs).
-
-    Raises:
-        ConfigError: the epoch length is not usable.
-    """
-    try:
-        return EpochSchedule(epoch_s, min(5.0, epoch_s / 4))
-    except ValueError as err:
-        raise ConfigError(f"--epoch: {err}") from err
 
 
 _HINTS = {

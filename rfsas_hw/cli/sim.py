@@ -10,6 +10,7 @@ import click
 from rich.console import Console
 from rich.table import Table
 
+from rfsas_hw.cli.options import json_option, out_option
 from rfsas_hw.df import save_calibration
 from rfsas_hw.errors import ConfigError
 from rfsas_hw.outpaths import check_output, inside
@@ -27,13 +28,12 @@ def sim() -> None:
 
 @sim.command()
 @click.argument("scenario", type=click.Path(dir_okay=False, path_type=Path))
-@click.option(
-    "-o",
-    "--output",
-    "out_dir",
-    type=click.Path(file_okay=False, path_type=Path),
+@out_option(
+    "Directory for the captures and truth.jsonl.",
+    dest="out_dir",
+    file_okay=False,
+    dir_okay=True,
     required=True,
-    help="Directory for the captures and truth.jsonl.",
 )
 @click.option(
     "--format",
@@ -157,7 +157,7 @@ def turntable(scenario: Path, sensors: tuple[str, ...], mode: str, force: bool) 
     type=click.Path(dir_okay=False, path_type=Path),
     help="Draw gap, speed and P_coll over time to this PNG.",
 )
-@click.option("--json", "as_json", is_flag=True, help="Print one JSON object.")
+@json_option("Print one JSON object.")
 def braking(
     speed_mps: float,
     start_m: float,

@@ -10,6 +10,7 @@ import click
 from rich.console import Console
 from rich.table import Table
 
+from rfsas_hw.cli.options import json_option
 from rfsas_hw.errors import ConfigError
 from rfsas_hw.studies.cueing import PLANS, CueingConfig, Summary, brake_comparison, run_study
 
@@ -48,7 +49,7 @@ def _table(summaries: list[Summary]) -> Table:
     show_default=True,
     help="Vehicle hop plans to run: 13 (2.4 GHz) and/or 38 (2.4 + 5 GHz), comma-separated.",
 )
-@click.option("--json", "as_json", is_flag=True, help="One JSON object instead of the table.")
+@json_option("One JSON object instead of the table.")
 @click.option(
     "--demo",
     "demo_dir",

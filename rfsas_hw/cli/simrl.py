@@ -23,6 +23,7 @@ from rich.progress import (
 )
 from rich.table import Table
 
+from rfsas_hw.cli.options import out_option
 from rfsas_hw.outpaths import check_output
 
 if TYPE_CHECKING:
@@ -115,13 +116,10 @@ def _env_config(
     show_default=True,
     help="Environment steps to train.",
 )
-@click.option(
-    "-o",
-    "--output",
-    "model_path",
-    type=click.Path(dir_okay=False, path_type=Path),
+@out_option(
+    "Where to save the model (zip).",
+    dest="model_path",
     required=True,
-    help="Where to save the model (zip).",
 )
 @click.option(
     "--logs",
@@ -538,12 +536,10 @@ def _join(runs: list[Any]) -> Any:
     default=None,
     help="Reaction distance, metres [default: drawn as in training].",
 )
-@click.option(
-    "-o",
-    "--output",
-    type=click.Path(dir_okay=False, path_type=Path),
+@out_option(
+    "Video file: .gif, or .mp4 when ffmpeg is installed.",
+    dest="output",
     required=True,
-    help="Video file: .gif, or .mp4 when ffmpeg is installed.",
 )
 @click.option("--seed", type=int, default=0, show_default=True, help="Episode seed.")
 @_config_option

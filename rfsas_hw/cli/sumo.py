@@ -13,6 +13,7 @@ from rich.console import Console
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
+from rfsas_hw.cli.options import keys_option, out_option
 from rfsas_hw.errors import ConfigError
 
 if TYPE_CHECKING:
@@ -65,12 +66,7 @@ def _fmt(x: float | None, digits: int = 2) -> str:
     help="libsumo (in-process, default) or traci (default with --gui).",
 )
 @click.option("--gui", is_flag=True, help="Watch in sumo-gui (TraCI).")
-@click.option(
-    "--out",
-    type=click.Path(dir_okay=False, path_type=Path),
-    default=None,
-    help="JSON lines: every step (hashed ids only) and every seed's result.",
-)
+@out_option("JSON lines: every step (hashed ids only) and every seed's result.")
 @click.option(
     "--truth",
     type=click.Path(dir_okay=False, path_type=Path),
@@ -90,12 +86,9 @@ def _fmt(x: float | None, digits: int = 2) -> str:
     help="Also send every unit's signed bearings to a separate 'rfsas backend' (e.g. "
     "udp://127.0.0.1:47000); paces the run to the wall clock (needs --keys).",
 )
-@click.option(
-    "--keys",
-    "keys_dir",
-    type=click.Path(file_okay=False, path_type=Path),
-    default=None,
-    help="One sensor key directory per unit id (rfsas keys new --role sensor), for --send.",
+@keys_option(
+    "One sensor key directory per unit id (rfsas keys new --role sensor), for --send.",
+    required=False,
 )
 def run(
     net_or_sumocfg: Path | None,
@@ -234,12 +227,10 @@ def _summary(cfg_path: Path, controller: str, results: list[SeedResult]) -> None
     default=None,
     help="SUMO polygon file whose 'building' polygons become buildings.",
 )
-@click.option(
-    "-o",
-    "--output",
-    type=click.Path(dir_okay=False, path_type=Path),
+@out_option(
+    "Scenario YAML to write (then: rfsas sim capture SCENARIO -o DIR).",
+    dest="output",
     required=True,
-    help="Scenario YAML to write (then: rfsas sim capture SCENARIO -o DIR).",
 )
 def fcd_command(
     fcd_path: Path, units_path: Path, ego: str | None, poly: Path | None, output: Path

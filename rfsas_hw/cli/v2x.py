@@ -13,6 +13,7 @@ from typing import Any
 import click
 
 from rfsas_hw.cli.exitcodes import FAILED
+from rfsas_hw.cli.options import duration_option
 from rfsas_hw.errors import ConfigError, CpmFormatError
 
 
@@ -63,11 +64,7 @@ def v2x() -> None:
     type=click.IntRange(min=1),
     help="udp/mqtt: stop after this many datagrams.",
 )
-@click.option(
-    "--duration",
-    type=click.FloatRange(min=0, min_open=True),
-    help="udp/mqtt: stop after this many seconds [default: Ctrl-C].",
-)
+@duration_option("udp/mqtt: stop after this many seconds [default: Ctrl-C].")
 def decode(source: str, allow: tuple[str, ...], count: int | None, duration: float | None) -> None:
     """Print the CPMs in SOURCE as JSON lines.
 

@@ -137,7 +137,7 @@ class IntersectionEnv(gym.Env[ObsArray, np.int64]):
         ConfigError: an invalid configuration or render mode.
     """
 
-    metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 10}  # noqa: RUF012
+    metadata: dict[str, Any] = {"render_modes": ["human", "rgb_array"], "render_fps": 10}  # noqa: RUF012
 
     def __init__(
         self,

@@ -35,15 +35,22 @@ VEHICLE_JSON = b'{"x_m": -12, "y_m": 22, "heading_deg": 90, "speed_mps": 8}'
 
 
 def send_rounds(
-    url: str, stores: dict[str, KeyStore], delay_s: float, vehicle_url: str | None = None
+    url: str,
+    stores: dict[str, KeyStore],
+    delay_s: float,
+    vehicle_url: str | None = None,
+    stop: threading.Event | None = None,
 ) -> None:
+    """Both sensors' bearings every 0.1 s: 20 rounds, or until ``stop`` (at most 600)."""
     time.sleep(delay_s)
     pubs = {sid: Publisher.to_url(url, stores[sid].signer(), pose) for sid, pose in SENSORS.items()}
     feed = None if vehicle_url is None else open_transport(vehicle_url, "send")
     try:
         # keep sending while the command starts up and runs: datagrams sent before
         # it binds the port are lost, as UDP does
-        for _ in range(20):
+        for i in range(600):
+            if stop.is_set() if stop is not None else i == 20:
+                break
             now = time.time_ns()
             if feed is not None:
                 feed.send(VEHICLE_JSON)
@@ -57,6 +64,7 @@ def send_rounds(
             feed.close()
 
 
+@pytest.mark.extra("plot")
 @pytest.mark.parametrize("vehicle_from", ["file", "udp"])
 def test_backend_command_locates_and_judges(tmp_path: Path, vehicle_from: str) -> None:
     backend_keys = KeyStore.create(tmp_path / "backend", "backend", "obu-1")
@@ -70,9 +78,12 @@ def test_backend_command_locates_and_judges(tmp_path: Path, vehicle_from: str) -
     vehicle_arg = str(vehicle) if vehicle_from == "file" else vehicle_url
     out, png = tmp_path / "run.jsonl", tmp_path / "map.png"
     url = f"udp://127.0.0.1:{free_port()}"
+    # the sender keeps sending until the command has ended: however long a loaded machine
+    # takes to start it, it hears bearings for its whole --duration
+    done = threading.Event()
     sender = threading.Thread(
         target=send_rounds,
-        args=(url, stores, 0.2, vehicle_url if vehicle_from == "udp" else None),
+        args=(url, stores, 0.2, vehicle_url if vehicle_from == "udp" else None, done),
     )
     sender.start()
     result = CliRunner().invoke(
@@ -83,7 +94,8 @@ def test_backend_command_locates_and_judges(tmp_path: Path, vehicle_from: str) -
         ],
         env={"COLUMNS": "160"},
     )  # fmt: skip
-    sender.join()
+    done.set()
+    sender.join(timeout=60)
     assert result.exit_code == 0, result.output
     assert f"{EMITTER:016x}" in result.output and "P_coll" in result.output
     records = [json.loads(line) for line in out.read_text().splitlines()]

@@ -26,6 +26,7 @@ def test_ellipse_axes_of_known_covariances() -> None:
         ellipse_axes(np.array([[np.inf, 0.0], [0.0, 1.0]]))
 
 
+@pytest.mark.extra("plot")
 def test_map_png_from_a_service(tmp_path: Path) -> None:
     now = 1_763_800_030_000_000_000
     stations = {"a": Pose(-20.0, 0.0, 0.0), "b": Pose(20.0, 0.0, 0.0)}

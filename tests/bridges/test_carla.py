@@ -10,7 +10,7 @@ from typing import Any
 
 import pytest
 
-carla = pytest.importorskip("carla")
+carla = pytest.importorskip("carla", reason="needs the carla extra: pip install 'rfsas-hw[carla]'")
 
 from rfsas_hw.bridges.bridge import Bridge  # noqa: E402
 from rfsas_hw.bridges.carla import (  # noqa: E402

@@ -30,7 +30,10 @@ def _check_forward(name: str, x: float, y: float, heading: float, fx: float, fy:
 
 @pytest.mark.parametrize("heading", [-2.5, -1.0, 0.0, 0.3, 1.5707963, 3.0])
 def test_highway_env_heading_and_downward_y(heading: float) -> None:
-    kin = pytest.importorskip("highway_env.vehicle.kinematics")
+    kin = pytest.importorskip(
+        "highway_env.vehicle.kinematics",
+        reason="needs the highway extra: pip install 'rfsas-hw[highway]'",
+    )
     v = kin.Vehicle(None, [10.0, 5.0], heading=heading, speed=5.0)
     _check_forward("highway-env", 10.0, 5.0, heading, *v.direction)
     # the facts: heading 0 is east, +π/2 points down the screen (south)
@@ -40,7 +43,9 @@ def test_highway_env_heading_and_downward_y(heading: float) -> None:
 
 @pytest.mark.parametrize("yaw", [-170.0, -90.0, 0.0, 30.0, 90.0, 179.0])
 def test_carla_left_handed_yaw(yaw: float) -> None:
-    carla = pytest.importorskip("carla")
+    carla = pytest.importorskip(
+        "carla", reason="needs the carla extra: pip install 'rfsas-hw[carla]'"
+    )
     fwd = carla.Rotation(pitch=0.0, yaw=yaw, roll=0.0).get_forward_vector()
     _check_forward("carla", 1.0, 2.0, yaw, fwd.x, fwd.y)
     assert float(FRAMES["carla"].heading_to_compass(90.0)) == pytest.approx(180.0)

@@ -5,7 +5,9 @@ from __future__ import annotations
 
 import pytest
 
-pytest.importorskip("highway_env")
+pytest.importorskip(
+    "highway_env", reason="needs the highway extra: pip install 'rfsas-hw[highway]'"
+)
 
 from rfsas_hw.bridges.highway import (
     CrossingConfig,

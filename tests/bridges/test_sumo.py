@@ -15,7 +15,7 @@ from pathlib import Path
 
 import pytest
 
-pytest.importorskip("libsumo")
+pytest.importorskip("libsumo", reason="needs the sumo extra: pip install 'rfsas-hw[sumo]'")
 
 from rfsas_hw.bridges.sumo import SumoAdapter, load_sumo, read_buildings
 from rfsas_hw.bridges.sumo_run import load_run_file, run_seed, run_seeds

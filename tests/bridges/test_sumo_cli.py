@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 from click.testing import CliRunner
 
-pytest.importorskip("libsumo")
+pytest.importorskip("libsumo", reason="needs the sumo extra: pip install 'rfsas-hw[sumo]'")
 
 from rfsas_hw.bridges.fcd import fcd_to_scenario, read_fcd
 from rfsas_hw.bridges.sumo_run import load_run_file

@@ -17,6 +17,7 @@ def run(args: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, str, 
     return int(exc.value.code or 0), out.out, out.err
 
 
+@pytest.mark.extra("plot")
 def test_fit_plot_and_check(
     tmp_path: Path, repo_root: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

@@ -91,7 +91,9 @@ def test_live_survives_epochs_and_an_authority_outage(tmp_path: Path) -> None:
     try:
         proc.stdin.write(rt_writer.pcap([])[:24])  # the stream's global header
         i = 0
-        while proc.poll() is None and time.monotonic() - start < RUN_S + 10:
+        # the sensor ends itself after --duration; the bound only stops a hung one (a loaded
+        # machine may take long to start it, and ending the stream early ends its input)
+        while proc.poll() is None and time.monotonic() - start < RUN_S + 120:
             frame = rt_writer.mac80211_header(-50 - i % 5, -51 - i % 3) + rt_writer.dot11(
                 ta=0x0200_0000_0001 + i % 3, seq=i % 4096
             )

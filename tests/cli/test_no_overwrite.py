@@ -3,6 +3,7 @@ without ``--force``; what decides trust is protected like a private key."""
 
 from __future__ import annotations
 
+import importlib.util
 import os
 import shutil
 from collections.abc import Callable
@@ -52,6 +53,11 @@ COMMANDS: list[tuple[str, list[str], list[str]]] = [
     ("export", ["run.jsonl"],
      ["export", "run.jsonl", "--to", "kml", "--origin", "52.2,0.12", "-o", "{out}"]),
 ]  # fmt: skip
+
+if importlib.util.find_spec("gymnasium") is None:
+    # without the sim extra these commands cannot run; test_sim_commands_are_covered
+    # is skipped then, naming the extra
+    COMMANDS = [c for c in COMMANDS if not c[0].startswith("sim ")]
 
 REPLACE_WITHOUT_FORCE = {"sim evaluate --csv", "sim render", "export"}
 """Commands whose outputs are results of a previous run: replaced, but never an input."""
@@ -220,3 +226,9 @@ def test_a_trust_directory_others_can_write_is_refused(
     target.chmod(mode)
     with pytest.raises(KeyStoreError, match="other users change what is trusted"):
         KeyStore.open(tmp_path / "obu")
+
+
+@pytest.mark.extra("sim")
+def test_sim_commands_are_covered() -> None:
+    """With the sim extra, the property test above also tries the sim commands."""
+    assert {"sim evaluate --csv", "sim render"} <= {name for name, _, _ in COMMANDS}

@@ -7,10 +7,11 @@ import json
 import pytest
 from clihelp import run
 
-from rfsas_hw.envs import rl
-
 
 def test_evaluation_reports_every_episode() -> None:
+    pytest.importorskip("gymnasium", reason="needs the sim extra: pip install 'rfsas-hw[sim]'")
+    from rfsas_hw.envs import rl
+
     calls: list[tuple[int, int]] = []
     rows = rl.evaluate(
         [rl.RulePolicy(0.01), rl.RulePolicy(1.0)],

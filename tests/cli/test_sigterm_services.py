@@ -11,9 +11,12 @@ import sys
 import time
 from pathlib import Path
 
+import pytest
+
 from rfsas_hw.link.keys import KeyStore
 
 
+@pytest.mark.extra("plot")
 def test_sigterm_stops_the_backend_with_its_stats_and_outputs(tmp_path: Path) -> None:
     backend = KeyStore.create(tmp_path / "obu-1", "backend")
     backend.trust.enroll(KeyStore.create(tmp_path / "rsu-1", "sensor").card)

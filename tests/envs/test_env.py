@@ -4,9 +4,12 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import gymnasium as gym
 import numpy as np
 import pytest
+
+pytest.importorskip("gymnasium", reason="needs the sim extra: pip install 'rfsas-hw[sim]'")
+
+import gymnasium as gym
 from gymnasium.utils.env_checker import check_env
 
 import rfsas_hw.envs

@@ -8,6 +8,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+pytest.importorskip("gymnasium", reason="needs the sim extra: pip install 'rfsas-hw[sim]'")
+
 from rfsas_hw.backend.prior import ActivityPrior
 from rfsas_hw.envs.env import OBS_SIZE, IntersectionEnv
 from rfsas_hw.envs.envconfig import env_config_from_mapping
@@ -121,7 +123,7 @@ def test_the_env_with_the_prior_passes_the_checkers(env: IntersectionEnv) -> Non
 
     check_env(env, skip_render_check=True)
     sb3_checker = pytest.importorskip(
-        "stable_baselines3.common.env_checker", reason="stable-baselines3 is not installed"
+        "stable_baselines3.common.env_checker", reason="needs the rl extra: make rl"
     )
     sb3_checker.check_env(env, warn=True)
 

@@ -11,6 +11,8 @@ from typing import Any
 import numpy as np
 import pytest
 
+pytest.importorskip("gymnasium", reason="needs the sim extra: pip install 'rfsas-hw[sim]'")
+
 from rfsas_hw.cli.main import main
 from rfsas_hw.envs.envconfig import EnvConfig, env_config_from_mapping
 from rfsas_hw.envs.protocol import (

@@ -7,6 +7,8 @@ import itertools
 import numpy as np
 import pytest
 
+pytest.importorskip("gymnasium", reason="needs the sim extra: pip install 'rfsas-hw[sim]'")
+
 from rfsas_hw.envs.env import BRAKE, COAST, IntersectionEnv
 from rfsas_hw.envs.render import SCALE_PX_PER_M, ellipse_points, frame_shape, to_px
 

@@ -12,8 +12,10 @@ from rfsas_hw.bridges.bridge import Entity
 from rfsas_hw.errors import ConfigError, SimulationError
 from rfsas_hw.records import Assessment
 
-pytest.importorskip("highway_env")
-pytest.importorskip("gymnasium")
+pytest.importorskip(
+    "highway_env", reason="needs the highway extra: pip install 'rfsas-hw[highway]'"
+)
+pytest.importorskip("gymnasium", reason="needs the sim extra: pip install 'rfsas-hw[sim]'")
 
 from rfsas_hw.bridges.highway import HighwayAdapter, idle_action, make_scene
 from rfsas_hw.envs.overlay import BEARING_RGB, draw_polyline, ellipse_outline

@@ -13,6 +13,8 @@ import numpy as np
 import pytest
 from scipy.stats import chisquare
 
+pytest.importorskip("gymnasium", reason="needs the sim extra: pip install 'rfsas-hw[sim]'")
+
 from rfsas_hw.cli.main import main
 from rfsas_hw.envs.env import ACCELERATE, BRAKE, OBS_SIZE, IntersectionEnv
 from rfsas_hw.envs.rl import (

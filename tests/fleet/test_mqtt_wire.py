@@ -125,7 +125,9 @@ def test_malformed_packets_are_refused_with_the_reason(stream: bytes, match: str
 
 
 def _paho(broker: Broker, ident: str) -> object:
-    mqtt = pytest.importorskip("paho.mqtt.client")
+    mqtt = pytest.importorskip(
+        "paho.mqtt.client", reason="needs the dev extra: pip install 'rfsas-hw[dev]'"
+    )
     pair = broker.files.client(ident)
     client = mqtt.Client(
         callback_api_version=mqtt.CallbackAPIVersion.VERSION2,
@@ -147,8 +149,12 @@ def _paho(broker: Broker, ident: str) -> object:
 
 
 def test_paho_publishes_and_this_client_receives(broker: Broker, deployment: Deployment) -> None:
-    props_mod = pytest.importorskip("paho.mqtt.properties")
-    types = pytest.importorskip("paho.mqtt.packettypes")
+    props_mod = pytest.importorskip(
+        "paho.mqtt.properties", reason="needs the dev extra: pip install 'rfsas-hw[dev]'"
+    )
+    types = pytest.importorskip(
+        "paho.mqtt.packettypes", reason="needs the dev extra: pip install 'rfsas-hw[dev]'"
+    )
     ours = open_mqtt(broker.url("rsu-1", nonces="rsu-1"), "recv")
     sensor = _paho(broker, "rsu-1")
     authority = _paho(broker, "auth-0")

@@ -1,8 +1,11 @@
-"""Helpers for privacy tests: known MACs, their frames, and a capture file of them."""
+"""Helpers for privacy tests: known MACs, their frames, a capture file of them, and a
+socket that notes when datagrams arrive."""
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+import socket
+import time
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import numpy as np
@@ -61,3 +64,41 @@ def write_known_capture(path: Path, t0_ns: int) -> int:
             yield obs.t_ns, radiotap_header(info) + with_fcs(frame)
 
     return write_capture(path, records(), "pcap")
+
+
+class ArrivalStamps:
+    """A loopback UDP socket that notes each datagram's arrival time (UTC ns).
+
+    A receiver fed these times judges freshness by when a message arrived, not by
+    when a loaded test machine got round to checking it (messages are ``stale``
+    after one second).
+    """
+
+    def __init__(self) -> None:
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.sock.bind(("127.0.0.1", 0))
+        self.sock.settimeout(0.3)
+        self.url = f"udp://127.0.0.1:{self.sock.getsockname()[1]}"
+        self.datagrams: list[tuple[bytes, int]] = []
+
+    def collect_while(self, running: Callable[[], bool], limit_s: float = 120.0) -> None:
+        """Receive until ``running()`` is false and nothing arrived for 0.3 s, or
+        ``limit_s`` seconds have passed."""
+        deadline = time.monotonic() + limit_s
+        while time.monotonic() < deadline:
+            try:
+                datagram = self.sock.recv(65536)
+            except TimeoutError:
+                if not running():
+                    return
+                continue
+            self.datagrams.append((datagram, time.time_ns()))
+
+    def close(self) -> None:
+        self.sock.close()
+
+    def __enter__(self) -> ArrivalStamps:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()

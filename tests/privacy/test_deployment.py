@@ -13,9 +13,9 @@ import time
 from pathlib import Path
 
 import numpy as np
-from privhelp import CALIBRATION, KNOWN_MACS, write_known_capture
+from privhelp import CALIBRATION, KNOWN_MACS, ArrivalStamps, write_known_capture
 
-from rfsas_hw.link import Receiver, VerifiedMessage, open_transport
+from rfsas_hw.link import Receiver, open_transport
 from rfsas_hw.link.distribution import NonceDistributor
 from rfsas_hw.link.keys import KeyStore
 from rfsas_hw.privacy import MacHasher
@@ -64,8 +64,7 @@ def test_two_sensors_with_distributed_nonces_agree_on_ids(tmp_path: Path) -> Non
         auth.trust.enroll(s.card)
     authority = auth.nonce_authority()
     nonce_urls = {s.id: f"udp://127.0.0.1:{free_port()}" for s in sensors}
-    backend_url = f"udp://127.0.0.1:{free_port()}"
-    rx = Receiver.listen(backend_url, backend.trust)
+    trap = ArrivalStamps()
     dist = NonceDistributor(
         authority,
         {rid: open_transport(nonce_urls[rid], "send") for rid in authority.receivers},
@@ -81,28 +80,31 @@ def test_two_sensors_with_distributed_nonces_agree_on_ids(tmp_path: Path) -> Non
     worker = threading.Thread(target=serve)
     worker.start()
     outs = {s.id: tmp_path / f"{s.id}.jsonl" for s in sensors}
+    procs: list[subprocess.Popen[bytes]] = []
     try:
-        procs = [
+        procs += [
             subprocess.Popen(
-                live_cmd(capture, s, outs[s.id], backend_url, nonce_urls[s.id] if i < 2 else None),
+                live_cmd(capture, s, outs[s.id], trap.url, nonce_urls[s.id] if i < 2 else None),
                 stdout=subprocess.PIPE,
                 stderr=subprocess.PIPE,
             )
             for i, s in enumerate(sensors)
         ]
-        got: list[VerifiedMessage] = []
-        while any(p.poll() is None for p in procs):
-            got += rx.receive(0.05)
-        for _ in range(5):
-            got += rx.receive(0.05)
-        results = [p.communicate(timeout=5) for p in procs]
+        trap.collect_while(lambda: any(p.poll() is None for p in procs))
+        results = [p.communicate(timeout=60) for p in procs]
     finally:
+        for p in procs:
+            if p.poll() is None:
+                p.kill()
+                p.communicate(timeout=60)
         stop.set()
         worker.join()
         dist.close()
-        rx.close()
+        trap.close()
     for p, (_, err) in zip(procs, results, strict=True):
         assert p.returncode == 0, err.decode(errors="replace")
+    rx = Receiver(backend.trust)
+    got = [m for d, t in trap.datagrams if (m := rx.feed(d, t)) is not None]
 
     ids_by_sensor: dict[str, set[str]] = {}
     for m in got:

@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from cryptography.hazmat.primitives.asymmetric import ec
-from privhelp import KNOWN_MACS, known_frames, write_known_capture
+from privhelp import KNOWN_MACS, ArrivalStamps, known_frames, write_known_capture
 
 from rfsas_hw.df import load_calibration
 from rfsas_hw.link import Publisher, Receiver, ReceiverConfig, Signer, TrustedKeys
@@ -160,24 +160,27 @@ def test_replay_command_end_to_end_leaks_no_mac(tmp_path: Path) -> None:
     n_frames = write_known_capture(capture, time.time_ns())
     assert all(bytes.fromhex(f"{m:012x}") in capture.read_bytes() for m in KNOWN_MACS)
     keys = KeyStore.create(tmp_path / "rsu-1", "sensor")
-    listener = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-    listener.bind(("127.0.0.1", 0))
-    listener.settimeout(0.2)
-    port = listener.getsockname()[1]
     out = tmp_path / "bearings.jsonl"
-    cmd = [sys.executable, "-m", "rfsas_hw.cli.main", "-vv", "replay", str(capture)]
-    cmd += ["--calibration", str(CALIBRATION), "--out", str(out), "--sensor-id", "rsu-1"]
-    cmd += ["--pose", "1,2,90", "--send", f"udp://127.0.0.1:{port}", "--keys", str(keys.path)]
-    datagrams: list[bytes] = []
-    try:
-        proc = subprocess.run(cmd, capture_output=True, timeout=120, check=False)
-        while True:
+    with ArrivalStamps() as trap:
+        cmd = [sys.executable, "-m", "rfsas_hw.cli.main", "-vv", "replay", str(capture)]
+        cmd += ["--calibration", str(CALIBRATION), "--out", str(out), "--sensor-id", "rsu-1"]
+        cmd += ["--pose", "1,2,90", "--send", trap.url, "--keys", str(keys.path)]
+        out_log, err_log = tmp_path / "stdout", tmp_path / "stderr"
+        with (
+            out_log.open("wb") as so,
+            err_log.open("wb") as se,
+            subprocess.Popen(cmd, stdout=so, stderr=se) as running,
+        ):
             try:
-                datagrams.append(listener.recv(65536))
-            except TimeoutError:
-                break
-    finally:
-        listener.close()
+                trap.collect_while(lambda: running.poll() is None)
+            finally:
+                if running.poll() is None:
+                    running.kill()
+                returncode = running.wait(timeout=60)
+        proc = subprocess.CompletedProcess(
+            cmd, returncode, out_log.read_bytes(), err_log.read_bytes()
+        )
+    datagrams = [d for d, _ in trap.datagrams]
     assert proc.returncode == 0, proc.stderr.decode(errors="replace")
     # the run was real: frames read, debug logging on, bearings written and sent signed
     assert str(n_frames) in proc.stdout.decode()
@@ -185,7 +188,7 @@ def test_replay_command_end_to_end_leaks_no_mac(tmp_path: Path) -> None:
     lines = out.read_text().splitlines()
     assert len(lines) > 0.8 * n_frames
     rx = Receiver(TrustedKeys({"rsu-1": keys.signer().public_key}))
-    got = [rx.feed(d) for d in datagrams]
+    got = [rx.feed(d, t_arrived) for d, t_arrived in trap.datagrams]
     assert datagrams and all(g is not None for g in got), rx.stats
     assert sum(len(g.bearings) for g in got if g) == len(lines)
     assert {json.loads(line)["emitter"] for line in lines} == {

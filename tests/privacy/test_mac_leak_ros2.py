@@ -19,11 +19,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-pytest.importorskip("rosbags")
-pytest.importorskip("mcap")
-pytest.importorskip("foxglove")
-pytest.importorskip("cyclonedds")
-websocket = pytest.importorskip("websocket")
+pytest.importorskip("rosbags", reason="needs the ros2 extra: pip install 'rfsas-hw[ros2]'")
+pytest.importorskip("mcap", reason="needs the ros2 extra: pip install 'rfsas-hw[ros2]'")
+pytest.importorskip("foxglove", reason="needs the ros2 extra: pip install 'rfsas-hw[ros2]'")
+pytest.importorskip("cyclonedds", reason="needs the ros2 extra: pip install 'rfsas-hw[ros2]'")
+websocket = pytest.importorskip(
+    "websocket", reason="needs the dev extra: pip install 'rfsas-hw[dev]'"
+)
 
 from privhelp import CALIBRATION, KNOWN_MACS, known_frames, write_known_capture  # noqa: E402
 from test_mac_leak import find_leaks  # noqa: E402

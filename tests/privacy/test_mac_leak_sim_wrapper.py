@@ -15,7 +15,9 @@ from typing import Any
 import pytest
 from test_mac_leak import find_leaks
 
-pytest.importorskip("highway_env")
+pytest.importorskip(
+    "highway_env", reason="needs the highway extra: pip install 'rfsas-hw[highway]'"
+)
 
 from rfsas_hw.bridges.bridge import Bridge
 from rfsas_hw.bridges.highway import HighwayAdapter, idle_action, make_scene

@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-pytest.importorskip("rosbags")
-pytest.importorskip("foxglove")
-pytest.importorskip("cyclonedds")
+pytest.importorskip("rosbags", reason="needs the ros2 extra: pip install 'rfsas-hw[ros2]'")
+pytest.importorskip("foxglove", reason="needs the ros2 extra: pip install 'rfsas-hw[ros2]'")
+pytest.importorskip("cyclonedds", reason="needs the ros2 extra: pip install 'rfsas-hw[ros2]'")
 
 from rosrun import read_mcap, read_rosbag2_sqlite
 
@@ -116,7 +116,7 @@ def foxglove_client(port: int, frames: list[tuple[str, bytes]], stop: threading.
 def test_backend_records_mcap_and_rosbag2_and_serves_foxglove(tmp_path: Path) -> None:
     """Recorded twice and served live: a Foxglove client connected while the command runs
     receives the scene the recordings hold."""
-    pytest.importorskip("websocket")
+    pytest.importorskip("websocket", reason="needs the dev extra: pip install 'rfsas-hw[dev]'")
     backend_keys = KeyStore.create(tmp_path / "backend", "backend", "obu-1")
     stores = {sid: KeyStore.create(tmp_path / sid, "sensor", sid) for sid in SENSORS}
     for store in stores.values():

@@ -20,7 +20,7 @@ from typing import Any
 
 import pytest
 
-pytest.importorskip("cyclonedds")
+pytest.importorskip("cyclonedds", reason="needs the ros2 extra: pip install 'rfsas-hw[ros2]'")
 
 from rosrun import read_mcap, run_backend
 from rtps import user_samples

@@ -18,8 +18,10 @@ from typing import Any
 
 import pytest
 
-pytest.importorskip("foxglove")
-websocket = pytest.importorskip("websocket")
+pytest.importorskip("foxglove", reason="needs the ros2 extra: pip install 'rfsas-hw[ros2]'")
+websocket = pytest.importorskip(
+    "websocket", reason="needs the dev extra: pip install 'rfsas-hw[dev]'"
+)
 
 from mcap_ros2._dynamic import generate_dynamic  # noqa: E402
 from rosrun import read_mcap, run_backend  # noqa: E402

@@ -8,8 +8,8 @@ from typing import Any
 
 import pytest
 
-pytest.importorskip("rosbags")
-pytest.importorskip("mcap_ros2")
+pytest.importorskip("rosbags", reason="needs the ros2 extra: pip install 'rfsas-hw[ros2]'")
+pytest.importorskip("mcap_ros2", reason="needs the ros2 extra: pip install 'rfsas-hw[ros2]'")
 
 from mcap_ros2._dynamic import generate_dynamic
 

@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-pytest.importorskip("rosbags")
+pytest.importorskip("rosbags", reason="needs the ros2 extra: pip install 'rfsas-hw[ros2]'")
 
 from rfsas_hw.ros2.scene import compass_yaw, ellipse_points, marker_id
 

@@ -84,6 +84,7 @@ def test_intel_flags_2g4_phase_ambiguity_only_when_told() -> None:
     assert at_2g.freq_mhz[0] == 2437
 
 
+@pytest.mark.extra("csi")
 def test_atheros_counts_rssi_and_phase_spread() -> None:
     src, batches = _read("ath_csi_1.dat")
     obs = batches[0]
@@ -99,6 +100,7 @@ def test_atheros_counts_rssi_and_phase_spread() -> None:
     assert src.stats.extra["phase_std_deg_0_2"] == pytest.approx(15.6, abs=0.1)
 
 
+@pytest.mark.extra("csi")
 def test_picoscenes_qca9300() -> None:
     src, batches = _read("rx_by_qca9300.csi")
     obs = batches[0]
@@ -111,6 +113,7 @@ def test_picoscenes_qca9300() -> None:
     assert obs.mac.max() > 0
 
 
+@pytest.mark.extra("csi")
 def test_picoscenes_ax200_read_despite_csiread_default() -> None:
     src, batches = _read("rx_8_211119_171706.csi")
     obs = batches[0]
@@ -135,6 +138,7 @@ def test_feitcsi(name: str, frames: int, tones: int) -> None:
     assert set(obs.freq_mhz.tolist()) == {freq}
 
 
+@pytest.mark.extra("csi")
 def test_nexmon_new_format_one_core() -> None:
     src, batches = _read("example_43455c0.pcap")
     obs = batches[0]
@@ -145,6 +149,7 @@ def test_nexmon_new_format_one_core() -> None:
     assert src.stats.extra["packets longer than the CSI they carry"] == 18
 
 
+@pytest.mark.extra("csi")
 def test_nexmon_old_format_core0() -> None:
     _, batches = _read("example_4366c0.pcap")
     obs = batches[0]
@@ -217,8 +222,15 @@ def test_truncated_feitcsi(tmp_path: Path) -> None:
     [
         (b"\x00" * 400, "feitcsi", "not a FeitCSI frame"),
         (b"\x00\x05\x01abcd" * 10, "intel5300", "no Intel 5300 beamforming record"),
-        (b"\xd4\xc3\xb2\xa1" + b"\x00" * 60, "nexmon", "no UDP packet with a nexmon"),
-        (b"junk" * 50, "nexmon", "not a little-endian pcap"),
+        pytest.param(
+            b"\xd4\xc3\xb2\xa1" + b"\x00" * 60,
+            "nexmon",
+            "no UDP packet with a nexmon",
+            marks=pytest.mark.extra("csi"),
+        ),
+        pytest.param(
+            b"junk" * 50, "nexmon", "not a little-endian pcap", marks=pytest.mark.extra("csi")
+        ),
     ],
 )
 def test_foreign_files_fail_clearly(tmp_path: Path, content: bytes, fmt: str, match: str) -> None:
@@ -277,6 +289,9 @@ def test_intel_frame_records_give_the_transmitter(tmp_path: Path) -> None:
     assert obs.seq.tolist() == [i + 7 for i in range(29)]
 
 
+THROUGH_CSIREAD = {"atheros", "picoscenes", "nexmon"}
+"""Formats read through csiread (the csi extra)."""
+
 CORRUPTIBLE = {
     "intel5300": "los_5.dat",
     "atheros": "ath_csi_1.dat",
@@ -287,7 +302,13 @@ CORRUPTIBLE = {
 }
 
 
-@pytest.mark.parametrize("fmt", sorted(CORRUPTIBLE))
+@pytest.mark.parametrize(
+    "fmt",
+    [
+        pytest.param(fmt, marks=[pytest.mark.extra("csi")] if fmt in THROUGH_CSIREAD else [])
+        for fmt in sorted(CORRUPTIBLE)
+    ],
+)
 def test_corrupted_bytes_fail_only_with_rfsas_errors(tmp_path: Path, fmt: str) -> None:
     """Flipped bytes, cuts and noise: frames or one clear error, never a crash."""
     raw = (DATA / CORRUPTIBLE[fmt]).read_bytes()

@@ -6,6 +6,7 @@ import json
 from pathlib import Path
 
 import numpy as np
+import pytest
 from click.testing import CliRunner
 
 from rfsas_hw.cli.main import _load_commands, cli
@@ -26,6 +27,7 @@ def _replay(spec: str, out: Path) -> str:
     return result.output
 
 
+@pytest.mark.extra("csi")
 def test_replay_reports_the_atheros_phase_spread(tmp_path: Path) -> None:
     text = _replay(f"csi:{DATA / 'ath_csi_1.dat'}?rssi_offset=-95", tmp_path / "b.jsonl")
     rows = {

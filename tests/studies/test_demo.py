@@ -12,6 +12,8 @@ from click.testing import CliRunner
 from rfsas_hw.cli.main import _load_commands, cli
 from rfsas_hw.studies.demo import DemoResult, run_demo
 
+pytestmark = pytest.mark.extra("plot")
+
 
 @pytest.fixture(scope="module")
 def demo(tmp_path_factory: pytest.TempPathFactory) -> DemoResult:

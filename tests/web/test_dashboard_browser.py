@@ -124,7 +124,9 @@ def tile_server() -> Iterator[tuple[str, list[tuple[str, str | None]]]]:
 
 @pytest.fixture
 def browser(tmp_path: Path) -> Iterator[Any]:
-    webdriver = pytest.importorskip("selenium.webdriver")
+    webdriver = pytest.importorskip(
+        "selenium.webdriver", reason="needs the dev extra: pip install 'rfsas-hw[dev]'"
+    )
     from selenium.webdriver.chrome.service import Service
 
     opts = webdriver.ChromeOptions()
@@ -150,6 +152,7 @@ def browser(tmp_path: Path) -> Iterator[Any]:
         driver.quit()
 
 
+@pytest.mark.extra("web")
 def test_dashboard_live_in_a_browser(
     tmp_path: Path, browser: Any, tile_server: tuple[str, list[tuple[str, str | None]]]
 ) -> None:

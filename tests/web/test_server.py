@@ -77,6 +77,7 @@ def feed(service: BackendService) -> None:
     service.step(now + 1)
 
 
+@pytest.mark.extra("web")
 def test_routes_are_read_only_and_local_only_without_token(
     served: tuple[DashboardServer, BackendService],
 ) -> None:
@@ -101,6 +102,7 @@ def test_routes_are_read_only_and_local_only_without_token(
     assert get(base + "/api/state?token=wrong", host="attacker.example")[0] == 403
 
 
+@pytest.mark.extra("web")
 def test_non_local_clients_need_the_token(served: tuple[DashboardServer, BackendService]) -> None:
     server, _ = served
     assert not server.allows("192.0.2.7", "192.0.2.1:8080", None)
@@ -110,6 +112,7 @@ def test_non_local_clients_need_the_token(served: tuple[DashboardServer, Backend
     assert server.allows("127.0.0.1", "localhost:8080", None)
 
 
+@pytest.mark.extra("web")
 def test_a_request_from_another_host_is_refused_without_the_token(
     served: tuple[DashboardServer, BackendService],
 ) -> None:
@@ -147,6 +150,7 @@ def test_a_request_from_another_host_is_refused_without_the_token(
     asyncio.run(check())
 
 
+@pytest.mark.extra("web")
 def test_bound_elsewhere_always_has_a_token() -> None:
     site = SiteConfig()
     state = DashboardState(site, clock=time.time_ns)
@@ -156,6 +160,7 @@ def test_bound_elsewhere_always_has_a_token() -> None:
     assert local.token is None and local.url == "http://127.0.0.1:8080/"
 
 
+@pytest.mark.extra("web")
 def test_websocket_sends_the_snapshot_then_every_step(
     served: tuple[DashboardServer, BackendService],
 ) -> None:
@@ -177,6 +182,7 @@ def test_websocket_sends_the_snapshot_then_every_step(
     assert int(str(second["version"])) == int(str(first["version"])) + 1
 
 
+@pytest.mark.extra("web")
 def test_served_text_has_no_raw_mac(served: tuple[DashboardServer, BackendService]) -> None:
     server, service = served
     feed(service)

@@ -1,0 +1,113 @@
+"""Options that many commands share, declared once: one name and one meaning each.
+
+- :func:`out_option`: ``-o/--out PATH``, where a command writes its result
+  (``--output``, the name some commands used to take, still works but is not shown).
+- :func:`duration_option`: ``--duration SECONDS``, how long a command runs.
+- :func:`json_option`: ``--json``, one JSON object instead of a table.
+- :func:`keys_option`: ``--keys DIR``, the command's key directory.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any, TypeVar
+
+import click
+
+F = TypeVar("F", bound=Callable[..., Any])
+
+
+class AliasedOption(click.Option):
+    """An option some of whose names are accepted but not shown in ``--help``
+    (old names kept so that scripts keep working)."""
+
+    def __init__(
+        self, param_decls: Sequence[str], *, hidden_aliases: Sequence[str] = (), **attrs: Any
+    ) -> None:
+        super().__init__(list(param_decls), **attrs)
+        self.hidden_aliases = tuple(hidden_aliases)
+
+    def get_help_record(self, ctx: click.Context) -> tuple[str, str] | None:
+        """The help line without the hidden aliases."""
+        every = self.opts
+        self.opts = [name for name in every if name not in self.hidden_aliases]
+        try:
+            return super().get_help_record(ctx)
+        finally:
+            self.opts = every
+
+
+def out_option(
+    help: str,
+    *,
+    dest: str = "out",
+    file_okay: bool = True,
+    dir_okay: bool = False,
+    required: bool = False,
+    default: Path | None = None,
+    short: bool = True,
+) -> Callable[[F], F]:
+    """``-o/--out PATH`` (``--output`` also accepted, not shown), passed as ``dest``.
+
+    Args:
+        help: what is written there.
+        dest: name of the command's parameter.
+        file_okay / dir_okay: whether the path names a file, a directory (or both).
+        required: whether the command needs it.
+        default: the path without the option (shown in ``--help``).
+        short: also take ``-o`` (False where ``-o`` means something else).
+    """
+    names = ["-o", "--out", "--output"] if short else ["--out", "--output"]
+    return click.option(
+        *names,
+        dest,
+        cls=AliasedOption,
+        hidden_aliases=("--output",),
+        type=click.Path(file_okay=file_okay, dir_okay=dir_okay, path_type=Path),
+        required=required,
+        default=default,
+        show_default=default is not None,
+        help=help,
+    )
+
+
+def duration_option(
+    help: str = "Stop after this many seconds (default: Ctrl-C).",
+    *,
+    default: float | None = None,
+) -> Callable[[F], F]:
+    """``--duration SECONDS`` (positive), passed as ``duration``."""
+    return click.option(
+        "--duration",
+        "duration",
+        type=click.FloatRange(min=0, min_open=True),
+        default=default,
+        show_default=default is not None,
+        help=help,
+    )
+
+
+def json_option(
+    help: str = "Print one JSON object instead of a table.",
+    *,
+    dest: str = "as_json",
+) -> Callable[[F], F]:
+    """``--json`` (a flag), passed as ``dest``."""
+    return click.option("--json", dest, is_flag=True, help=help)
+
+
+def keys_option(
+    help: str,
+    *,
+    required: bool = True,
+) -> Callable[[F], F]:
+    """``--keys DIR`` (a key directory), passed as ``keys_dir``."""
+    return click.option(
+        "--keys",
+        "keys_dir",
+        type=click.Path(file_okay=False, path_type=Path),
+        required=required,
+        default=None,
+        help=help,
+    )

@@ -15,6 +15,8 @@ EXTRAS = {
     "PIL": "plot",
     "csiread": "csi",
     "aiohttp": "web",
+    "distributed": "ncap",
+    "dask": "ncap",
 }
 
 

@@ -144,3 +144,40 @@ def nuisance(results: Iterable[RunResult]) -> dict[str, tuple[int, int]]:
             n[0] += int(r.nuisance)
             n[1] += 1
     return {k: (v[0], v[1]) for k, v in sorted(out.items())}
+
+
+GOAL_CONFIG = "rfsas+los/car+rsu/phone-active"
+"""The configuration the goals are stated for."""
+GOAL_SCENARIOS = ("CPNCO", "CBNAO")
+"""The obstructed scenarios that must be green in every cell."""
+
+
+def goals(
+    cells: Sequence[CellScore],
+    pts: dict[str, dict[str, tuple[float, float]]],
+    nuis: dict[str, tuple[int, int]],
+    config: str = GOAL_CONFIG,
+) -> dict[str, Any]:
+    """The goals of the study, measured (None where the sweep did not cover them).
+
+    - ``green_obstructed``: every run cell of CPNCO and CBNAO green for ``config``;
+    - ``not_below_los``: ``config`` scores at least the LOS AEB's points in every scenario;
+    - ``no_nuisance``: no configuration braked in a true-negative run.
+    """
+    mine = [c for c in cells if c.config == config and c.scenario in GOAL_SCENARIOS]
+    not_green = [c.cell for c in mine if c.band != "green"]
+    ours, los = pts.get(config), pts.get("los")
+    below = (
+        None
+        if ours is None or los is None
+        else [s for s in los if s in ours and ours[s][0] < los[s][0] - 1e-9]
+    )
+    return {
+        "config": config,
+        "green_obstructed": None if not mine else not not_green,
+        "not_green": not_green,
+        "not_below_los": None if below is None else not below,
+        "below_los": below or [],
+        "no_nuisance": None if not nuis else all(n == 0 for n, _ in nuis.values()),
+        "nuisance": {k: list(v) for k, v in nuis.items()},
+    }

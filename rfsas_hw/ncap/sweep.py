@@ -15,6 +15,7 @@ deployment and a device model (``rfsas+los/car+rsu/phone-active``).
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Callable, Iterable, Sequence
 from itertools import product
 from typing import Any, cast
@@ -107,6 +108,7 @@ def run_sweep(
             threads_per_worker=1,
             processes=True,
             dashboard_address=None,
+            silence_logs=logging.ERROR,
         )
     try:
         with distributed.Client(cluster if cluster is not None else scheduler) as client:

@@ -15,7 +15,7 @@ velocity, and requests the brake when their boxes would touch within
 ``ttc_brake_s`` (a time-to-collision threshold).
 
 Parameter values (chosen; docs/ncap.md gives the sources and reasoning):
-a 50° field of view and 60 m range (a mono front camera's pedestrian
+a 90° field of view and 60 m range (a wide-angle front camera of the 2020s
 detection), 0.5 s confirmation (about 15 frames at 30 Hz), 0.1 s cued,
 TTC threshold 1.6 s.
 """
@@ -41,7 +41,7 @@ __all__ = ["LosAeb", "LosParams", "sensor_point"]
 class LosParams:
     """The LOS AEB's parameters (see the module docstring)."""
 
-    fov_deg: float = 50.0
+    fov_deg: float = 90.0
     range_m: float = 60.0
     confirm_s: float = 0.5
     confirm_cued_s: float = 0.1

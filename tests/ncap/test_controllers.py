@@ -49,10 +49,11 @@ def test_brake_releases_after_hold_and_keeps_the_speed() -> None:
 
 
 def test_los_sees_in_its_field_of_view_and_range_not_through_a_parked_car() -> None:
-    los = LosAeb(LosParams(fov_deg=50.0, range_m=60.0), [BuildingSpec(10.0, 14.0, -3.6, -1.9)])
+    los = LosAeb(LosParams(fov_deg=90.0, range_m=60.0), [BuildingSpec(10.0, 14.0, -3.6, -1.9)])
     car = _car()
     assert los.visible(car, _walker(30.0, -4.0))
-    assert not los.visible(car, _walker(30.0, 20.0))  # 34 degrees off the heading
+    assert los.visible(car, _walker(30.0, 25.0))  # 40 degrees off the heading
+    assert not los.visible(car, _walker(30.0, 36.0))  # 50 degrees off the heading
     assert not los.visible(car, _walker(80.0, 0.0))  # out of range
     assert not los.visible(car, _walker(16.0, -4.5))  # behind the parked car
     assert los.visible(car, _walker(16.0, -1.0))  # stepped out

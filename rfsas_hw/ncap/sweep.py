@@ -5,6 +5,7 @@
 one simulation per process) and gives the results back in the order of the
 specs, whatever order they finished in. Every run is seeded and uses no
 shared state, so the results do not depend on the number of workers.
+The local cluster listens on the loopback interface only, on free ports.
 ``workers=0`` without a scheduler runs the specs in this process, one after
 the other (no Dask needed: for small runs and tests).
 
@@ -103,11 +104,15 @@ def run_sweep(
     distributed: Any = require("distributed")
     cluster = None
     if scheduler is None:
+        # loopback only, on free ports: nothing outside this machine can talk to the
+        # scheduler, and a second sweep (or another cluster) does not collide with it
         cluster = distributed.LocalCluster(
             n_workers=workers,
             threads_per_worker=1,
             processes=True,
-            dashboard_address=None,
+            host="127.0.0.1",
+            scheduler_port=0,
+            dashboard_address="127.0.0.1:0",
             silence_logs=logging.ERROR,
         )
     try:

@@ -65,9 +65,9 @@ def _speeds(value: str | None) -> list[float] | None:
 )
 @click.option(
     "--controllers",
-    default="los,rfsas,rfsas+los",
+    default="los,rfsas,rfsas+los,los+cue",
     show_default=True,
-    help="none, los, rfsas, rfsas+los (comma-separated).",
+    help="none, los, rfsas, rfsas+los, los+cue (comma-separated).",
 )
 @click.option(
     "--deployments",

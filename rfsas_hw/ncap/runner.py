@@ -10,7 +10,9 @@ boxes decide, SUMO's list is recorded) looks for contact. Controllers:
 - ``rfsas``: the bridge's BRAKE advisories (:class:`~rfsas_hw.bridges.bridge.Bridge`),
   every second step (0.1 s, the backend's step);
 - ``rfsas+los``: both; a BRAKE from either brakes, and RF-SAS tracks cue the
-  LOS AEB (:mod:`rfsas_hw.ncap.cue`).
+  LOS AEB (:mod:`rfsas_hw.ncap.cue`);
+- ``los+cue``: the LOS AEB cued by RF-SAS, RF-SAS's own BRAKE ignored (only
+  the LOS AEB brakes; RF-SAS only shortens its confirmation).
 
 A run ends at contact, at standstill after braking, or 3 s after the planned
 contact. At contact the first-contact instant is found within the step by
@@ -38,8 +40,12 @@ from rfsas_hw.ncap.rfsas import Deployment, bridge_config
 from rfsas_hw.ncap.scenarios import KMH, Cell, Plan, plan, scenario
 from rfsas_hw.ncap.world import EGO, STEP_S, SumoWorld
 
-Controller = Literal["none", "los", "rfsas", "rfsas+los"]
-CONTROLLERS: tuple[Controller, ...] = ("none", "los", "rfsas", "rfsas+los")
+Controller = Literal["none", "los", "rfsas", "rfsas+los", "los+cue"]
+CONTROLLERS: tuple[Controller, ...] = ("none", "los", "rfsas", "rfsas+los", "los+cue")
+_USES_RF = ("rfsas", "rfsas+los", "los+cue")
+_USES_LOS = ("los", "rfsas+los", "los+cue")
+_CUED = ("rfsas+los", "los+cue")
+_RF_BRAKES = ("rfsas", "rfsas+los")
 AFTER_S = 3.0
 """A run ends this long after the planned contact at the latest, seconds."""
 
@@ -154,7 +160,7 @@ def run_one(spec: RunSpec) -> RunResult:
         sc.name, spec.cell.key, spec.cell.vut_speed_kmh, spec.cell.impact, spec.config,
         spec.controller, spec.deployment, spec.device, spec.seed, sc.true_negative,
     )  # fmt: skip
-    uses_rf = spec.controller in ("rfsas", "rfsas+los")
+    uses_rf = spec.controller in _USES_RF
     bridge = (
         Bridge(bridge_config(spec.deployment, spec.device, spec.seed, p.obstacles))
         if uses_rf
@@ -172,10 +178,9 @@ def run_one(spec: RunSpec) -> RunResult:
 
 def _loop(world: SumoWorld, p: Plan, spec: RunSpec, bridge: Bridge | None, res: RunResult) -> None:
     brake = Brake(BrakeModel(), p.vut_speed_mps)
-    los = (
-        LosAeb(LosParams(), world.occluders()) if spec.controller in ("los", "rfsas+los") else None
-    )
-    cues = Cues(CueParams()) if spec.controller == "rfsas+los" else None
+    los = LosAeb(LosParams(), world.occluders()) if spec.controller in _USES_LOS else None
+    cues = Cues(CueParams()) if spec.controller in _CUED else None
+    rf_brakes = spec.controller in _RF_BRAKES
     score = VruScore(sumo_counts=False)
     ego, vrus = world.read()
     t = 0.0
@@ -186,7 +191,8 @@ def _loop(world: SumoWorld, p: Plan, spec: RunSpec, bridge: Bridge | None, res: 
         if bridge is not None and k % 2 == 0:
             out = bridge.step(t, ego, targets)
             if out.advisory == "brake":
-                brake.request(t)
+                if rf_brakes:
+                    brake.request(t)
                 if res.first_rf_brake_s is None:
                     res.first_rf_brake_s = t
             if cues is not None:

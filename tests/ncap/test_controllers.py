@@ -125,3 +125,18 @@ def test_rfsas_with_a_roadside_unit_brakes_for_the_hidden_child() -> None:
     assert r.first_rf_brake_s is not None and not r.contact
     fused = run_one(RunSpec(Cell("CPNCO", 30.0, 0.5), "rfsas+los", "car+rsu", "phone-active", 1))
     assert not fused.contact and fused.cued_steps > 0
+
+
+def test_los_cued_by_rfsas_brakes_only_on_its_own_sight() -> None:
+    pytest.importorskip("libsumo")
+    from rfsas_hw.ncap.runner import RunSpec, run_one
+
+    kerb = run_one(RunSpec(Cell("TN-KERB", 30.0, 0.5), "los+cue", "car+rsu", "phone-active", 0))
+    assert kerb.first_rf_brake_s is not None  # RF-SAS advised BRAKE for the kerb walker...
+    assert kerb.first_brake_s is None and not kerb.nuisance  # ...which this controller ignores
+    child = run_one(RunSpec(Cell("CPNCO", 50.0, 0.5), "los+cue", "car+rsu", "phone-active", 0))
+    alone = run_one(RunSpec(Cell("CPNCO", 50.0, 0.5), "los"))
+    assert child.cued_steps > 0 and child.first_los_confirm_s is not None
+    assert alone.first_los_confirm_s is not None
+    assert child.first_los_confirm_s < alone.first_los_confirm_s - 0.3  # confirmed sooner
+    assert child.impact_speed_kmh < alone.impact_speed_kmh

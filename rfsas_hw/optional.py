@@ -16,6 +16,8 @@ EXTRAS = {
     "csiread": "csi",
     "aiohttp": "web",
     "asn1tools": "v2x",
+    "distributed": "ncap",
+    "dask": "ncap",
 }
 
 

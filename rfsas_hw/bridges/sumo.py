@@ -148,6 +148,10 @@ class SumoAdapter:
             width_m=float(v.getWidth(vid)),
         )
 
+    def vehicle_class(self, entity_id: str) -> str | None:
+        """SUMO's vehicle class of a vehicle read before (None: a person or never read)."""
+        return self._vclass.get(entity_id)
+
     def read(self) -> tuple[Entity | None, list[Entity]]:
         """The ego (None while it is not in the network) and every other entity now."""
         sumo = self.sumo

@@ -10,8 +10,11 @@ Controllers: ``rfsas`` (advisories act on the ego), ``ignore`` (RF-SAS runs,
 the ego ignores it: the baseline with advisory times) and ``off`` (no RF-SAS
 at all: the fastest baseline).
 
-Scored per seed (:class:`SeedResult`): collision with a person and the ego's
-speed then, the smallest gap between the ego's box and any person, the first
+Scored per seed (:class:`SeedResult`): collision with a vulnerable road user
+(a person, or a ``bicycle``, ``moped`` or ``motorcycle`` vehicle) and the
+ego's speed then, per VRU class the smallest gap between the ego's box and
+the VRU's (oriented rectangles, :mod:`rfsas_hw.bridges.boxes`), whether SUMO's
+own collision list saw the collision too, the first
 CAUTION and BRAKE, how many fixes were trustworthy and their median error
 against the truth (looked up beside the backend, never in it), and the wall
 time of SUMO's steps and the bridge's.
@@ -33,6 +36,7 @@ import numpy as np
 from rfsas_hw.bridges.bridge import Bridge, Entity, StepResult
 from rfsas_hw.bridges.config import BridgeConfig, bridge_config_from_mapping
 from rfsas_hw.bridges.sumo import SumoAdapter, SumoApi, SumoControl, load_sumo, read_buildings
+from rfsas_hw.bridges.vru_score import VruScore, vru_class
 from rfsas_hw.config import from_mapping, read_yaml
 from rfsas_hw.errors import ConfigError, SimulationError
 from rfsas_hw.twin.rng import stream
@@ -105,12 +109,19 @@ class SeedResult:
     seed: int
     controller: Controller
     collision: bool = False
-    """The ego hit a person."""
+    """The ego hit a VRU (a person or a two-wheeler)."""
     collision_t_s: float | None = None
+    collision_class: str | None = None
+    """The VRU class of what the ego hit (``pedestrian``, ``bicycle``, ``moped`` …)."""
+    collision_seen_by: list[str] = field(default_factory=list)
+    """Who saw the collision: ``boxes`` (the ego's and the VRU's boxes overlap) and/or
+    ``sumo`` (SUMO's own collision list)."""
     impact_speed_mps: float = 0.0
     """The ego's speed at the collision, m/s (0 without one)."""
     min_gap_m: float = math.inf
-    """Smallest distance from the ego's box to any person's centre, metres."""
+    """Smallest distance between the ego's box and any VRU's box, metres."""
+    min_gap_by_class: dict[str, float] = field(default_factory=dict)
+    """The same per VRU class, metres."""
     first_caution_s: float | None = None
     first_brake_s: float | None = None
     stopped: bool = False
@@ -127,10 +138,15 @@ class SeedResult:
 
     def as_dict(self) -> dict[str, Any]:
         """JSON-ready (non-finite numbers as None)."""
-        return {
-            k: (None if isinstance(v, float) and not math.isfinite(v) else v)
-            for k, v in asdict(self).items()
-        }
+        return {k: _json_ready(v) for k, v in asdict(self).items()}
+
+
+def _json_ready(v: Any) -> Any:
+    if isinstance(v, float) and not math.isfinite(v):
+        return None
+    if isinstance(v, dict):
+        return {k: _json_ready(x) for k, x in v.items()}
+    return v
 
 
 @dataclass
@@ -144,6 +160,14 @@ class RunSummary:
     def collisions(self) -> int:
         """Seeds with a collision."""
         return sum(r.collision for r in self.results)
+
+    def collisions_by_class(self) -> dict[str, int]:
+        """Seeds with a collision, per VRU class."""
+        out: dict[str, int] = {}
+        for r in self.results:
+            if r.collision and r.collision_class is not None:
+                out[r.collision_class] = out.get(r.collision_class, 0) + 1
+        return out
 
     @property
     def brakes(self) -> int:
@@ -164,6 +188,7 @@ class RunSummary:
             "controller": self.controller,
             "seeds": len(self.results),
             "collisions": self.collisions,
+            "collisions_by_class": self.collisions_by_class(),
             "mean_impact_mps": float(np.mean(speeds)) if speeds else 0.0,
             "max_impact_mps": max(speeds) if speeds else 0.0,
             "median_min_gap_m": float(np.median(gaps)) if gaps else math.nan,
@@ -182,23 +207,21 @@ def _mean(values: list[float]) -> float:
     return float(np.mean(finite)) if finite else math.nan
 
 
-def _gap(ego: Entity, other: Entity) -> float:
-    """Distance from ``other``'s centre to the ego's box, metres (0 inside)."""
-    a = math.radians(ego.heading_deg)
-    u = (math.sin(a), math.cos(a))
-    dx, dy = other.x_m - ego.x_m, other.y_m - ego.y_m
-    along = dx * u[0] + dy * u[1]
-    across = -dx * u[1] + dy * u[0]
-    return math.hypot(
-        max(abs(along) - ego.length_m / 2, 0.0), max(abs(across) - ego.width_m / 2, 0.0)
-    )
-
-
 def _behind(ego: Entity, other: Entity) -> bool:
     """Whether ``other``'s centre is behind the ego's rear bumper (nothing left to hit)."""
     a = math.radians(ego.heading_deg)
     along = (other.x_m - ego.x_m) * math.sin(a) + (other.y_m - ego.y_m) * math.cos(a)
     return along < -ego.length_m / 2
+
+
+def _vrus(adapter: SumoAdapter, others: Sequence[Entity]) -> list[tuple[Entity, str]]:
+    """The VRUs among ``others``, each with its class."""
+    out = []
+    for o in others:
+        cls = vru_class(o.kind, adapter.vehicle_class(o.id))
+        if cls is not None:
+            out.append((o, cls))
+    return out
 
 
 def _step_line(seed: int, res: StepResult, action: str, ego: Entity) -> dict[str, Any]:
@@ -323,6 +346,7 @@ def _loop(
     sumo_s: list[float] = []
     bridge_s: list[float] = []
     errors: list[float] = []
+    score = VruScore()
     while True:
         w0 = time.perf_counter()
         sumo.simulationStep()
@@ -350,14 +374,8 @@ def _loop(
                 break
             continue
         result.steps += 1
-        people = [o for o in others if o.kind == "pedestrian"]
-        for p in people:
-            result.min_gap_m = min(result.min_gap_m, _gap(ego, p))
-        hit = [
-            c
-            for c in sumo.simulation.getCollisions()
-            if c.collider == run.ego and c.victim in sumo.person.getIDList()
-        ]
+        vrus = _vrus(adapter, others)
+        hit = score.update(run.ego, ego, vrus, sumo.simulation.getCollisions())
         if ego.speed_mps < 0.05 and result.steps > 1:
             result.stopped = True
         if bridge is not None:
@@ -381,14 +399,18 @@ def _loop(
             if out is not None:
                 out.write(json.dumps(_step_line(result.seed, res, action, ego)) + "\n")
         if hit:
-            result.collision = True
             result.collision_t_s = t
-            result.impact_speed_mps = float(hit[0].colliderSpeed)
+            result.impact_speed_mps = ego.speed_mps
             break
         if t >= run.end_s or (
-            run.end_when_passed and people and all(_behind(ego, p) for p in people)
+            run.end_when_passed and vrus and all(_behind(ego, p) for p, _ in vrus)
         ):
             break
+    result.collision = score.collision
+    result.collision_class = score.collision_class
+    result.collision_seen_by = score.seen_by if score.collision else []
+    result.min_gap_m = score.min_gap_m
+    result.min_gap_by_class = score.min_gap_by_class
     result.sumo_ms = float(np.mean(sumo_s)) * 1e3 if sumo_s else math.nan
     result.bridge_ms = float(np.mean(bridge_s)) * 1e3 if bridge_s else math.nan
     result.median_fix_error_m = float(np.median(errors)) if errors else math.nan

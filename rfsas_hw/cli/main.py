@@ -30,6 +30,7 @@ EXIT_BAD_INPUT = BAD_INPUT
 COMMANDS: list[str] = [
     "rfsas_hw.cli.sim:sim",
     "rfsas_hw.cli.sumo:sumo",
+    "rfsas_hw.cli.ncap:ncap",
     "rfsas_hw.cli.plan:plan",
     "rfsas_hw.cli.demo:demo",
     "rfsas_hw.cli.calibrate:calibrate",

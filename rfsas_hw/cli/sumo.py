@@ -174,6 +174,7 @@ def _summary(cfg_path: Path, controller: str, results: list[SeedResult]) -> None
     for col in (
         "seed",
         "collision",
+        "VRU class",
         "impact m/s",
         "min gap m",
         "first caution s",
@@ -188,6 +189,7 @@ def _summary(cfg_path: Path, controller: str, results: list[SeedResult]) -> None
         table.add_row(
             str(r.seed),
             "yes" if r.collision else "no",
+            r.collision_class or "—",
             _fmt(r.impact_speed_mps, 1),
             _fmt(r.min_gap_m),
             _fmt(r.first_caution_s, 1),
@@ -201,7 +203,7 @@ def _summary(cfg_path: Path, controller: str, results: list[SeedResult]) -> None
     console.print(table)
     row = summary.row()
     console.print(
-        f"{row['seeds']} seeds: {row['collisions']} collisions "
+        f"{row['seeds']} seeds: {row['collisions']} collisions{_by_class(row)} "
         f"(mean impact {row['mean_impact_mps']:.1f} m/s, max {row['max_impact_mps']:.1f}), "
         f"BRAKE in {row['seeds_with_brake']} seeds (median first at "
         f"{_fmt(row['median_first_brake_s'], 1)} s), median min gap "
@@ -209,6 +211,14 @@ def _summary(cfg_path: Path, controller: str, results: list[SeedResult]) -> None
         f"(median error {_fmt(row['median_fix_error_m'])} m); per step SUMO "
         f"{_fmt(row['sumo_ms'], 3)} ms, RF-SAS {_fmt(row['bridge_ms'])} ms"
     )
+
+
+def _by_class(row: dict[str, object]) -> str:
+    """`` (bicycle 1, pedestrian 2)``: the collisions per VRU class ('' without any)."""
+    counts = cast("dict[str, int]", row["collisions_by_class"])
+    if not counts:
+        return ""
+    return " (" + ", ".join(f"{k} {n}" for k, n in sorted(counts.items())) + ")"
 
 
 @sumo.command(name="fcd")

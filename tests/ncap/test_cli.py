@@ -1,0 +1,82 @@
+"""``rfsas ncap``: JSON lines, summary, grids, safe output paths, no raw MAC in any output."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+from click.testing import CliRunner
+
+pytest.importorskip("libsumo")
+
+from rfsas_hw.bridges.bridge import device_mac
+from rfsas_hw.cli.main import _load_commands, cli
+from rfsas_hw.errors import ConfigError
+from rfsas_hw.ncap.rfsas import bridge_config
+from rfsas_hw.records import int_to_mac
+from tests.bridges.test_sumo_cli import _mac_forms
+
+_load_commands()
+
+ARGS = [
+    "ncap", "--scenarios", "CPNCO,TN-KERB", "--speeds", "30", "--controllers", "los,rfsas+los",
+    "--deployments", "car+rsu", "--devices", "phone-active", "--seeds", "1", "--workers", "0",
+]  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def ran(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, str]:
+    out = tmp_path_factory.mktemp("ncap")
+    res = CliRunner().invoke(cli, [*ARGS, "--out", str(out)])
+    assert res.exit_code == 0, res.output
+    return out, res.output
+
+
+def test_one_line_per_run_a_summary_and_a_grid(ran: tuple[Path, str]) -> None:
+    out, printed = ran
+    lines = [json.loads(x) for x in (out / "runs.jsonl").read_text().splitlines()]
+    # CPNCO has three impact locations, TN-KERB one; two configurations; one seed
+    assert len(lines) == 8
+    assert {x["config"] for x in lines} == {"los", "rfsas+los/car+rsu/phone-active"}
+    assert all(x["record"] == "run" and x["seed"] == 0 for x in lines)
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["runs"] == 8
+    assert set(summary["points"]) == {"los", "rfsas+los/car+rsu/phone-active"}
+    assert set(summary["nuisance"]["los"]) <= {0, 1}
+    assert summary["goals"]["config"] == "rfsas+los/car+rsu/phone-active"
+    assert (out / "CPNCO.png").read_bytes()[:4] == b"\x89PNG"
+    assert not (out / "TN-KERB.png").exists()
+    assert "Points per scenario" in printed and "CPNCO" in printed
+
+
+def test_no_raw_mac_in_any_output(ran: tuple[Path, str]) -> None:
+    out, printed = ran
+    cfg = bridge_config("car+rsu", "phone-active", 0, ())
+    macs = [int_to_mac(device_mac(cfg, f"person:{who}", 0)) for who in ("target", "walker")]
+    blobs = [p.read_bytes() for p in out.iterdir()] + [printed.encode()]
+    for mac in macs:
+        for form in _mac_forms(mac):
+            assert not any(form.search(b) for b in blobs), mac
+
+
+def _error(args: list[str]) -> str:
+    """The one line main() prints for a bad input (exit code 2)."""
+    res = CliRunner().invoke(cli, args)
+    assert isinstance(res.exception, ConfigError), res.output
+    return str(res.exception)
+
+
+def test_existing_outputs_are_kept_unless_forced(ran: tuple[Path, str]) -> None:
+    out, _ = ran
+    before = (out / "runs.jsonl").read_bytes()
+    assert "exists; use --force" in _error([*ARGS, "--out", str(out)])
+    assert (out / "runs.jsonl").read_bytes() == before
+
+
+def test_bad_choices_name_the_option(tmp_path: Path) -> None:
+    out = ["--out", str(tmp_path)]
+    assert "--scenarios: unknown scenario 'CPXX'" in _error(["ncap", "--scenarios", "CPXX", *out])
+    assert "--speeds" in _error(["ncap", "--speeds", "fast", *out])
+    assert "unknown device 'pager'" in _error(["ncap", "--devices", "pager", *out])
+    assert "no cell" in _error(["ncap", "--scenarios", "CBLA", "--speeds", "10", *out])

@@ -1,0 +1,82 @@
+"""The generated matrix: with no braking every scenario hits where and as fast as planned."""
+
+from __future__ import annotations
+
+import pytest
+
+from rfsas_hw.ncap.scenarios import (
+    KMH,
+    SCENARIOS,
+    TRUE_NEGATIVES,
+    VUT_WIDTH_M,
+    Cell,
+    cells,
+    plan,
+    scenario,
+)
+
+
+def test_the_matrix_has_the_protocols_cells() -> None:
+    all_cells = cells(SCENARIOS)
+    per = {name: [c for c in all_cells if c.scenario == name] for name in SCENARIOS}
+    assert len(per["CPNA"]) == 12 and {c.impact for c in per["CPNA"]} == {0.25, 0.75}
+    assert len(per["CPNCO"]) == 18
+    assert {c.vut_speed_kmh for c in per["CBLA"]} == {20, 30, 40, 50, 60}
+    assert cells(["CBLA"], [10, 20]) == [Cell("CBLA", 20.0, 0.5)]
+    assert scenario("CPNCO").target.kind == "pedestrian" and scenario("CBNAO").obstructed
+    with pytest.raises(KeyError, match="known: CPNA"):
+        scenario("CPXX")
+
+
+def test_obstructed_scenarios_park_two_vehicles_upstream_of_the_path() -> None:
+    p = plan(Cell("CPNCO", 40.0, 0.5))
+    car, van = p.obstacles
+    assert car.x_max_m == pytest.approx(-1.0) and van.x_max_m < car.x_min_m
+    assert car.y_max_m == pytest.approx(-(VUT_WIDTH_M / 2 + 1.0))
+    assert (car.x_max_m - car.x_min_m) < (van.x_max_m - van.x_min_m)  # smaller one nearest
+    assert plan(Cell("CPNA", 40.0, 0.25)).obstacles == ()
+
+
+def _planned(name: str) -> list[Cell]:
+    s = SCENARIOS[name]
+    speeds = (s.vut_speeds_kmh[0], s.vut_speeds_kmh[-1])
+    return [c for c in cells([name]) if c.vut_speed_kmh in speeds]
+
+
+CASES = [c for name in SCENARIOS for c in _planned(name)]
+
+
+@pytest.mark.parametrize("cell", CASES, ids=[c.key for c in CASES])
+def test_no_braking_hits_the_planned_location_at_the_planned_speed(cell: Cell) -> None:
+    pytest.importorskip("libsumo")
+    from rfsas_hw.ncap.runner import RunSpec, run_one
+
+    r = run_one(RunSpec(cell, "none"))
+    assert r.contact
+    assert r.impact_location_m is not None
+    assert r.impact_location_m == pytest.approx(cell.impact * VUT_WIDTH_M, abs=0.3)
+    s = SCENARIOS[cell.scenario]
+    expected = cell.vut_speed_kmh - (s.speed_kmh if s.motion == "along" else 0.0)
+    assert r.impact_speed_kmh == pytest.approx(expected, abs=0.5)
+    assert r.contact_t_s == pytest.approx(plan(cell).contact_t_s, abs=0.06)
+    assert r.first_brake_s is None and r.min_gap_m == 0.0
+
+
+@pytest.mark.parametrize("name", list(TRUE_NEGATIVES))
+def test_true_negatives_never_touch_the_car(name: str) -> None:
+    pytest.importorskip("libsumo")
+    from rfsas_hw.ncap.runner import RunSpec, run_one
+
+    r = run_one(RunSpec(Cell(name, 50.0, 0.5), "none"))
+    assert not r.contact
+    assert r.min_gap_m > 0.3
+    assert r.true_negative and not r.nuisance
+
+
+def test_a_target_at_the_start_waits_and_then_moves_at_its_speed() -> None:
+    p = plan(Cell("CPNCO", 10.0, 0.5))
+    (path,) = p.targets
+    _, y0, v0 = path.at(0.0)
+    assert v0 == 0.0 and y0 == pytest.approx(-4.3)
+    _, y1, v1 = path.at(p.contact_t_s)
+    assert v1 == pytest.approx(5.0 * KMH) and y1 == pytest.approx(0.0)

@@ -1,0 +1,43 @@
+"""The sweep runner: the same results with 1 and 2 Dask workers, in the order of the specs."""
+
+from __future__ import annotations
+
+import pytest
+
+from rfsas_hw.errors import ConfigError
+from rfsas_hw.ncap.scenarios import Cell
+from rfsas_hw.ncap.sweep import configs, run_sweep, specs_for
+
+
+def test_configurations_expand_rfsas_over_deployments_and_devices() -> None:
+    got = configs(["los", "rfsas+los"], ["car", "car+rsu"], ["phone-active"])
+    assert got == [
+        ("los", "car+rsu", "phone-active"),
+        ("rfsas+los", "car", "phone-active"),
+        ("rfsas+los", "car+rsu", "phone-active"),
+    ]
+    with pytest.raises(ConfigError, match="unknown device 'phone-x'"):
+        configs(["rfsas"], ["car"], ["phone-x"])
+
+
+@pytest.mark.slow
+def test_one_and_two_workers_give_the_same_results() -> None:
+    pytest.importorskip("libsumo")
+    pytest.importorskip("distributed")
+    cells = [Cell("CPNCO", 40.0, 0.5), Cell("TN-KERB", 30.0, 0.5)]
+    conf = configs(["los", "rfsas+los"], ["car+rsu"], ["phone-active"])
+    specs = specs_for(cells, conf, [0, 1])
+    seen: list[int] = []
+    one = run_sweep(specs, workers=1)
+    two = run_sweep(specs, workers=2, on_result=lambda i, r: seen.append(i))
+    assert sorted(seen) == list(range(len(specs)))
+    assert [r.cell for r in two] == [s.cell.key for s in specs]
+    for a, b in zip(one, two, strict=True):
+        da, db = a.as_dict(), b.as_dict()
+        da.pop("wall_s"), db.pop("wall_s")
+        assert da == db
+    # and the same as running them here without Dask
+    here = run_sweep(specs[:2], workers=0)
+    assert [r.as_dict() | {"wall_s": 0} for r in here] == [
+        r.as_dict() | {"wall_s": 0} for r in one[:2]
+    ]

@@ -1,5 +1,10 @@
 """The float cost functions that decide a Gauss-Newton trial give the lists' and the
-arrays' sums bit for bit (so trying a step costs no lists and no numpy calls)."""
+arrays' sums (so trying a step costs no lists and no numpy calls).
+
+Tolerances, not bits: numpy's ``arctan2`` may differ from :func:`math.atan2` in the last
+bit (its AVX-512 kernel does), which moves a residual ``r`` by about one ulp of π; a
+cost ``Σ w·r²`` then moves by at most ``Σ 2·w·|r|·δr ≤ 2π·δr·Σ w``.
+"""
 
 from __future__ import annotations
 
@@ -28,26 +33,31 @@ def _problems(seed: int, count: int = 400):  # type: ignore[no-untyped-def]
         yield px, py, xs, ys, phis, ws
 
 
+def _cost_tolerance(ws: list[float]) -> float:
+    """Absolute bound on a cost's change from residuals a few ulp of π apart."""
+    return 2 * np.pi * 1e-14 * sum(ws)
+
+
 @pytest.mark.parametrize("seed", range(3))
-def test_trial_cost_is_the_sum_over_the_residuals_bit_for_bit(seed: int) -> None:
+def test_trial_cost_is_the_sum_over_the_residuals(seed: int) -> None:
     for px, py, xs, ys, phis, ws in _problems(seed):
         _, _, r = tri._resid_one(px, py, xs, ys, phis)
         want = sum(w * v * v for w, v in zip(ws, r, strict=True))
-        assert tri._trial_cost(px, py, xs, ys, phis, ws).hex() == float(want).hex()
+        got = tri._trial_cost(px, py, xs, ys, phis, ws)
+        assert got == pytest.approx(want, rel=1e-12, abs=_cost_tolerance(ws))
 
 
 @pytest.mark.parametrize("seed", range(3))
-def test_row_cost_is_the_row_sum_and_the_array_cost_bit_for_bit(seed: int) -> None:
+def test_row_cost_is_the_row_sum_and_the_array_cost(seed: int) -> None:
     for px, py, xs, ys, phis, ws in _problems(seed):
         _, _, r = tri._row_geometry(px, py, xs, ys, phis)
         want = tri._sum([w * v * v for w, v in zip(ws, r, strict=True)])
         got = tri._row_cost(px, py, xs, ys, phis, ws)
-        assert got.hex() == want.hex()
+        assert got == pytest.approx(want, rel=1e-12, abs=_cost_tolerance(ws))
         array = tri._cost(
             np.array([[px, py]]),
             np.stack([xs, ys], axis=-1)[None],
             np.array([phis]),
             np.array([ws]),
         )
-        if len(xs) < tri._SHORT_ROW:  # longer rows: numpy's pairwise sum, another order
-            assert float(array[0]).hex() == got.hex()
+        assert float(array[0]) == pytest.approx(got, rel=1e-12, abs=_cost_tolerance(ws))

@@ -46,7 +46,6 @@ from rfsas_hw.backend.tracking import Tracker, TrackerConfig, predict_tracks
 from rfsas_hw.backend.triangulation import (
     FixStatus,
     TriangulationOptions,
-    triangulate,
     triangulate_batch,
 )
 from rfsas_hw.backend.vehicle import VehicleFeed, VehicleState
@@ -58,8 +57,6 @@ from rfsas_hw.records import Assessment, BearingBatch, Fix, Pose, emitter_hex
 log = logging.getLogger(__name__)
 
 NS_PER_S = 1_000_000_000
-SMALL_BATCH = 8
-"""Up to this many emitters per step are triangulated one by one (faster than the batch path)."""
 SMALL_ASSESS = 2
 """Up to this many tracked emitters per step are judged one by one (faster than the batch path)."""
 
@@ -294,34 +291,6 @@ def _finite(value: Any) -> float | None:
     return v if math.isfinite(v) else None
 
 
-def _fix_record(
-    emitter: int,
-    t_ns: int,
-    sensors: tuple[str, ...],
-    position: Any,
-    cov: Any,
-    status: FixStatus,
-    reason: str,
-    gdop: float,
-    condition: float,
-) -> Fix:
-    return Fix(
-        t_ns=t_ns,
-        emitter=emitter_hex(emitter),
-        x_m=float(position[0]),
-        y_m=float(position[1]),
-        cov_xx_m2=float(cov[0, 0]),
-        cov_xy_m2=float(cov[0, 1]),
-        cov_yy_m2=float(cov[1, 1]),
-        ok=status is FixStatus.OK,
-        status=status.name.lower(),
-        reason=reason,
-        sensors=sensors,
-        gdop=float(gdop),
-        condition=float(condition),
-    )
-
-
 class BackendService:
     """Associates, triangulates, tracks and judges risk (see the module docstring).
 
@@ -409,33 +378,6 @@ class BackendService:
         if len(groups) == 0:
             return []
         opts = self.config.triangulation
-        if len(groups) <= SMALL_BATCH:
-            # a few emitters: the scalar path avoids the batch path's fixed numpy cost
-            out = []
-            for i in range(len(groups)):
-                tri = triangulate(
-                    groups.stations_xy[i], groups.azimuth_deg[i], groups.sigma_deg[i], opts
-                )
-                emitter = int(groups.emitter[i])
-                fix = _fix_record(
-                    emitter,
-                    int(groups.t_ns[i]),
-                    groups.sensors[i],
-                    tri.position,
-                    tri.covariance,
-                    tri.status,
-                    tri.reason,
-                    tri.gdop,
-                    tri.condition,
-                )
-                self.stats.fixes[fix.status] += 1
-                self.fixes[emitter] = fix
-                out.append(fix)
-                if fix.ok:
-                    self.tracker.update(
-                        emitter, fix.t_ns, tri.position, tri.covariance, fix.sensors
-                    )
-            return out
         batch = triangulate_batch(groups.stations_xy, groups.azimuth_deg, groups.sigma_deg, opts)
         emitters = groups.emitter.tolist()
         times = groups.t_ns.tolist()
@@ -466,7 +408,6 @@ class BackendService:
             out.append(fix)
         good = [i for i, fix in enumerate(out) if fix.ok]
         if good:
-            # many emitters: their filter updates stacked
             self.tracker.update_many(
                 [emitters[i] for i in good],
                 [times[i] for i in good],

@@ -176,49 +176,6 @@ def test_service_batched_assessment_gives_the_reference_advisories(
     assert {"brake", "clear"} <= seen or {"caution", "clear"} <= seen
 
 
-@pytest.mark.parametrize("seed", range(4))
-def test_triangulation_rows_finished_in_floats_equal_the_array_path(
-    seed: int, monkeypatch: pytest.MonkeyPatch
-) -> None:
-    """The last few rows iterate in plain floats: what the array loop gives, within round-off."""
-    from rfsas_hw.backend import triangulation as tri
-
-    rng = np.random.default_rng(seed)
-    results = []
-    B, N = 150, int(rng.integers(2, 6))
-    stations = rng.uniform(-40, 40, (B, N, 2))
-    stations[::4, 1] = stations[::4, 0] + rng.normal(0, 0.05, (len(stations[::4]), 2))
-    targets = rng.uniform(-60, 60, (B, 2))
-    d = targets[:, None, :] - stations
-    az = (90 - np.degrees(np.arctan2(d[..., 1], d[..., 0]))) % 360
-    az = az + rng.normal(0, 1, (B, 1)) * rng.uniform(0.1, 30, (B, N))
-    az[rng.random((B, N)) < 0.15] = np.nan
-    sig = rng.uniform(0.3, 10, (B, N))
-    options = tri.TriangulationOptions(
-        max_iterations=40, tolerance_m=1e-7, max_halvings=int(rng.integers(0, 13))
-    )
-    for rows in (tri._SCALAR_ROWS, 0):
-        monkeypatch.setattr(tri, "_SCALAR_ROWS", rows)
-        results.append(tri.triangulate_batch(stations, az, sig, options))
-    floats, arrays = results
-    assert arrays.iterations.max() > 5  # some rows did iterate in floats
-    # numpy's arctan2 may differ from math.atan2 in the last bit (AVX-512), so a row's
-    # path may differ by round-off: a decision sitting on a limit may flip for a rare row,
-    # and a fix that is trusted by both paths is the same point within round-off
-    same = (floats.status == arrays.status) & (floats.iterations == arrays.iterations)
-    assert same.mean() >= 0.97
-    both = same & floats.ok & arrays.ok
-    assert both.sum() > 10
-    for name in ("position", "covariance", "chi2", "condition"):
-        np.testing.assert_allclose(
-            getattr(floats, name)[both],
-            getattr(arrays, name)[both],
-            rtol=1e-9,
-            atol=1e-9,
-            err_msg=name,
-        )
-
-
 def test_stacked_filter_updates_equal_one_after_the_other() -> None:
     from rfsas_hw.backend.tracking import Tracker, TrackerConfig
 

@@ -24,7 +24,6 @@ from rfsas_hw.angles import compass_to_math_rad, math_rad_to_compass
 from rfsas_hw.backend.collision import (
     Size,
     collision_probability_batch,
-    exact_probability_of,
     threat_box,
 )
 from rfsas_hw.backend.risk import (
@@ -150,15 +149,17 @@ def assess_encounter(
     speed_t = math.hypot(x[2], x[3])
     threat_heading = math_rad_to_compass(math.atan2(x[3], x[2])) if speed_t > MOVING_MPS else 0.0
     size_t = cfg.threat_size
-    p_coll = exact_probability_of(
-        pv + t_star * vv,
-        vehicle.heading_deg,
-        vehicle.covariance,
-        vehicle.size,
-        threat_xy,
-        threat_heading,
-        threat_pos_cov,
-        size_t,
+    p_coll = float(
+        collision_probability_batch(
+            (pv + t_star * vv)[None],
+            vehicle.heading_deg,
+            vehicle.covariance[None],
+            vehicle.size,
+            threat_xy[None],
+            threat_heading,
+            threat_pos_cov[None],
+            size_t,
+        )[0]
     )
     a = compass_to_math_rad(threat_heading)
     ut = np.array([math.cos(a), math.sin(a)])

@@ -13,7 +13,6 @@ near side of the threat's box.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
@@ -117,7 +116,7 @@ def assess_encounter(
     fix_reason: str = "",
     link_alarm: bool = False,
 ) -> Encounter:
-    """Judge one threat against the vehicle.
+    """Judge one threat against the vehicle: :func:`assess_encounters` of one row.
 
     Args:
         vehicle: the vehicle's state.
@@ -131,72 +130,19 @@ def assess_encounter(
     Raises:
         BackendError: a state or covariance of the wrong shape or not finite.
     """
-    cfg = config or EncounterConfig()
     x = np.asarray(threat_state, np.float64)
     P = np.asarray(threat_cov, np.float64)
     if x.shape != (4,) or P.shape != (4, 4) or not (np.isfinite(x).all() and np.isfinite(P).all()):
         raise BackendError("threat state must be a finite [x, y, vx, vy] with a 4×4 covariance")
-    u_hat = vehicle.direction
-    pv, vv = vehicle.position, u_hat * vehicle.speed_mps
-    r0, w = x[:2] - pv, x[2:] - vv
-    ww = float(w @ w)
-    t_star = 0.0 if ww == 0 else min(max(-float(r0 @ w) / ww, 0.0), cfg.horizon_s)
-    z = t_star * 0.0  # what t_star·I has off its diagonal (-0.0 for t_star = -0.0)
-    J = np.array([[1.0, 0.0, t_star, z], [0.0, 1.0, z, t_star]])
-    threat_xy = x[:2] + t_star * x[2:]
-    threat_pos_cov = J @ P @ J.T
-    threat_pos_cov = (threat_pos_cov + threat_pos_cov.T) / 2
-    speed_t = math.hypot(x[2], x[3])
-    threat_heading = math_rad_to_compass(math.atan2(x[3], x[2])) if speed_t > MOVING_MPS else 0.0
-    size_t = cfg.threat_size
-    p_coll = float(
-        collision_probability_batch(
-            (pv + t_star * vv)[None],
-            vehicle.heading_deg,
-            vehicle.covariance[None],
-            vehicle.size,
-            threat_xy[None],
-            threat_heading,
-            threat_pos_cov[None],
-            size_t,
-        )[0]
-    )
-    a = compass_to_math_rad(threat_heading)
-    ut = np.array([math.cos(a), math.sin(a)])
-    nt = np.array([-ut[1], ut[0]])
-    reach = float(
-        vehicle.length_m / 2 + size_t[0] / 2 * abs(ut @ u_hat) + size_t[1] / 2 * abs(nt @ u_hat)
-    )
-    along = float((threat_xy - pv) @ u_hat)
-    d_stop = stopping_distance(vehicle.speed_mps, cfg.decel_mps2, cfg.reaction_s)
-    contact: float = math.inf
-    v_imp = 0.0
-    if along + reach >= 0:
-        contact = max(along - reach, 0.0)
-        v_imp = impact_speed(vehicle.speed_mps, contact, cfg.decel_mps2, cfg.reaction_s)
-    p_f = fatality_risk(v_imp)
-    risk = p_coll * p_f
-    advisory, reasons = advise(
-        p_coll,
-        risk,
-        contact,
-        d_stop,
-        fix_ok=fix_ok,
-        fix_reason=fix_reason,
+    return assess_encounters(
+        vehicle,
+        x[None],
+        P[None],
+        config,
+        fix_ok=[fix_ok],
+        fix_reason=[fix_reason],
         link_alarm=link_alarm,
-        thresholds=cfg.thresholds,
-    )
-    return Encounter(
-        p_collision=p_coll,
-        t_closest_s=t_star,
-        distance_to_contact_m=contact,
-        stopping_distance_m=d_stop,
-        impact_speed_mps=v_imp,
-        fatality_risk=p_f,
-        risk=risk,
-        advisory=advisory,
-        reasons=reasons,
-    )
+    )[0]
 
 
 def assess_encounters(
@@ -209,12 +155,7 @@ def assess_encounters(
     fix_reason: Sequence[str] | None = None,
     link_alarm: bool = False,
 ) -> list[Encounter]:
-    """Judge ``B`` threats against the vehicle at once: :func:`assess_encounter` per row.
-
-    The same closest approach, exact P(collision), impact speed, risk and
-    advisory as :func:`assess_encounter` gives for each row (equal up to
-    floating-point rounding), computed with one array operation per stage
-    instead of one small computation per threat.
+    """Judge ``B`` threats against the vehicle at once, one array operation per stage.
 
     Args:
         vehicle: the vehicle's state.

@@ -34,12 +34,7 @@ import numpy as np
 
 from rfsas_hw.angles import compass_to_math_rad
 from rfsas_hw.backend.association import AssociationConfig, Associator
-from rfsas_hw.backend.encounter import (
-    Encounter,
-    EncounterConfig,
-    assess_encounter,
-    assess_encounters,
-)
+from rfsas_hw.backend.encounter import Encounter, EncounterConfig, assess_encounters
 from rfsas_hw.backend.risk import Advisory
 from rfsas_hw.backend.site import SiteConfig, site_from_mapping
 from rfsas_hw.backend.tracking import Tracker, TrackerConfig, predict_tracks
@@ -57,8 +52,6 @@ from rfsas_hw.records import Assessment, BearingBatch, Fix, Pose, emitter_hex
 log = logging.getLogger(__name__)
 
 NS_PER_S = 1_000_000_000
-SMALL_ASSESS = 2
-"""Up to this many tracked emitters per step are judged one by one (faster than the batch path)."""
 
 __all__ = [
     "BackendConfig",
@@ -438,11 +431,8 @@ class BackendService:
         tracked = [i for i, _ in live]
         states = np.full((len(fixes), 4), nan)
         covs = np.full((len(fixes), 4, 4), nan)
-        if len(live) > SMALL_ASSESS:
+        if live:
             states[tracked], covs[tracked] = predict_tracks([t for _, t in live], now, accel)
-        else:
-            for i, live_track in live:
-                states[i], covs[i] = live_track.predict(now, accel)
         encounters: dict[int, Encounter] = {}
         if vehicle is not None and tracked:
             encounters = dict(
@@ -530,20 +520,6 @@ class BackendService:
     ) -> list[Encounter]:
         """The encounter of each tracked emitter (``rows``) with the vehicle."""
         cfg = self.config.encounter
-        if len(rows) <= SMALL_ASSESS:
-            # a few emitters: the scalar path avoids the batch path's fixed numpy cost
-            return [
-                assess_encounter(
-                    vehicle,
-                    states[i],
-                    covs[i],
-                    cfg,
-                    fix_ok=fixes[i][1].ok,
-                    fix_reason=fixes[i][1].reason,
-                    link_alarm=alarm,
-                )
-                for i in rows
-            ]
         return assess_encounters(
             vehicle,
             states[rows],

@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import numpy.typing as npt
 
-from rfsas_hw.angles import compass_to_math_rad, math_rad_to_compass
+from rfsas_hw.angles import math_rad_to_compass
 from rfsas_hw.backend.collision import (
     Size,
     collision_probability_batch,
@@ -189,25 +189,27 @@ def assess_encounters(
     if not finite.all():
         bad = int(np.flatnonzero(~finite)[0])
         raise BackendError(f"threat {bad}: state and covariance must be finite")
-    pv, vv = vehicle.position, vehicle.velocity
-    r0 = x[:, :2] - pv
-    w = x[:, 2:] - vv
-    ww = w[:, 0] * w[:, 0] + w[:, 1] * w[:, 1]
-    rw = r0[:, 0] * w[:, 0] + r0[:, 1] * w[:, 1]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t_star = np.where(ww == 0, 0.0, np.minimum(np.maximum(-rw / ww, 0.0), cfg.horizon_s))
-    t2 = t_star[:, None, None]
-    # J P Jᵀ with J = [I, t·I]
-    cov = P[:, :2, :2] + t2 * (P[:, :2, 2:] + P[:, 2:, :2]) + t2 * t2 * P[:, 2:, 2:]
-    cov = (cov + cov.transpose(0, 2, 1)) / 2
-    threat_xy = x[:, :2] + t_star[:, None] * x[:, 2:]
-    speed_t = np.hypot(x[:, 2], x[:, 3])
-    moving = speed_t > MOVING_MPS
-    threat_heading = np.where(moving, math_rad_to_compass(np.arctan2(x[:, 3], x[:, 2])), 0.0)
+    from rfsas_hw.backend import _encounter_kernel as k
+
+    u_hat = vehicle.direction
+    pv, vv = vehicle.position, u_hat * vehicle.speed_mps
     size_t = cfg.threat_size
+    t_star, cov, threat_xy, moving, contact = k.closest_approach(
+        np.ascontiguousarray(x),
+        np.ascontiguousarray(P),
+        pv,
+        vv,
+        u_hat,
+        cfg.horizon_s,
+        vehicle.length_m,
+        size_t[0],
+        size_t[1],
+        MOVING_MPS,
+    )
+    threat_heading = np.where(moving, math_rad_to_compass(np.arctan2(x[:, 3], x[:, 2])), 0.0)
     p_coll = collision_probability_batch(
-        pv[None, :] + t_star[:, None] * vv[None, :],
-        np.full(B, vehicle.heading_deg),
+        pv + t_star[:, None] * vv,
+        vehicle.heading_deg,
         np.broadcast_to(vehicle.covariance, (B, 2, 2)),
         vehicle.size,
         threat_xy,
@@ -215,18 +217,8 @@ def assess_encounters(
         cov,
         size_t,
     )
-    u_hat = vehicle.direction
-    a = compass_to_math_rad(threat_heading)
-    ux, uy = np.cos(a), np.sin(a)
-    reach = (
-        vehicle.length_m / 2
-        + size_t[0] / 2 * np.abs(ux * u_hat[0] + uy * u_hat[1])
-        + size_t[1] / 2 * np.abs(-uy * u_hat[0] + ux * u_hat[1])
-    )
-    along = (threat_xy[:, 0] - pv[0]) * u_hat[0] + (threat_xy[:, 1] - pv[1]) * u_hat[1]
     d_stop = stopping_distance(vehicle.speed_mps, cfg.decel_mps2, cfg.reaction_s)
-    ahead = along + reach >= 0
-    contact = np.where(ahead, np.maximum(along - reach, 0.0), np.inf)
+    ahead = contact < np.inf
     v_imp = np.where(
         ahead,
         impact_speed(

@@ -24,6 +24,7 @@ NS_PER_S = 1_000_000_000
 
 __all__ = ["Track", "Tracker", "TrackerConfig", "TrackerStats", "predict_tracks"]
 
+
 @dataclass(frozen=True, slots=True)
 class TrackerConfig:
     """Motion model and track management.
@@ -104,24 +105,31 @@ def predict_tracks(
     return _predict_each(tracks, [t_ns] * len(tracks), accel_sigma_mps2)
 
 
+def _stack(tracks: Sequence[Track], t_ns: Sequence[int]) -> tuple[Array, Array, Array]:
+    """The tracks' states (B, 4), covariances (B, 4, 4) and the time to ``t_ns`` (B,), s ≥ 0."""
+    if len(tracks) == 1:  # (one track: no list comprehensions)
+        t = tracks[0]
+        dt = np.array([max(t_ns[0] - t.t_ns, 0) / NS_PER_S])
+        return t.state[None], t.cov[None], dt
+    states = np.array([t.state for t in tracks], np.float64)
+    covs = np.array([t.cov for t in tracks], np.float64)
+    then = np.array([t.t_ns for t in tracks], np.int64)
+    return states, covs, np.maximum(np.asarray(t_ns, np.int64) - then, 0) / NS_PER_S
+
+
 def _predict_each(
     tracks: Sequence[Track], t_ns: Sequence[int], accel_sigma_mps2: float
 ) -> tuple[Array, Array]:
     """Each track predicted to its own time: states (B, 4), covariances (B, 4, 4)."""
-    B = len(tracks)
-    states = np.array([t.state for t in tracks], np.float64)
-    covs = np.array([t.cov for t in tracks], np.float64)
-    then = np.array([t.t_ns for t in tracks], np.int64)
-    dt = np.maximum(np.asarray(t_ns, np.int64) - then, 0) / NS_PER_S
-    F = np.broadcast_to(np.eye(4), (B, 4, 4)).copy()
-    F[:, 0, 2] = F[:, 1, 3] = dt
-    q = accel_sigma_mps2**2
-    Q = np.zeros((B, 4, 4))
-    Q[:, 0, 0] = Q[:, 1, 1] = q * dt**4 / 4
-    Q[:, 0, 2] = Q[:, 2, 0] = Q[:, 1, 3] = Q[:, 3, 1] = q * dt**3 / 2
-    Q[:, 2, 2] = Q[:, 3, 3] = q * dt**2
-    x: Array = (F @ states[:, :, None])[:, :, 0]
-    P: Array = F @ covs @ F.transpose(0, 2, 1) + Q
+    from rfsas_hw.backend import _tracking_kernel as k
+
+    states, covs, dt = _stack(tracks, t_ns)
+    x, P = k.predict(
+        np.ascontiguousarray(states, np.float64),
+        np.ascontiguousarray(covs, np.float64),
+        dt,
+        float(accel_sigma_mps2) ** 2,
+    )
     return x, P
 
 
@@ -183,7 +191,8 @@ class Tracker:
         the filter steps stacked; an emitter given twice is updated one fix after the other.
 
         A new emitter starts a track; a fix older than its track is ignored; a fix
-        outside the gate restarts the track; else the Kalman update in Joseph form.
+        outside the gate (or with a singular innovation covariance) restarts the
+        track; else the Kalman update in Joseph form.
 
         Raises:
             BackendError: a non-finite position or covariance (nothing is updated).
@@ -212,19 +221,18 @@ class Tracker:
                 tracks.append(track)
         if not rows:
             return
-        B = len(rows)
+        from rfsas_hw.backend import _tracking_kernel as kernels
+
         t_new = [int(t_ns[i]) for i in rows]
-        x, P = _predict_each(tracks, t_new, self.config.accel_sigma_mps2)
-        zr, Rr = z[rows], R[rows]
-        S = P[:, :2, :2] + Rr
-        innov = zr - x[:, :2]
-        sol = np.linalg.solve(S, innov[:, :, None])[:, :, 0]
-        d2 = innov[:, 0] * sol[:, 0] + innov[:, 1] * sol[:, 1]
-        K = P[:, :, :2] @ np.linalg.inv(S)
-        IKH = np.broadcast_to(np.eye(4), (B, 4, 4)).copy()
-        IKH[:, :, :2] -= K
-        cov = IKH @ P @ IKH.transpose(0, 2, 1) + K @ Rr @ K.transpose(0, 2, 1)
-        state = x + (K @ innov[:, :, None])[:, :, 0]
+        states, covs, dt = _stack(tracks, t_new)
+        state, cov, d2 = kernels.update(
+            np.ascontiguousarray(states, np.float64),
+            np.ascontiguousarray(covs, np.float64),
+            dt,
+            float(self.config.accel_sigma_mps2) ** 2,
+            np.ascontiguousarray(z[rows]),
+            np.ascontiguousarray(R[rows]),
+        )
         for k, (i, track) in enumerate(zip(rows, tracks, strict=True)):
             if d2[k] > self.config.gate_chi2:
                 self.stats.restarted += 1

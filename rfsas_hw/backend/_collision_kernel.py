@@ -91,7 +91,8 @@ def octagons(size_a: Array, angle_a: Array, size_b: Array, angle_b: Array) -> Ar
 @kernel
 def edge_terms(
     offset: Array,
-    cov: Array,
+    cov_v: Array,
+    cov_t: Array,
     size_v: Array,
     angle_v: Array,
     size_t: Array,
@@ -101,7 +102,7 @@ def edge_terms(
 
     Args:
         offset: threat centre minus vehicle centre, (B, 2).
-        cov: combined position covariance, (B, 2, 2).
+        cov_v, cov_t: position covariances, (B, 2, 2) or (1, 2, 2) for all.
         size_v, size_t: ``(length, width)`` of the boxes, (B, 2) or (1, 2) for all.
         angle_v, angle_t: math angles of the headings, (B,) or (1,) for all.
 
@@ -130,9 +131,10 @@ def edge_terms(
             poly,
         )
         # whiten with the Cholesky factor of the combined covariance
-        l11 = math.sqrt(cov[b, 0, 0] + _REGULARISE_M2)
-        l21 = cov[b, 0, 1] / l11
-        l22 = math.sqrt(max(cov[b, 1, 1] + _REGULARISE_M2 - l21 * l21, _REGULARISE_M2))
+        cv, ct = cov_v[min(b, cov_v.shape[0] - 1)], cov_t[min(b, cov_t.shape[0] - 1)]
+        l11 = math.sqrt(cv[0, 0] + ct[0, 0] + _REGULARISE_M2)
+        l21 = (cv[0, 1] + ct[0, 1]) / l11
+        l22 = math.sqrt(max(cv[1, 1] + ct[1, 1] + _REGULARISE_M2 - l21 * l21, _REGULARISE_M2))
         for k in range(8):
             z1 = (poly[k, 0] + offset[b, 0]) / l11
             z[k, 0] = z1
@@ -155,15 +157,48 @@ def edge_terms(
 
 
 @kernel
-def first_bad_pair(
-    mv: Array, mt: Array, hv: Array, ht: Array, sv: Array, st: Array
+def _covariance_error(cov: Array) -> int:
+    """0 for a covariance, 1 for a non-finite entry, 2 for a matrix that is not
+    symmetric positive semi-definite (within round-off)."""
+    a, c, d, e = cov[0, 0], cov[0, 1], cov[1, 0], cov[1, 1]
+    if not (math.isfinite(a) and math.isfinite(c) and math.isfinite(d) and math.isfinite(e)):
+        return 1
+    symmetric = abs(c - d) <= 1e-9 * (1 + abs(c))
+    scale = 1 + a + e
+    if not (symmetric and a >= 0 and e >= 0 and a * e - c * d >= -1e-12 * scale**2):
+        return 2
+    return 0
+
+
+@kernel
+def first_bad_covariance(cov: Array) -> tuple[int, int]:
+    """The first of ``cov`` (B, 2, 2) that is not a covariance and why
+    (:func:`_covariance_error`), or ``(−1, 0)`` when all are."""
+    for b in range(cov.shape[0]):
+        why = _covariance_error(cov[b])
+        if why:
+            return b, why
+    return -1, 0
+
+
+@kernel
+def pair_error(
+    mv: Array,
+    mt: Array,
+    av: Array,
+    at: Array,
+    sv: Array,
+    st: Array,
+    cv: Array,
+    ct: Array,
 ) -> tuple[int, int]:
-    """The first row with a non-finite position or heading ``(row, 1)`` or a size that
-    is not finite and ≥ 0 ``(row, 2)`` for the vehicle, ``(row, 3)`` for the threat;
-    ``(−1, 0)`` when all are good. Headings and sizes may have one row for all."""
+    """The first pair with bad input and why, or ``(−1, 0)``: 1 a non-finite position or
+    heading, 2 (3) a vehicle (threat) size not finite and ≥ 0, 4 + ``e`` (6 + ``e``) the
+    vehicle (threat) covariance's :func:`_covariance_error` ``e``. Headings, sizes and
+    covariances may have one row for all pairs."""
     for b in range(mv.shape[0]):
-        hb, tb = hv[min(b, hv.shape[0] - 1)], ht[min(b, ht.shape[0] - 1)]
-        finite = math.isfinite(hb) and math.isfinite(tb)
+        finite = math.isfinite(av[min(b, av.shape[0] - 1)])
+        finite = finite and math.isfinite(at[min(b, at.shape[0] - 1)])
         for j in range(2):
             finite = finite and math.isfinite(mv[b, j]) and math.isfinite(mt[b, j])
         if not finite:
@@ -173,20 +208,10 @@ def first_bad_pair(
                 return b, 2
             if not 0 <= st[min(b, st.shape[0] - 1), j] < math.inf:
                 return b, 3
-    return -1, 0
-
-
-@kernel
-def first_bad_covariance(cov: Array) -> tuple[int, int]:
-    """The first of ``cov`` (B, 2, 2) that is not a covariance: ``(row, 1)`` for a
-    non-finite entry, ``(row, 2)`` for one not symmetric positive semi-definite
-    (within round-off), ``(−1, 0)`` when all are."""
-    for b in range(cov.shape[0]):
-        a, c, d, e = cov[b, 0, 0], cov[b, 0, 1], cov[b, 1, 0], cov[b, 1, 1]
-        if not (math.isfinite(a) and math.isfinite(c) and math.isfinite(d) and math.isfinite(e)):
-            return b, 1
-        symmetric = abs(c - d) <= 1e-9 * (1 + abs(c))
-        scale = 1 + a + e
-        if not (symmetric and a >= 0 and e >= 0 and a * e - c * d >= -1e-12 * scale**2):
-            return b, 2
+        why = _covariance_error(cv[min(b, cv.shape[0] - 1)])
+        if why:
+            return b, 3 + why
+        why = _covariance_error(ct[min(b, ct.shape[0] - 1)])
+        if why:
+            return b, 5 + why
     return -1, 0

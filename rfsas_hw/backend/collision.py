@@ -187,12 +187,12 @@ def collision_probability_batch(
 
     Args:
         vehicle_xy: vehicle centres, shape (B, 2), metres east/north.
-        vehicle_heading_deg: vehicle headings, shape (B,), compass degrees.
-        vehicle_cov: vehicle position covariances, shape (B, 2, 2), m².
+        vehicle_heading_deg: vehicle headings, shape (B,) or (), compass degrees.
+        vehicle_cov: vehicle position covariances, shape (B, 2, 2) or (2, 2), m².
         vehicle_size: ``(length_m, width_m)``, shape (B, 2) or (2,).
         threat_xy: threat centres, shape (B, 2), metres.
-        threat_heading_deg: threat headings, shape (B,), compass degrees.
-        threat_cov: threat position covariances, shape (B, 2, 2), m².
+        threat_heading_deg: threat headings, shape (B,) or (), compass degrees.
+        threat_cov: threat position covariances, shape (B, 2, 2) or (2, 2), m².
         threat_size: ``(length_m, width_m)``, shape (B, 2) or (2,).
 
     Returns:
@@ -211,23 +211,31 @@ def collision_probability_batch(
     mt = np.asarray(threat_xy, np.float64)
     if mt.shape != (B, 2):
         raise BackendError(f"threat_xy must have shape ({B}, 2), got {mt.shape}")
-    hv = _per_pair(vehicle_heading_deg, "vehicle_heading_deg", B, ())
-    ht = _per_pair(threat_heading_deg, "threat_heading_deg", B, ())
+    av = compass_to_math_rad(_per_pair(vehicle_heading_deg, "vehicle_heading_deg", B, ()))
+    at = compass_to_math_rad(_per_pair(threat_heading_deg, "threat_heading_deg", B, ()))
     sv = _per_pair(vehicle_size, "vehicle_size", B, (2,))
     st = _per_pair(threat_size, "threat_size", B, (2,))
-    row, why = k.first_bad_pair(mv, mt, hv, ht, sv, st)
-    if why == 1:
-        raise BackendError(f"vehicle and threat positions and headings must be finite (row {row})")
+    cv = _per_pair(vehicle_cov, "vehicle_cov", B, (2, 2))
+    ct = _per_pair(threat_cov, "threat_cov", B, (2, 2))
+    row, why = k.pair_error(mv, mt, av, at, sv, st, cv, ct)
     if why:
-        name = "vehicle_size" if why == 2 else "threat_size"
-        raise BackendError(f"{name} must be (length_m, width_m) ≥ 0 (row {row})")
-    cov = _cov(vehicle_cov, "vehicle_cov", (B,)) + _cov(threat_cov, "threat_cov", (B,))
-    hh, tt, sign = k.edge_terms(
-        mt - mv, cov, sv, compass_to_math_rad(hv), st, compass_to_math_rad(ht)
-    )
+        raise BackendError(f"{_PAIR_ERRORS[why]} (row {row})")
+    hh, tt, sign = k.edge_terms(mt - mv, cv, ct, sv, av, st, at)
     g = np.arctan2(tt, hh) / (2 * np.pi) - owens_t(hh, tt / hh)
     mass = np.sum(sign * (g[:, 8:] - g[:, :8]), axis=1)
     return np.asarray(np.clip(mass, 0.0, 1.0), np.float64)
+
+
+_PAIR_ERRORS = {
+    1: "vehicle and threat positions and headings must be finite",
+    2: "vehicle_size must be (length_m, width_m) ≥ 0",
+    3: "threat_size must be (length_m, width_m) ≥ 0",
+    4: "vehicle_cov must be finite",
+    5: "vehicle_cov must be a symmetric positive semi-definite 2×2 matrix",
+    6: "threat_cov must be finite",
+    7: "threat_cov must be a symmetric positive semi-definite 2×2 matrix",
+}
+"""What :func:`~rfsas_hw.backend._collision_kernel.pair_error`'s codes mean."""
 
 
 def _per_pair(value: Any, name: str, B: int, shape: tuple[int, ...]) -> Array:

@@ -210,7 +210,7 @@ def assess_encounters(
     p_coll = collision_probability_batch(
         pv + t_star[:, None] * vv,
         vehicle.heading_deg,
-        np.broadcast_to(vehicle.covariance, (B, 2, 2)),
+        vehicle.covariance,
         vehicle.size,
         threat_xy,
         threat_heading,

@@ -89,74 +89,6 @@ def octagons(size_a: Array, angle_a: Array, size_b: Array, angle_b: Array) -> Ar
 
 
 @kernel
-def edge_terms(
-    offset: Array,
-    cov_v: Array,
-    cov_t: Array,
-    size_v: Array,
-    angle_v: Array,
-    size_t: Array,
-    angle_t: Array,
-) -> tuple[Any, ...]:
-    """Legs of the right triangles of every pair's whitened octagon.
-
-    Args:
-        offset: threat centre minus vehicle centre, (B, 2).
-        cov_v, cov_t: position covariances, (B, 2, 2) or (1, 2, 2) for all.
-        size_v, size_t: ``(length, width)`` of the boxes, (B, 2) or (1, 2) for all.
-        angle_v, angle_t: math angles of the headings, (B,) or (1,) for all.
-
-    Returns:
-        ``h`` (B, 16), ``t`` (B, 16) and ``sign`` (B, 8): edge ``k`` contributes
-        ``sign·(g(h[k+8], t[k+8]) − g(h[k], t[k]))`` with
-        ``g(h, t) = arctan2(t, h)/(2π) − T(h, t/h)``; an edge through the origin
-        or of no length has sign 0 (and ``h`` 1, ``t`` 0).
-    """
-    B = offset.shape[0]
-    hh = np.ones((B, 16))
-    tt = np.zeros((B, 16))
-    sign = np.zeros((B, 8))
-    poly = np.empty((8, 2))
-    z = np.empty((8, 2))
-    for b in range(B):
-        sv, av = min(b, size_v.shape[0] - 1), min(b, angle_v.shape[0] - 1)
-        st, at = min(b, size_t.shape[0] - 1), min(b, angle_t.shape[0] - 1)
-        _octagon(
-            size_v[sv, 0],
-            size_v[sv, 1],
-            angle_v[av],
-            size_t[st, 0],
-            size_t[st, 1],
-            angle_t[at],
-            poly,
-        )
-        # whiten with the Cholesky factor of the combined covariance
-        cv, ct = cov_v[min(b, cov_v.shape[0] - 1)], cov_t[min(b, cov_t.shape[0] - 1)]
-        l11 = math.sqrt(cv[0, 0] + ct[0, 0] + _REGULARISE_M2)
-        l21 = (cv[0, 1] + ct[0, 1]) / l11
-        l22 = math.sqrt(max(cv[1, 1] + ct[1, 1] + _REGULARISE_M2 - l21 * l21, _REGULARISE_M2))
-        for k in range(8):
-            z1 = (poly[k, 0] + offset[b, 0]) / l11
-            z[k, 0] = z1
-            z[k, 1] = (poly[k, 1] + offset[b, 1] - l21 * z1) / l22
-        for k in range(8):
-            q1x, q1y = z[k, 0], z[k, 1]
-            q2x, q2y = z[(k + 1) % 8, 0], z[(k + 1) % 8, 1]
-            length = math.hypot(q2x - q1x, q2y - q1y)
-            if not length > 1e-300:
-                continue
-            ux, uy = (q2x - q1x) / length, (q2y - q1y) / length
-            h = q1x * uy - q1y * ux
-            if not abs(h) > 1e-14:
-                continue
-            hh[b, k] = hh[b, k + 8] = abs(h)
-            tt[b, k] = q1x * ux + q1y * uy
-            tt[b, k + 8] = q2x * ux + q2y * uy
-            sign[b, k] = 1.0 if h > 0 else -1.0
-    return hh, tt, sign
-
-
-@kernel
 def _covariance_error(cov: Array) -> int:
     """0 for a covariance, 1 for a non-finite entry, 2 for a matrix that is not
     symmetric positive semi-definite (within round-off)."""
@@ -215,3 +147,77 @@ def pair_error(
         if why:
             return b, 5 + why
     return -1, 0
+
+
+@kernel
+def edge_terms(
+    mv: Array,
+    mt: Array,
+    angle_v: Array,
+    angle_t: Array,
+    size_v: Array,
+    size_t: Array,
+    cov_v: Array,
+    cov_t: Array,
+) -> tuple[Any, ...]:
+    """Legs of the right triangles of every pair's whitened octagon, once the inputs
+    pass :func:`pair_error`.
+
+    Args:
+        mv, mt: vehicle and threat centres, (B, 2).
+        angle_v, angle_t: math angles of the headings, (B,) or (1,) for all.
+        size_v, size_t: ``(length, width)`` of the boxes, (B, 2) or (1, 2) for all.
+        cov_v, cov_t: position covariances, (B, 2, 2) or (1, 2, 2) for all.
+
+    Returns:
+        :func:`pair_error`'s ``(row, why)``, then ``h`` (B, 16), ``t`` (B, 16) and
+        ``sign`` (B, 8): edge ``k`` contributes ``sign·(g(h[k+8], t[k+8]) − g(h[k], t[k]))``
+        with ``g(h, t) = arctan2(t, h)/(2π) − T(h, t/h)``; an edge through the origin
+        or of no length has sign 0 (and ``h`` 1, ``t`` 0). Nothing is computed
+        after a bad row (the arrays are then empty).
+    """
+    row, why = pair_error(mv, mt, angle_v, angle_t, size_v, size_t, cov_v, cov_t)
+    if why:
+        return row, why, np.ones((0, 16)), np.zeros((0, 16)), np.zeros((0, 8))
+    B = mv.shape[0]
+    hh = np.ones((B, 16))
+    tt = np.zeros((B, 16))
+    sign = np.zeros((B, 8))
+    poly = np.empty((8, 2))
+    z = np.empty((8, 2))
+    for b in range(B):
+        sv, av = min(b, size_v.shape[0] - 1), min(b, angle_v.shape[0] - 1)
+        st, at = min(b, size_t.shape[0] - 1), min(b, angle_t.shape[0] - 1)
+        _octagon(
+            size_v[sv, 0],
+            size_v[sv, 1],
+            angle_v[av],
+            size_t[st, 0],
+            size_t[st, 1],
+            angle_t[at],
+            poly,
+        )
+        # whiten with the Cholesky factor of the combined covariance
+        cv, ct = cov_v[min(b, cov_v.shape[0] - 1)], cov_t[min(b, cov_t.shape[0] - 1)]
+        l11 = math.sqrt(cv[0, 0] + ct[0, 0] + _REGULARISE_M2)
+        l21 = (cv[0, 1] + ct[0, 1]) / l11
+        l22 = math.sqrt(max(cv[1, 1] + ct[1, 1] + _REGULARISE_M2 - l21 * l21, _REGULARISE_M2))
+        for k in range(8):
+            z1 = (poly[k, 0] + (mt[b, 0] - mv[b, 0])) / l11
+            z[k, 0] = z1
+            z[k, 1] = (poly[k, 1] + (mt[b, 1] - mv[b, 1]) - l21 * z1) / l22
+        for k in range(8):
+            q1x, q1y = z[k, 0], z[k, 1]
+            q2x, q2y = z[(k + 1) % 8, 0], z[(k + 1) % 8, 1]
+            length = math.hypot(q2x - q1x, q2y - q1y)
+            if not length > 1e-300:
+                continue
+            ux, uy = (q2x - q1x) / length, (q2y - q1y) / length
+            h = q1x * uy - q1y * ux
+            if not abs(h) > 1e-14:
+                continue
+            hh[b, k] = hh[b, k + 8] = abs(h)
+            tt[b, k] = q1x * ux + q1y * uy
+            tt[b, k + 8] = q2x * ux + q2y * uy
+            sign[b, k] = 1.0 if h > 0 else -1.0
+    return row, why, hh, tt, sign

@@ -217,10 +217,9 @@ def collision_probability_batch(
     st = _per_pair(threat_size, "threat_size", B, (2,))
     cv = _per_pair(vehicle_cov, "vehicle_cov", B, (2, 2))
     ct = _per_pair(threat_cov, "threat_cov", B, (2, 2))
-    row, why = k.pair_error(mv, mt, av, at, sv, st, cv, ct)
+    row, why, hh, tt, sign = k.edge_terms(mv, mt, av, at, sv, st, cv, ct)
     if why:
         raise BackendError(f"{_PAIR_ERRORS[why]} (row {row})")
-    hh, tt, sign = k.edge_terms(mt - mv, cv, ct, sv, av, st, at)
     g = np.arctan2(tt, hh) / (2 * np.pi) - owens_t(hh, tt / hh)
     mass = np.sum(sign * (g[:, 8:] - g[:, :8]), axis=1)
     return np.asarray(np.clip(mass, 0.0, 1.0), np.float64)
@@ -425,6 +424,6 @@ def collision_probability(
         _shaped(threat_xy, "threat_xy", (2,), pair)[None],
         _shaped(threat_heading_deg, "threat_heading_deg", (), "one number"),
         _shaped(threat_cov, "threat_cov", (2, 2), "a 2×2 covariance in m²")[None],
-        threat_box(threat_size),
+        threat_box(threat_size) if isinstance(threat_size, str) else threat_size,
     )
     return float(p[0])

@@ -32,6 +32,29 @@ _MIN_D2_M2 = 1e-12
 
 
 @kernel
+def prepare(S: Array, phi: Array, sigma_deg: Array) -> tuple[Any, ...]:
+    """Which bearings take part and their weights: a bearing is usable when its angle,
+    sigma and station are finite. Returns the mask (B, N), the weights ``1/σ²`` in
+    rad⁻² (0 where not usable), the usable count per row (B,) and the first usable
+    bearing whose sigma is not > 0 as ``(row, column)``, ``(−1, −1)`` if none."""
+    B, N = phi.shape
+    valid = np.zeros((B, N), np.bool_)
+    w = np.zeros((B, N))
+    n_valid = np.zeros(B, np.int32)
+    for b in range(B):
+        for i in range(N):
+            ok = math.isfinite(phi[b, i]) and math.isfinite(sigma_deg[b, i])
+            if not (ok and math.isfinite(S[b, i, 0]) and math.isfinite(S[b, i, 1])):
+                continue
+            if not sigma_deg[b, i] > 0:
+                return valid, w, n_valid, b, i
+            valid[b, i] = True
+            w[b, i] = 1.0 / math.radians(sigma_deg[b, i]) ** 2
+            n_valid[b] += 1
+    return valid, w, n_valid, -1, -1
+
+
+@kernel
 def _lines_wls(
     S: Array, phi: Array, w: Array, valid: Mask, px0: float, py0: float, by_range: bool
 ) -> tuple[float, float]:

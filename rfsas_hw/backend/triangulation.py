@@ -279,11 +279,16 @@ def _reason(
     return f"not converged after {iterations} iterations"
 
 
-def _inputs(
-    stations_xy: Any, azimuths_deg: Any, sigmas_deg: Any
-) -> tuple[Array, Array, Array, npt.NDArray[np.bool_]]:
-    """Validate and broadcast to (B, N, 2), (B, N), (B, N) plus the usable mask."""
-    S = np.asarray(stations_xy, dtype=np.float64)
+def _inputs(stations_xy: Any, azimuths_deg: Any, sigmas_deg: Any) -> tuple[Any, ...]:
+    """Check the shapes; the stations (B, N, 2), math angles (B, N), the usable mask
+    (B, N), the weights ``1/σ²`` (B, N, rad⁻², 0 where not usable) and usable counts (B,).
+
+    Raises:
+        BackendError: mismatched shapes, or a usable bearing whose sigma is not > 0.
+    """
+    from rfsas_hw.backend import _triangulation_kernel as k
+
+    S = np.ascontiguousarray(stations_xy, dtype=np.float64)
     az = np.asarray(azimuths_deg, dtype=np.float64)
     sg = np.asarray(sigmas_deg, dtype=np.float64)
     if S.ndim != 3 or S.shape[-1] != 2:
@@ -295,17 +300,13 @@ def _inputs(
             f"azimuths_deg {az.shape} and sigmas_deg {sg.shape} must match "
             f"stations_xy {S.shape[:2]}"
         )
-    valid = np.isfinite(az) & np.isfinite(sg) & np.isfinite(S).all(axis=-1)
-    bad_sigma = valid & ~(sg > 0)
-    if bad_sigma.any():
-        b, i = np.argwhere(bad_sigma)[0]
+    with np.errstate(invalid="ignore"):
+        phi = compass_to_math_rad(az)  # NaN where missing: those bearings take no part
+    sg = np.ascontiguousarray(sg)
+    valid, w, n_valid, b, i = k.prepare(S, phi, sg)
+    if b >= 0:
         raise BackendError(f"sigma of bearing {i} in fix {b} must be > 0 degrees, got {sg[b, i]}")
-    return S, az, sg, valid
-
-
-def _weights(sg: Array, valid: npt.NDArray[np.bool_]) -> Array:
-    """Weights ``1/σ²`` of the bearings, rad⁻² (0 where not usable)."""
-    return np.where(valid, 1.0 / np.deg2rad(np.where(valid, sg, 1.0)) ** 2, 0.0)
+    return S, phi, valid, w, n_valid
 
 
 @functools.lru_cache(maxsize=64)
@@ -343,8 +344,8 @@ def bearing_crb(stations_xy: Any, target_xy: Any, sigmas_deg: Any) -> Array:
         S, T, sg = S[None], T[None], sg[None]
     if T.shape != (S.shape[0], 2):
         raise BackendError(f"target_xy must have shape (B, 2) = ({S.shape[0]}, 2), got {T.shape}")
-    S, _, sg, valid = _inputs(S, np.zeros(S.shape[:2]), sg)
-    cov = k.information_covariance(S, np.ascontiguousarray(T), _weights(sg, valid), valid)
+    S, _, valid, w, _ = _inputs(S, np.zeros(S.shape[:2]), sg)
+    cov = k.information_covariance(S, np.ascontiguousarray(T), w, valid)
     return np.asarray(cov[0] if single else cov, np.float64)
 
 
@@ -375,16 +376,13 @@ def triangulate_batch(
     """
     from rfsas_hw.backend import _triangulation_kernel as k
 
-    S, az, sg, valid = _inputs(stations_xy, azimuths_deg, sigmas_deg)
-    n_valid = np.count_nonzero(valid, axis=1).astype(np.int32)
+    S, phi, valid, w, n_valid = _inputs(stations_xy, azimuths_deg, sigmas_deg)
     limits = _chi2_limits(S.shape[1], float(options.consistency_alpha))
     chi2_limit = limits[n_valid]
-    with np.errstate(invalid="ignore"):
-        phi = compass_to_math_rad(az)  # NaN where missing: those columns take no part
     position, cov, status, gdop, condition, chi2, iterations, range_fraction, resid = k.solve(
-        np.ascontiguousarray(S),
+        S,
         phi,
-        _weights(sg, valid),
+        w,
         valid,
         chi2_limit,
         options.max_iterations,

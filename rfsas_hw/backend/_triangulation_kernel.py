@@ -104,16 +104,17 @@ def _cost(px: float, py: float, S: Array, phi: Array, w: Array, valid: Mask) -> 
 
 @kernel
 def _information(
-    px: float, py: float, S: Array, w: Array, valid: Mask
+    px: float, py: float, S: Array, w: Array, valid: Mask, min_d2: float
 ) -> tuple[float, float, float]:
-    """μ, λ, ν of method.md §5 at ``(px, py)``: Σ w·cos²φ₀/D², Σ w·sin²φ₀/D², Σ w·sinφ₀cosφ₀/D²."""
+    """μ, λ, ν of method.md §5 at ``(px, py)``: Σ w·cos²φ₀/D², Σ w·sin²φ₀/D², Σ w·sinφ₀cosφ₀/D²
+    with ``D²`` at least ``min_d2`` (m²)."""
     mu = lam = nu = 0.0
     for i in range(S.shape[0]):
         if valid[i]:
             dx, dy = px - S[i, 0], py - S[i, 1]
             a = math.atan2(dy, dx)
             c, s = math.cos(a), math.sin(a)
-            wd = w[i] / max(dx * dx + dy * dy, _MIN_D2_M2)
+            wd = w[i] / max(dx * dx + dy * dy, min_d2)
             mu += wd * c * c
             lam += wd * s * s
             nu += wd * s * c
@@ -243,7 +244,7 @@ def solve(
             converged = moved < tolerance_m
         iterations[b] = done
 
-        mu, lam, nu = _information(px, py, Sb, wb, vb)
+        mu, lam, nu = _information(px, py, Sb, wb, vb, _MIN_D2_M2)
         det = mu * lam - nu * nu
         if det > 0:
             covariance[b, 0, 0] = mu / det
@@ -308,7 +309,8 @@ def information_covariance(S: Array, T: Array, w: Array, valid: Mask) -> Array:
     B = S.shape[0]
     out = np.full((B, 2, 2), np.inf)
     for b in range(B):
-        mu, lam, nu = _information(T[b, 0], T[b, 1], S[b], w[b], valid[b])
+        # no floor: at a station the bearing carries no information (inf, then no bound)
+        mu, lam, nu = _information(T[b, 0], T[b, 1], S[b], w[b], valid[b], 0.0)
         det = mu * lam - nu * nu
         if det > 0:
             out[b, 0, 0] = mu / det

@@ -230,3 +230,12 @@ def test_bad_inputs_raise_clear_errors() -> None:
         triangulate([[0, 0], [1, 0]], [0, 10, 20], [1, 1, 1])
     with pytest.raises(BackendError, match="max_range_fraction"):
         TriangulationOptions(max_range_fraction=0)
+
+
+def test_no_bound_for_an_emitter_on_a_station() -> None:
+    """A bearing from a station to itself has no direction: the bound is infinite there,
+    finite one metre away."""
+    stations = np.array([[0.0, 0.0], [10.0, 0.0], [0.0, 10.0]])
+    assert np.isinf(bearing_crb(stations, [0.0, 0.0], [1.0, 1.0, 1.0])).all()
+    near = bearing_crb(stations, [0.6, 0.8], [1.0, 1.0, 1.0])
+    assert np.isfinite(near).all() and near[0, 0] > 0 and near[1, 1] > 0

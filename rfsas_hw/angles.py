@@ -5,24 +5,18 @@ Array-relative angles are degrees clockwise from boresight, in (-180, 180].
 Geometry inside the backend uses math angles: radians counter-clockwise from
 east, as returned by ``atan2(dy, dx)`` on east/north coordinates.
 
-Every function takes a float or a numpy array and returns the same kind.
-The conversions between compass and math angles, and ``wrap_deg_180``, take a plain Python float
-through plain float operations that are the numpy ones (``math.radians`` and
-``math.degrees`` multiply by the same constants as ``np.deg2rad`` and
-``np.rad2deg``; float ``%`` is ``np.mod``), so a float gives the same bits as
-a one-element array, without the fixed cost of numpy calls.
+Every function takes a float or a numpy array and returns the same kind
+(a float goes through the same numpy operations as an array).
 """
 
 from __future__ import annotations
 
-import math
 from typing import Any, overload
 
 import numpy as np
 import numpy.typing as npt
 
 Array = npt.NDArray[np.float64]
-_TWO_PI = 2 * math.pi
 
 
 def _same_kind(value: Any, result: Any) -> Any:
@@ -47,8 +41,6 @@ def wrap_deg_180(angle_deg: float) -> float: ...
 def wrap_deg_180(angle_deg: Array) -> Array: ...
 def wrap_deg_180(angle_deg: float | Array) -> float | Array:
     """Wrap degrees into (-180, 180]."""
-    if type(angle_deg) is float:
-        return 180.0 - (180.0 - angle_deg) % 360.0
     out = 180.0 - np.mod(180.0 - np.asarray(angle_deg, dtype=np.float64), 360.0)
     return _same_kind(angle_deg, out)  # type: ignore[no-any-return]
 
@@ -69,9 +61,6 @@ def compass_to_math_rad(azimuth_deg: float) -> float: ...
 def compass_to_math_rad(azimuth_deg: Array) -> Array: ...
 def compass_to_math_rad(azimuth_deg: float | Array) -> float | Array:
     """Compass azimuth (deg clockwise from north) to math angle (rad CCW from east, (-pi, pi])."""
-    if type(azimuth_deg) is float:
-        rad = math.radians(90.0 - azimuth_deg)
-        return math.pi - (math.pi - rad) % _TWO_PI
     out = np.deg2rad(90.0 - np.asarray(azimuth_deg, dtype=np.float64))
     out = np.pi - np.mod(np.pi - out, 2 * np.pi)
     return _same_kind(azimuth_deg, out)  # type: ignore[no-any-return]
@@ -83,9 +72,6 @@ def math_rad_to_compass(angle_rad: float) -> float: ...
 def math_rad_to_compass(angle_rad: Array) -> Array: ...
 def math_rad_to_compass(angle_rad: float | Array) -> float | Array:
     """Math angle (rad CCW from east) to compass azimuth (deg clockwise from north, [0, 360))."""
-    if type(angle_rad) is float:
-        deg = (90.0 - math.degrees(angle_rad)) % 360.0
-        return 0.0 if deg >= 360.0 else deg
     out = wrap_deg_360(90.0 - np.rad2deg(np.asarray(angle_rad, dtype=np.float64)))
     return _same_kind(angle_rad, out)  # type: ignore[no-any-return]
 

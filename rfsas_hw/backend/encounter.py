@@ -13,18 +13,16 @@ near side of the threat's box.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
 import numpy.typing as npt
 
-from rfsas_hw.angles import compass_to_math_rad, math_rad_to_compass
+from rfsas_hw.angles import math_rad_to_compass
 from rfsas_hw.backend.collision import (
     Size,
     collision_probability_batch,
-    exact_probability_of,
     threat_box,
 )
 from rfsas_hw.backend.risk import (
@@ -118,7 +116,7 @@ def assess_encounter(
     fix_reason: str = "",
     link_alarm: bool = False,
 ) -> Encounter:
-    """Judge one threat against the vehicle.
+    """Judge one threat against the vehicle: :func:`assess_encounters` of one row.
 
     Args:
         vehicle: the vehicle's state.
@@ -132,70 +130,19 @@ def assess_encounter(
     Raises:
         BackendError: a state or covariance of the wrong shape or not finite.
     """
-    cfg = config or EncounterConfig()
     x = np.asarray(threat_state, np.float64)
     P = np.asarray(threat_cov, np.float64)
     if x.shape != (4,) or P.shape != (4, 4) or not (np.isfinite(x).all() and np.isfinite(P).all()):
         raise BackendError("threat state must be a finite [x, y, vx, vy] with a 4×4 covariance")
-    u_hat = vehicle.direction
-    pv, vv = vehicle.position, u_hat * vehicle.speed_mps
-    r0, w = x[:2] - pv, x[2:] - vv
-    ww = float(w @ w)
-    t_star = 0.0 if ww == 0 else min(max(-float(r0 @ w) / ww, 0.0), cfg.horizon_s)
-    z = t_star * 0.0  # what t_star·I has off its diagonal (-0.0 for t_star = -0.0)
-    J = np.array([[1.0, 0.0, t_star, z], [0.0, 1.0, z, t_star]])
-    threat_xy = x[:2] + t_star * x[2:]
-    threat_pos_cov = J @ P @ J.T
-    threat_pos_cov = (threat_pos_cov + threat_pos_cov.T) / 2
-    speed_t = math.hypot(x[2], x[3])
-    threat_heading = math_rad_to_compass(math.atan2(x[3], x[2])) if speed_t > MOVING_MPS else 0.0
-    size_t = cfg.threat_size
-    p_coll = exact_probability_of(
-        pv + t_star * vv,
-        vehicle.heading_deg,
-        vehicle.covariance,
-        vehicle.size,
-        threat_xy,
-        threat_heading,
-        threat_pos_cov,
-        size_t,
-    )
-    a = compass_to_math_rad(threat_heading)
-    ut = np.array([math.cos(a), math.sin(a)])
-    nt = np.array([-ut[1], ut[0]])
-    reach = float(
-        vehicle.length_m / 2 + size_t[0] / 2 * abs(ut @ u_hat) + size_t[1] / 2 * abs(nt @ u_hat)
-    )
-    along = float((threat_xy - pv) @ u_hat)
-    d_stop = stopping_distance(vehicle.speed_mps, cfg.decel_mps2, cfg.reaction_s)
-    contact: float = math.inf
-    v_imp = 0.0
-    if along + reach >= 0:
-        contact = max(along - reach, 0.0)
-        v_imp = impact_speed(vehicle.speed_mps, contact, cfg.decel_mps2, cfg.reaction_s)
-    p_f = fatality_risk(v_imp)
-    risk = p_coll * p_f
-    advisory, reasons = advise(
-        p_coll,
-        risk,
-        contact,
-        d_stop,
-        fix_ok=fix_ok,
-        fix_reason=fix_reason,
+    return assess_encounters(
+        vehicle,
+        x[None],
+        P[None],
+        config,
+        fix_ok=[fix_ok],
+        fix_reason=[fix_reason],
         link_alarm=link_alarm,
-        thresholds=cfg.thresholds,
-    )
-    return Encounter(
-        p_collision=p_coll,
-        t_closest_s=t_star,
-        distance_to_contact_m=contact,
-        stopping_distance_m=d_stop,
-        impact_speed_mps=v_imp,
-        fatality_risk=p_f,
-        risk=risk,
-        advisory=advisory,
-        reasons=reasons,
-    )
+    )[0]
 
 
 def assess_encounters(
@@ -208,12 +155,7 @@ def assess_encounters(
     fix_reason: Sequence[str] | None = None,
     link_alarm: bool = False,
 ) -> list[Encounter]:
-    """Judge ``B`` threats against the vehicle at once: :func:`assess_encounter` per row.
-
-    The same closest approach, exact P(collision), impact speed, risk and
-    advisory as :func:`assess_encounter` gives for each row (equal up to
-    floating-point rounding), computed with one array operation per stage
-    instead of one small computation per threat.
+    """Judge ``B`` threats against the vehicle at once, one array operation per stage.
 
     Args:
         vehicle: the vehicle's state.
@@ -247,44 +189,36 @@ def assess_encounters(
     if not finite.all():
         bad = int(np.flatnonzero(~finite)[0])
         raise BackendError(f"threat {bad}: state and covariance must be finite")
-    pv, vv = vehicle.position, vehicle.velocity
-    r0 = x[:, :2] - pv
-    w = x[:, 2:] - vv
-    ww = w[:, 0] * w[:, 0] + w[:, 1] * w[:, 1]
-    rw = r0[:, 0] * w[:, 0] + r0[:, 1] * w[:, 1]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t_star = np.where(ww == 0, 0.0, np.minimum(np.maximum(-rw / ww, 0.0), cfg.horizon_s))
-    t2 = t_star[:, None, None]
-    # J P Jᵀ with J = [I, t·I]
-    cov = P[:, :2, :2] + t2 * (P[:, :2, 2:] + P[:, 2:, :2]) + t2 * t2 * P[:, 2:, 2:]
-    cov = (cov + cov.transpose(0, 2, 1)) / 2
-    threat_xy = x[:, :2] + t_star[:, None] * x[:, 2:]
-    speed_t = np.hypot(x[:, 2], x[:, 3])
-    moving = speed_t > MOVING_MPS
-    threat_heading = np.where(moving, math_rad_to_compass(np.arctan2(x[:, 3], x[:, 2])), 0.0)
+    from rfsas_hw.backend import _encounter_kernel as k
+
+    u_hat = vehicle.direction
+    pv, vv = vehicle.position, u_hat * vehicle.speed_mps
     size_t = cfg.threat_size
+    t_star, cov, threat_xy, moving, contact = k.closest_approach(
+        np.ascontiguousarray(x),
+        np.ascontiguousarray(P),
+        pv,
+        vv,
+        u_hat,
+        cfg.horizon_s,
+        vehicle.length_m,
+        size_t[0],
+        size_t[1],
+        MOVING_MPS,
+    )
+    threat_heading = np.where(moving, math_rad_to_compass(np.arctan2(x[:, 3], x[:, 2])), 0.0)
     p_coll = collision_probability_batch(
-        pv[None, :] + t_star[:, None] * vv[None, :],
-        np.full(B, vehicle.heading_deg),
-        np.broadcast_to(vehicle.covariance, (B, 2, 2)),
+        pv + t_star[:, None] * vv,
+        vehicle.heading_deg,
+        vehicle.covariance,
         vehicle.size,
         threat_xy,
         threat_heading,
         cov,
         size_t,
     )
-    u_hat = vehicle.direction
-    a = compass_to_math_rad(threat_heading)
-    ux, uy = np.cos(a), np.sin(a)
-    reach = (
-        vehicle.length_m / 2
-        + size_t[0] / 2 * np.abs(ux * u_hat[0] + uy * u_hat[1])
-        + size_t[1] / 2 * np.abs(-uy * u_hat[0] + ux * u_hat[1])
-    )
-    along = (threat_xy[:, 0] - pv[0]) * u_hat[0] + (threat_xy[:, 1] - pv[1]) * u_hat[1]
     d_stop = stopping_distance(vehicle.speed_mps, cfg.decel_mps2, cfg.reaction_s)
-    ahead = along + reach >= 0
-    contact = np.where(ahead, np.maximum(along - reach, 0.0), np.inf)
+    ahead = contact < np.inf
     v_imp = np.where(
         ahead,
         impact_speed(

@@ -58,23 +58,6 @@ def _check(speed: Array, decel: float, reaction_s: float) -> None:
         raise BackendError(f"reaction delay must be ≥ 0 s, got {reaction_s}")
 
 
-def _check_float(speed: float, decel: float, reaction_s: float) -> None:
-    """:func:`_check` for one speed (the same conditions and messages)."""
-    if not speed >= 0:
-        raise BackendError(f"speed must be ≥ 0 m/s and finite, got {speed}")
-    if not (decel > 0 and math.isfinite(decel)):
-        raise BackendError(f"braking deceleration must be > 0 m/s², got {decel}")
-    if not (reaction_s >= 0 and math.isfinite(reaction_s)):
-        raise BackendError(f"reaction delay must be ≥ 0 s, got {reaction_s}")
-
-
-def _fmax(a: float, b: float) -> float:
-    """``np.maximum`` of two floats: NaN wins, and of two equal values the first."""
-    if math.isnan(a) or math.isnan(b):
-        return math.nan
-    return b if b > a else a
-
-
 @overload
 def stopping_distance(
     speed_mps: float, decel_mps2: float = ..., reaction_s: float = ...
@@ -91,9 +74,6 @@ def stopping_distance(
     Raises:
         BackendError: negative speed, non-positive deceleration or negative delay.
     """
-    if type(speed_mps) is float:  # one speed: the same operations in plain floats
-        _check_float(speed_mps, decel_mps2, reaction_s)
-        return speed_mps * reaction_s + speed_mps * speed_mps / (2 * decel_mps2)
     u = np.asarray(speed_mps, np.float64)
     _check(u, decel_mps2, reaction_s)
     return _same_kind(speed_mps, u * reaction_s + u * u / (2 * decel_mps2))  # type: ignore[no-any-return]
@@ -128,13 +108,6 @@ def impact_speed(
         BackendError: negative speed, non-positive deceleration, negative delay
             or a non-finite distance.
     """
-    if type(speed_mps) is float and type(distance_m) is float:
-        # one pair: the same operations in plain floats (sqrt is exactly rounded in both)
-        _check_float(speed_mps, decel_mps2, reaction_s)
-        if not math.isfinite(distance_m):
-            raise BackendError(f"distance must be finite, got {distance_m}")
-        xb = _fmax(distance_m - speed_mps * reaction_s, 0.0)
-        return math.sqrt(_fmax(speed_mps * speed_mps - 2 * decel_mps2 * xb, 0.0))
     u = np.asarray(speed_mps, np.float64)
     x = np.asarray(distance_m, np.float64)
     _check(u, decel_mps2, reaction_s)

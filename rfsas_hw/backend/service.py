@@ -34,19 +34,13 @@ import numpy as np
 
 from rfsas_hw.angles import compass_to_math_rad
 from rfsas_hw.backend.association import AssociationConfig, Associator
-from rfsas_hw.backend.encounter import (
-    Encounter,
-    EncounterConfig,
-    assess_encounter,
-    assess_encounters,
-)
+from rfsas_hw.backend.encounter import Encounter, EncounterConfig, assess_encounters
 from rfsas_hw.backend.risk import Advisory
 from rfsas_hw.backend.site import SiteConfig, site_from_mapping
 from rfsas_hw.backend.tracking import Tracker, TrackerConfig, predict_tracks
 from rfsas_hw.backend.triangulation import (
     FixStatus,
     TriangulationOptions,
-    triangulate,
     triangulate_batch,
 )
 from rfsas_hw.backend.vehicle import VehicleFeed, VehicleState
@@ -58,10 +52,6 @@ from rfsas_hw.records import Assessment, BearingBatch, Fix, Pose, emitter_hex
 log = logging.getLogger(__name__)
 
 NS_PER_S = 1_000_000_000
-SMALL_BATCH = 8
-"""Up to this many emitters per step are triangulated one by one (faster than the batch path)."""
-SMALL_ASSESS = 2
-"""Up to this many tracked emitters per step are judged one by one (faster than the batch path)."""
 
 __all__ = [
     "BackendConfig",
@@ -294,34 +284,6 @@ def _finite(value: Any) -> float | None:
     return v if math.isfinite(v) else None
 
 
-def _fix_record(
-    emitter: int,
-    t_ns: int,
-    sensors: tuple[str, ...],
-    position: Any,
-    cov: Any,
-    status: FixStatus,
-    reason: str,
-    gdop: float,
-    condition: float,
-) -> Fix:
-    return Fix(
-        t_ns=t_ns,
-        emitter=emitter_hex(emitter),
-        x_m=float(position[0]),
-        y_m=float(position[1]),
-        cov_xx_m2=float(cov[0, 0]),
-        cov_xy_m2=float(cov[0, 1]),
-        cov_yy_m2=float(cov[1, 1]),
-        ok=status is FixStatus.OK,
-        status=status.name.lower(),
-        reason=reason,
-        sensors=sensors,
-        gdop=float(gdop),
-        condition=float(condition),
-    )
-
-
 class BackendService:
     """Associates, triangulates, tracks and judges risk (see the module docstring).
 
@@ -409,33 +371,6 @@ class BackendService:
         if len(groups) == 0:
             return []
         opts = self.config.triangulation
-        if len(groups) <= SMALL_BATCH:
-            # a few emitters: the scalar path avoids the batch path's fixed numpy cost
-            out = []
-            for i in range(len(groups)):
-                tri = triangulate(
-                    groups.stations_xy[i], groups.azimuth_deg[i], groups.sigma_deg[i], opts
-                )
-                emitter = int(groups.emitter[i])
-                fix = _fix_record(
-                    emitter,
-                    int(groups.t_ns[i]),
-                    groups.sensors[i],
-                    tri.position,
-                    tri.covariance,
-                    tri.status,
-                    tri.reason,
-                    tri.gdop,
-                    tri.condition,
-                )
-                self.stats.fixes[fix.status] += 1
-                self.fixes[emitter] = fix
-                out.append(fix)
-                if fix.ok:
-                    self.tracker.update(
-                        emitter, fix.t_ns, tri.position, tri.covariance, fix.sensors
-                    )
-            return out
         batch = triangulate_batch(groups.stations_xy, groups.azimuth_deg, groups.sigma_deg, opts)
         emitters = groups.emitter.tolist()
         times = groups.t_ns.tolist()
@@ -466,7 +401,6 @@ class BackendService:
             out.append(fix)
         good = [i for i, fix in enumerate(out) if fix.ok]
         if good:
-            # many emitters: their filter updates stacked
             self.tracker.update_many(
                 [emitters[i] for i in good],
                 [times[i] for i in good],
@@ -497,11 +431,8 @@ class BackendService:
         tracked = [i for i, _ in live]
         states = np.full((len(fixes), 4), nan)
         covs = np.full((len(fixes), 4, 4), nan)
-        if len(live) > SMALL_ASSESS:
+        if live:
             states[tracked], covs[tracked] = predict_tracks([t for _, t in live], now, accel)
-        else:
-            for i, live_track in live:
-                states[i], covs[i] = live_track.predict(now, accel)
         encounters: dict[int, Encounter] = {}
         if vehicle is not None and tracked:
             encounters = dict(
@@ -589,20 +520,6 @@ class BackendService:
     ) -> list[Encounter]:
         """The encounter of each tracked emitter (``rows``) with the vehicle."""
         cfg = self.config.encounter
-        if len(rows) <= SMALL_ASSESS:
-            # a few emitters: the scalar path avoids the batch path's fixed numpy cost
-            return [
-                assess_encounter(
-                    vehicle,
-                    states[i],
-                    covs[i],
-                    cfg,
-                    fix_ok=fixes[i][1].ok,
-                    fix_reason=fixes[i][1].reason,
-                    link_alarm=alarm,
-                )
-                for i in rows
-            ]
         return assess_encounters(
             vehicle,
             states[rows],

@@ -24,8 +24,6 @@ NS_PER_S = 1_000_000_000
 
 __all__ = ["Track", "Tracker", "TrackerConfig", "TrackerStats", "predict_tracks"]
 
-_H = np.array([[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0]])
-
 
 @dataclass(frozen=True, slots=True)
 class TrackerConfig:
@@ -72,16 +70,10 @@ class Track:
     """Sensors whose bearings made the last fix."""
 
     def predict(self, t_ns: int, accel_sigma_mps2: float) -> tuple[Array, Array]:
-        """State and covariance extrapolated to ``t_ns`` (not stored)."""
-        dt = max(t_ns - self.t_ns, 0) / NS_PER_S
-        F = np.eye(4)
-        F[0, 2] = F[1, 3] = dt
-        q = accel_sigma_mps2**2
-        Q = np.zeros((4, 4))
-        Q[0, 0] = Q[1, 1] = q * dt**4 / 4
-        Q[0, 2] = Q[2, 0] = Q[1, 3] = Q[3, 1] = q * dt**3 / 2
-        Q[2, 2] = Q[3, 3] = q * dt**2
-        return F @ self.state, F @ self.cov @ F.T + Q
+        """State and covariance extrapolated to ``t_ns`` (not stored): :func:`predict_tracks`
+        of this track alone."""
+        x, P = _predict_each([self], [t_ns], accel_sigma_mps2)
+        return x[0], P[0]
 
     @property
     def position(self) -> Array:
@@ -102,33 +94,42 @@ class Track:
 def predict_tracks(
     tracks: Sequence[Track], t_ns: int, accel_sigma_mps2: float
 ) -> tuple[Array, Array]:
-    """:meth:`Track.predict` of many tracks at once: states (B, 4) and covariances (B, 4, 4).
+    """Many tracks extrapolated to ``t_ns`` at once: states (B, 4) and covariances (B, 4, 4).
 
-    Equal to predicting each track on its own up to floating-point rounding.
+    State ``F·x`` and covariance ``F·P·Fᵀ + Q`` with ``F`` the constant-velocity
+    transition over ``dt`` (s, never negative) and ``Q`` the discretised
+    white-noise acceleration of one-sigma ``accel_sigma_mps2`` (m/s²).
     """
     if not tracks:
         return np.empty((0, 4)), np.empty((0, 4, 4))
     return _predict_each(tracks, [t_ns] * len(tracks), accel_sigma_mps2)
 
 
+def _stack(tracks: Sequence[Track], t_ns: Sequence[int]) -> tuple[Array, Array, Array]:
+    """The tracks' states (B, 4), covariances (B, 4, 4) and the time to ``t_ns`` (B,), s ≥ 0."""
+    if len(tracks) == 1:  # (one track: no list comprehensions)
+        t = tracks[0]
+        dt = np.array([max(t_ns[0] - t.t_ns, 0) / NS_PER_S])
+        return t.state[None], t.cov[None], dt
+    states = np.array([t.state for t in tracks], np.float64)
+    covs = np.array([t.cov for t in tracks], np.float64)
+    then = np.array([t.t_ns for t in tracks], np.int64)
+    return states, covs, np.maximum(np.asarray(t_ns, np.int64) - then, 0) / NS_PER_S
+
+
 def _predict_each(
     tracks: Sequence[Track], t_ns: Sequence[int], accel_sigma_mps2: float
 ) -> tuple[Array, Array]:
     """Each track predicted to its own time: states (B, 4), covariances (B, 4, 4)."""
-    B = len(tracks)
-    states = np.array([t.state for t in tracks], np.float64)
-    covs = np.array([t.cov for t in tracks], np.float64)
-    then = np.array([t.t_ns for t in tracks], np.int64)
-    dt = np.maximum(np.asarray(t_ns, np.int64) - then, 0) / NS_PER_S
-    F = np.broadcast_to(np.eye(4), (B, 4, 4)).copy()
-    F[:, 0, 2] = F[:, 1, 3] = dt
-    q = accel_sigma_mps2**2
-    Q = np.zeros((B, 4, 4))
-    Q[:, 0, 0] = Q[:, 1, 1] = q * dt**4 / 4
-    Q[:, 0, 2] = Q[:, 2, 0] = Q[:, 1, 3] = Q[:, 3, 1] = q * dt**3 / 2
-    Q[:, 2, 2] = Q[:, 3, 3] = q * dt**2
-    x: Array = (F @ states[:, :, None])[:, :, 0]
-    P: Array = F @ covs @ F.transpose(0, 2, 1) + Q
+    from rfsas_hw.backend import _tracking_kernel as k
+
+    states, covs, dt = _stack(tracks, t_ns)
+    x, P = k.predict(
+        np.ascontiguousarray(states, np.float64),
+        np.ascontiguousarray(covs, np.float64),
+        dt,
+        float(accel_sigma_mps2) ** 2,
+    )
     return x, P
 
 
@@ -173,33 +174,10 @@ class Tracker:
         """
         z = np.asarray(position, np.float64)
         R = np.asarray(cov, np.float64)
-        finite = bool(np.isfinite(z).all() and np.isfinite(R).all())
-        if z.shape != (2,) or R.shape != (2, 2) or not finite:
+        if z.shape != (2,) or R.shape != (2, 2):
             raise BackendError(f"fix of emitter {emitter:016x} is not a finite position/covariance")
-        track = self.tracks.get(emitter)
-        if track is None:
-            self.stats.started += 1
-            return self._start(emitter, t_ns, z, R, sensors)
-        if t_ns < track.t_ns:
-            self.stats.out_of_order += 1
-            return track
-        x, P = track.predict(t_ns, self.config.accel_sigma_mps2)
-        S = _H @ P @ _H.T + R
-        innov = z - x[:2]
-        d2 = float(innov @ np.linalg.solve(S, innov))
-        if d2 > self.config.gate_chi2:
-            self.stats.restarted += 1
-            return self._start(emitter, t_ns, z, R, sensors)
-        K = P @ _H.T @ np.linalg.inv(S)
-        IKH = np.eye(4) - K @ _H
-        # Joseph form keeps P symmetric positive definite
-        track.cov = IKH @ P @ IKH.T + K @ R @ K.T
-        track.state = x + K @ innov
-        track.t_ns = t_ns
-        track.updates += 1
-        track.sensors = sensors
-        self.stats.updated += 1
-        return track
+        self.update_many([emitter], [t_ns], z[None], R[None], [sensors])
+        return self.tracks[emitter]
 
     def update_many(
         self,
@@ -209,10 +187,12 @@ class Tracker:
         covs: Array,
         sensors: Sequence[tuple[str, ...]],
     ) -> None:
-        """:meth:`update` with one fix of each of several emitters, the filter steps stacked.
+        """Apply one fix of each of several emitters (position m, covariance m², time UTC ns),
+        the filter steps stacked; an emitter given twice is updated one fix after the other.
 
-        Equal to updating one emitter after the other up to floating-point
-        rounding (an emitter given twice is updated one fix after the other).
+        A new emitter starts a track; a fix older than its track is ignored; a fix
+        outside the gate (or with a singular innovation covariance) restarts the
+        track; else the Kalman update in Joseph form.
 
         Raises:
             BackendError: a non-finite position or covariance (nothing is updated).
@@ -221,7 +201,7 @@ class Tracker:
         R = np.asarray(covs, np.float64).reshape(-1, 2, 2)
         if len(set(emitters)) < len(emitters):
             for i, e in enumerate(emitters):
-                self.update(e, int(t_ns[i]), z[i], R[i], sensors[i])
+                self.update_many([e], [t_ns[i]], z[i : i + 1], R[i : i + 1], [sensors[i]])
             return
         finite = np.isfinite(z).all(axis=1) & np.isfinite(R).all(axis=(1, 2))
         if not finite.all():
@@ -241,19 +221,18 @@ class Tracker:
                 tracks.append(track)
         if not rows:
             return
-        B = len(rows)
+        from rfsas_hw.backend import _tracking_kernel as kernels
+
         t_new = [int(t_ns[i]) for i in rows]
-        x, P = _predict_each(tracks, t_new, self.config.accel_sigma_mps2)
-        zr, Rr = z[rows], R[rows]
-        S = P[:, :2, :2] + Rr
-        innov = zr - x[:, :2]
-        sol = np.linalg.solve(S, innov[:, :, None])[:, :, 0]
-        d2 = innov[:, 0] * sol[:, 0] + innov[:, 1] * sol[:, 1]
-        K = P[:, :, :2] @ np.linalg.inv(S)
-        IKH = np.broadcast_to(np.eye(4), (B, 4, 4)).copy()
-        IKH[:, :, :2] -= K
-        cov = IKH @ P @ IKH.transpose(0, 2, 1) + K @ Rr @ K.transpose(0, 2, 1)
-        state = x + (K @ innov[:, :, None])[:, :, 0]
+        states, covs, dt = _stack(tracks, t_new)
+        state, cov, d2 = kernels.update(
+            np.ascontiguousarray(states, np.float64),
+            np.ascontiguousarray(covs, np.float64),
+            dt,
+            float(self.config.accel_sigma_mps2) ** 2,
+            np.ascontiguousarray(z[rows]),
+            np.ascontiguousarray(R[rows]),
+        )
         for k, (i, track) in enumerate(zip(rows, tracks, strict=True)):
             if d2[k] > self.config.gate_chi2:
                 self.stats.restarted += 1

@@ -93,7 +93,7 @@ def test_axis_aligned_boxes_with_isotropic_error_match_the_product_of_normal_cdf
     assert got_rot == pytest.approx(expected, abs=1e-12)
 
 
-def test_single_call_fast_path_agrees_with_the_batch_path() -> None:
+def test_one_call_is_its_row_of_the_batch() -> None:
     rng = np.random.default_rng(21)
     cases = [random_case(rng) for _ in range(200)]
     batch = collision_probability_batch(
@@ -211,3 +211,35 @@ def test_bad_inputs_raise_clear_errors() -> None:
         collision_probability_mc(**good, n=0)  # type: ignore[arg-type]
     with pytest.raises(BackendError, match="finite"):
         collision_probability(**{**good, "threat_xy": [math.nan, 1]})  # type: ignore[arg-type]
+
+
+def test_a_bad_row_of_a_batch_is_named() -> None:
+    B = 4
+    args: dict[str, Any] = {
+        "vehicle_xy": np.zeros((B, 2)),
+        "vehicle_heading_deg": 0.0,
+        "vehicle_cov": np.broadcast_to(np.eye(2), (B, 2, 2)),
+        "vehicle_size": VEHICLE_SIZE,
+        "threat_xy": np.ones((B, 2)),
+        "threat_heading_deg": np.zeros(B),
+        "threat_cov": np.broadcast_to(np.eye(2), (B, 2, 2)).copy(),
+        "threat_size": np.full((B, 2), 0.5),
+    }
+    assert collision_probability_batch(**args).shape == (B,)
+    bad_cov = args["threat_cov"].copy()
+    bad_cov[2, 0, 1] = 3.0
+    with pytest.raises(BackendError, match=r"threat_cov must be a symmetric .* \(row 2\)"):
+        collision_probability_batch(**{**args, "threat_cov": bad_cov})
+    bad_cov[2, 0, 1] = math.inf
+    with pytest.raises(BackendError, match=r"threat_cov must be finite \(row 2\)"):
+        collision_probability_batch(**{**args, "threat_cov": bad_cov})
+    bad_xy = args["threat_xy"].copy()
+    bad_xy[3, 1] = math.nan
+    with pytest.raises(BackendError, match=r"finite \(row 3\)"):
+        collision_probability_batch(**{**args, "threat_xy": bad_xy})
+    bad_size = args["threat_size"].copy()
+    bad_size[1, 0] = -1.0
+    with pytest.raises(BackendError, match=r"threat_size must be .* \(row 1\)"):
+        collision_probability_batch(**{**args, "threat_size": bad_size})
+    with pytest.raises(BackendError, match=r"vehicle_size must have shape"):
+        collision_probability_batch(**{**args, "vehicle_size": np.ones(3)})

@@ -51,6 +51,14 @@ def test_impact_speed_is_vectorised() -> None:
     np.testing.assert_allclose(v, [11.1109, 0.0, 10.0], atol=1e-4)
 
 
+def test_a_float_gives_a_float_and_the_value_of_its_one_element_array() -> None:
+    for u, x in [(0.0, 0.0), (13.9, -3.0), (5.0, 2.5), (30.0, 1e300)]:
+        d, v = stopping_distance(u, reaction_s=0.5), impact_speed(u, x, reaction_s=0.5)
+        assert type(d) is float and type(v) is float and type(fatality_risk(v)) is float
+        assert d == pytest.approx(stopping_distance(np.array([u]), reaction_s=0.5)[0], rel=1e-12)
+        assert v == pytest.approx(impact_speed(np.array([u]), x, reaction_s=0.5)[0], rel=1e-12)
+
+
 def test_rosen_fatality_risk_published_values() -> None:
     assert fatality_risk(72 / 3.6) == pytest.approx(0.3965, abs=5e-5)
     assert fatality_risk(0.0) == pytest.approx(0.001007, abs=5e-7)
@@ -68,6 +76,12 @@ def test_invalid_inputs_raise() -> None:
         fatality_risk(math.nan)
     with pytest.raises(BackendError, match="caution_risk"):
         AdvisoryThresholds(brake_risk=0.001, caution_risk=0.01)
+    with pytest.raises(BackendError, match="speed must be"):
+        impact_speed(math.nan, 1.0)
+    with pytest.raises(BackendError, match="distance must be finite"):
+        impact_speed(1.0, math.inf)
+    with pytest.raises(BackendError, match="reaction delay"):
+        impact_speed(1.0, 1.0, 2.0, -1.0)
 
 
 def test_advisory_with_reasons() -> None:

@@ -30,6 +30,7 @@ from rfsas_hw.bridges.bridge import EGO_MOVER, device_mac, device_model_of
 from rfsas_hw.bridges.config import BridgeConfig, EgoUnitSpec, UnitSpec
 from rfsas_hw.bridges.coords import FRAMES
 from rfsas_hw.errors import DataFormatError, SimulationError
+from rfsas_hw.outpaths import write_text_atomic
 from rfsas_hw.records import int_to_mac
 from rfsas_hw.twin.scenario import BuildingSpec, scenario_from_mapping
 
@@ -276,14 +277,12 @@ def fcd_to_scenario(
 
 
 def write_scenario(data: dict[str, Any], path: str | Path) -> Path:
-    """Write a scenario mapping as YAML.
+    """Write a scenario mapping as YAML (beside the target, then renamed over it).
 
     Raises:
-        SimulationError: the file cannot be written.
+        ConfigError: the file cannot be created.
+        OutputError: writing it failed (disk full); the target is unchanged.
     """
     p = Path(path)
-    try:
-        p.write_text(yaml.safe_dump(data, sort_keys=False), encoding="utf-8")
-    except OSError as err:
-        raise SimulationError(f"{p}: cannot write: {err.strerror or err}") from err
+    write_text_atomic(p, yaml.safe_dump(data, sort_keys=False))
     return p

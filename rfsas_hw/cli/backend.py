@@ -25,7 +25,9 @@ from rfsas_hw.backend.service import (
 )
 from rfsas_hw.backend.site import parse_origin
 from rfsas_hw.backend.vehicle import VehicleFeed, load_vehicle
+from rfsas_hw.cli.exitcodes import WorkFailed
 from rfsas_hw.cli.linkopts import join_urls, split_urls
+from rfsas_hw.cli.outopts import OutputPath
 from rfsas_hw.cli.ros2opts import attach_scene, ros2_options
 from rfsas_hw.errors import ConfigError
 from rfsas_hw.link import Receiver, ReceiverConfig, open_transport
@@ -109,12 +111,12 @@ def render_table(service: BackendService, alarm: bool) -> Table:
 )
 @click.option(
     "--out",
-    type=click.Path(dir_okay=False, path_type=Path),
+    type=OutputPath(),
     help="Write every fix and assessment as JSON lines (and a final stats line).",
 )
 @click.option(
     "--plot",
-    type=click.Path(dir_okay=False, path_type=Path),
+    type=OutputPath(),
     help="At the end, draw a map PNG with 2σ covariance ellipses (needs the plot extra).",
 )
 @click.option(
@@ -207,7 +209,7 @@ def render_table(service: BackendService, alarm: bool) -> Table:
 @click.option(
     "--prior",
     "prior_file",
-    type=click.Path(dir_okay=False, path_type=Path),
+    type=OutputPath("update"),
     help="RF activity prior file (counts per tile and hour, no emitter ids): read, or "
     "started when missing, counted with this run's fixes, written back when the run ends.",
 )
@@ -406,7 +408,7 @@ def backend(
     elapsed = time.monotonic() - started
     stats = service.all_stats()
     console.print(f"ran {elapsed:.1f} s: " + ", ".join(f"{k} {v}" for k, v in stats.items()))
-    if out is not None:
+    if out is not None and not service.problems():
         click.echo(f"wrote {out}")
     if plot is not None:
         from rfsas_hw.backend.plot import plot_map
@@ -419,3 +421,5 @@ def backend(
             vehicle=service.vehicle,
         )
         click.echo(f"wrote {plot}")
+    if service.problems():
+        raise WorkFailed("; ".join(service.problems()))

@@ -6,6 +6,7 @@ from pathlib import Path
 
 import click
 
+from rfsas_hw.cli.outopts import OutputPath
 from rfsas_hw.fleet.broker import DEFAULT_PORT, write_broker_config
 
 
@@ -24,7 +25,7 @@ def broker() -> None:
 )
 @click.option(
     "--out",
-    type=click.Path(file_okay=False, path_type=Path),
+    type=OutputPath("dir"),
     required=True,
     help="Output directory (the CA and certificates already in it are kept).",
 )

@@ -11,6 +11,7 @@ from rich import box
 from rich.console import Console
 from rich.table import Table
 
+from rfsas_hw.cli.outopts import OutputPath
 from rfsas_hw.studies.demo import DemoResult, run_demo
 
 
@@ -74,7 +75,7 @@ def _table(result: DemoResult, every_s: float) -> Table:
     "-o",
     "--output",
     "out_dir",
-    type=click.Path(file_okay=False, path_type=Path),
+    type=OutputPath("dir"),
     default=Path("out/demo"),
     show_default=True,
     help="Where the outputs go.",

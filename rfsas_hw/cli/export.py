@@ -14,6 +14,7 @@ from typing import Any
 import click
 
 from rfsas_hw.cli.exportmaps import export_map
+from rfsas_hw.cli.outopts import OutputPath
 from rfsas_hw.cli.sensoropts import parse_pose
 from rfsas_hw.errors import ConfigError
 from rfsas_hw.outpaths import check_output
@@ -78,7 +79,7 @@ DEFAULT_SUFFIX = {"mcap": ".mcap", "geojson": ".geojson", "kml": ".kml", "cot": 
 @click.option(
     "--out",
     "-o",
-    type=click.Path(path_type=Path),
+    type=OutputPath("file_or_new_dir"),
     help="Output file (a directory for rosbag2) [default: the run's name with the format's "
     "suffix; rosbag2 needs it].",
 )
@@ -104,6 +105,7 @@ DEFAULT_SUFFIX = {"mcap": ".mcap", "geojson": ".geojson", "kml": ".kml", "cot": 
     "run log carries none, or to override it.",
 )
 @click.option("--flagged", is_flag=True, help="geojson/kml/cot: also export flagged fixes.")
+@click.option("--force", is_flag=True, help="Replace an existing output file (never an input).")
 def export(
     runs: tuple[Path, ...],
     fmt: str,
@@ -112,6 +114,7 @@ def export(
     storage: str,
     origin: str | None,
     flagged: bool,
+    force: bool,
 ) -> None:
     """Export RUNS (JSON lines of rfsas backend, replay or live) as FMT.
 
@@ -127,9 +130,8 @@ def export(
         out = runs[0].with_suffix(DEFAULT_SUFFIX[fmt])
         if out == runs[0]:
             raise click.UsageError(f"{out} is the input; give --out")
-    # an export of a previous run may be replaced; an input never (same path or inode)
-    if not out.is_dir():  # rosbag2 writes a directory
-        check_output(out, runs, force=True)
+        # the default name is not an option value: checked here as the options are
+        check_output(out, runs, force=force)
     opts = {"poses": poses, "storage": storage, "origin": origin, "flagged": flagged}
     for line in FORMATS[fmt](runs, out, fmt, opts):
         click.echo(line)

@@ -6,6 +6,7 @@ from pathlib import Path
 
 import click
 
+from rfsas_hw.cli.outopts import OutputPath
 from rfsas_hw.errors import KeyStoreError
 from rfsas_hw.link.keys import CARD_FILE, ROLES, KeyCard, KeyStore
 
@@ -27,7 +28,7 @@ def keys() -> None:
     "-o",
     "--output",
     "directory",
-    type=click.Path(file_okay=False, path_type=Path),
+    type=OutputPath("dir"),
     required=True,
     help="Key directory to create (existing key files are never overwritten).",
 )
@@ -62,7 +63,7 @@ def show(directory: Path) -> None:
 @click.option(
     "-o",
     "--output",
-    type=click.Path(dir_okay=False, path_type=Path),
+    type=OutputPath("new_file"),
     help="Write the card here (refuses to overwrite); default: standard output.",
 )
 def export(directory: Path, output: Path | None) -> None:

@@ -8,6 +8,7 @@ from pathlib import Path
 import click
 
 from rfsas_hw.cli.exitcodes import WorkFailed
+from rfsas_hw.cli.outopts import OutputPath
 from rfsas_hw.errors import ConfigError
 from rfsas_hw.link.distribution import NonceDistributor, NonceInbox
 from rfsas_hw.link.keys import KeyStore
@@ -185,7 +186,7 @@ def listen(keys_dir: Path, url: str, epoch_s: float, grace_s: float, duration: f
     "-o",
     "--output",
     required=True,
-    type=click.Path(dir_okay=False, path_type=Path),
+    type=OutputPath("new_file"),
     help="File to create (mode 0600; an existing file is never overwritten).",
 )
 def secret(output: Path) -> None:

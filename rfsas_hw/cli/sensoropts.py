@@ -22,6 +22,7 @@ from rich.table import Table
 from rfsas_hw.backend.site import parse_origin, pose_from_mapping
 from rfsas_hw.cli.exitcodes import Interrupted, WorkFailed
 from rfsas_hw.cli.linkopts import make_cue_publisher, make_publisher, send_options
+from rfsas_hw.cli.outopts import OutputPath
 from rfsas_hw.cli.ros2opts import sensor_scene, wants_live
 from rfsas_hw.df import load_calibration
 from rfsas_hw.errors import ConfigError
@@ -84,7 +85,7 @@ def sensor_options(func: F) -> F:
         click.option(
             "--out",
             "out",
-            type=click.Path(dir_okay=False, path_type=Path),
+            type=OutputPath(),
             help="Write bearings here: .jsonl or .csv (or set --format); - for standard "
             "output (the summary then goes to stderr). An existing file needs --force.",
         ),

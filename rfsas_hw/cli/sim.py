@@ -10,6 +10,7 @@ import click
 from rich.console import Console
 from rich.table import Table
 
+from rfsas_hw.cli.outopts import OutputPath
 from rfsas_hw.df import save_calibration
 from rfsas_hw.errors import ConfigError
 from rfsas_hw.outpaths import check_output, inside
@@ -31,7 +32,7 @@ def sim() -> None:
     "-o",
     "--output",
     "out_dir",
-    type=click.Path(file_okay=False, path_type=Path),
+    type=OutputPath("dir"),
     required=True,
     help="Directory for the captures and truth.jsonl.",
 )
@@ -154,7 +155,7 @@ def turntable(scenario: Path, sensors: tuple[str, ...], mode: str, force: bool) 
 @click.option(
     "--plot",
     "plot_path",
-    type=click.Path(dir_okay=False, path_type=Path),
+    type=OutputPath(),
     help="Draw gap, speed and P_coll over time to this PNG.",
 )
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object.")

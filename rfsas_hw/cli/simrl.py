@@ -23,6 +23,7 @@ from rich.progress import (
 )
 from rich.table import Table
 
+from rfsas_hw.cli.outopts import OutputPath
 from rfsas_hw.outpaths import check_output
 
 if TYPE_CHECKING:
@@ -119,14 +120,14 @@ def _env_config(
     "-o",
     "--output",
     "model_path",
-    type=click.Path(dir_okay=False, path_type=Path),
+    type=OutputPath(),
     required=True,
     help="Where to save the model (zip).",
 )
 @click.option(
     "--logs",
     "log_dir",
-    type=click.Path(file_okay=False, path_type=Path),
+    type=OutputPath("dir"),
     default=None,
     help="Directory for progress.csv and monitor.csv [default: MODEL-logs].",
 )
@@ -343,14 +344,14 @@ def _table(
 @click.option(
     "--csv",
     "csv_path",
-    type=click.Path(dir_okay=False, path_type=Path),
+    type=OutputPath(),
     default=None,
     help="Write distance_m,policy,p_collision,p_fatality,risk here.",
 )
 @click.option(
     "--plot",
     "plot_path",
-    type=click.Path(dir_okay=False, path_type=Path),
+    type=OutputPath(),
     default=None,
     help="Draw the three measures against distance (PNG).",
 )
@@ -541,7 +542,7 @@ def _join(runs: list[Any]) -> Any:
 @click.option(
     "-o",
     "--output",
-    type=click.Path(dir_okay=False, path_type=Path),
+    type=OutputPath(),
     required=True,
     help="Video file: .gif, or .mp4 when ffmpeg is installed.",
 )

@@ -95,9 +95,11 @@ class SensorScene:
         return self.sink.error
 
     def on_bearings(self, batch: BearingBatch) -> None:
-        """Bearing array, sensor TF and rays of one batch."""
-        if len(batch):
-            self.sink.emit(self.sink.builder.bearings(batch, self.pose_of(batch.sensor_id)))
+        """Bearing array, sensor TF and rays of one batch (one array per
+        :meth:`~rfsas_hw.ros2.scene.SceneBuilder.spans` of it)."""
+        builder = self.sink.builder
+        for part in builder.spans(batch):
+            self.sink.emit(builder.bearings(part, self.pose_of(part.sensor_id)))
 
     def close(self) -> None:
         """Close the sink (and its writers)."""

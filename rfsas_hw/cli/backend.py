@@ -30,6 +30,7 @@ from rfsas_hw.cli.linkopts import join_urls, split_urls
 from rfsas_hw.cli.outopts import OutputPath
 from rfsas_hw.cli.ros2opts import attach_scene, ros2_options
 from rfsas_hw.errors import ConfigError
+from rfsas_hw.fleet.certname import check_certificate_names
 from rfsas_hw.link import Receiver, ReceiverConfig, open_transport
 from rfsas_hw.link.keys import KeyStore
 from rfsas_hw.outpaths import check_output
@@ -281,6 +282,8 @@ def backend(
         raise ConfigError(f"{keys_dir}: no enrolled sensors in trust/ (rfsas keys enroll)")
     state = None if vehicle is None or vehicle.startswith("udp://") else load_vehicle(vehicle)
     urls = split_urls(listen)
+    check_certificate_names(urls, store.id, "--listen")
+    check_certificate_names([u for u in (advise, send_cues) if u], store.id, "--advise/--send-cues")
     if tile_plan is not None:
         from rfsas_hw.fleet.tiles import load_tile_plan, with_tiles
 

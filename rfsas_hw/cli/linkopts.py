@@ -20,6 +20,7 @@ from typing import Any, TypeVar
 import click
 
 from rfsas_hw.errors import ConfigError
+from rfsas_hw.fleet.certname import check_certificate_names
 from rfsas_hw.link.cue_publisher import CuePublisher
 from rfsas_hw.link.distribution import NonceInbox
 from rfsas_hw.link.fallback import FallbackSender
@@ -126,6 +127,9 @@ def make_publisher(
         return None
     if keys_dir is None:
         raise ConfigError("--send needs --keys DIR: messages are signed with the sensor's key")
+    ident = KeyStore.open(keys_dir).id
+    check_certificate_names(split_urls(send), ident, "--send")
+    check_certificate_names([fallback] if fallback else [], ident, "--fallback")
     if fallback is None:
         return Publisher.from_keys(
             split_urls(send), keys_dir, pose, epoch_s=epoch_s, preauth=preauth
@@ -158,7 +162,9 @@ def make_cue_publisher(
         return None
     if keys_dir is None:
         raise ConfigError("--send-cues needs --keys DIR: cues are signed with the sensor's key")
-    signer = KeyStore.open(keys_dir).signer()
+    store = KeyStore.open(keys_dir)
+    check_certificate_names([url], store.id, "--send-cues")
+    signer = store.signer()
     return CuePublisher(signer, open_transport(url, "send"), pose, epoch_s=epoch_s)
 
 
@@ -185,7 +191,9 @@ def nonce_inbox(
     """
     if keys_dir is None:
         raise ConfigError("--nonces needs --keys DIR: envelopes are sealed to the sensor's key")
-    store = KeyStore.open(keys_dir).nonce_store(EpochSchedule(epoch_s, grace_s))
+    keys = KeyStore.open(keys_dir)
+    check_certificate_names([nonces], keys.id, "--nonces")
+    store = keys.nonce_store(EpochSchedule(epoch_s, grace_s))
     inbox = NonceInbox(store, open_transport(nonces, "recv"), wait_s=wait_s)
     # the command keeps the inbox for its whole run; close the socket when it goes
     weakref.finalize(inbox, inbox.transport.close)

@@ -140,7 +140,7 @@ def check_outputs(command: click.Command, params: dict[str, Any], force: bool) -
             elif kind == "new_file":
                 check_output(path, inputs, force=True, what=what)
                 if path.exists() or path.is_symlink():
-                    raise ConfigError(f"{what} {path} exists; it is never replaced")
+                    raise ConfigError(f"{what} {path} already exists; refusing to overwrite it")
             else:
                 _check_dir(path, inputs, kind, what)
 

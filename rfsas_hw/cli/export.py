@@ -13,6 +13,7 @@ from typing import Any
 
 import click
 
+from rfsas_hw.cli.exitcodes import WorkFailed
 from rfsas_hw.cli.exportmaps import export_map
 from rfsas_hw.cli.outopts import OutputPath
 from rfsas_hw.cli.sensoropts import parse_pose
@@ -46,11 +47,19 @@ def _export_ros(runs: tuple[Path, ...], out: Path, fmt: str, opts: dict[str, Any
         poses=parse_sensor_poses(opts["poses"]),
         storage=opts["storage"],
     )
+    if not result.messages:
+        skipped = sum(result.skipped.values())
+        raise WorkFailed(
+            f"nothing to export: 0 messages ({skipped} line(s) skipped"
+            + (f", first: {result.errors[0]}" if result.errors else "")
+            + "); give a run log of rfsas backend --out, or a bearings file of replay/live"
+        )
     lines = [
         f"wrote {out}: {result.messages} messages on {len(result.counts)} topics",
         *(f"  {topic}: {n}" for topic, n in sorted(result.counts.items())),
     ]
-    lines += [f"skipped: {message}" for message in result.errors[:5]]
+    lines += [f"skipped {n} line(s): {reason}" for reason, n in sorted(result.skipped.items())]
+    lines += [f"  {message}" for message in result.errors[:5]]
     if result.no_pose:
         lines.append(
             "no pose for sensor(s) "

@@ -78,6 +78,10 @@ class SumoRunConfig:
                 raise ValueError("person_speed_mps must be [low, high] with 0 < low <= high")
         if not self.end_s > 0:
             raise ValueError("end_s must be positive")
+        if not 0 <= self.hold_s < math.inf:
+            raise ValueError("hold_s must be a number of seconds >= 0")
+        if self.caution_speed_mps is not None and not 0 < self.caution_speed_mps < math.inf:
+            raise ValueError("caution_speed_mps must be a positive speed, m/s")
 
 
 def load_run_file(path: str | Path) -> tuple[BridgeConfig, SumoRunConfig]:

@@ -268,3 +268,23 @@ def test_a_full_disk_ends_with_one_clear_line(
         # a target SUMO writes itself is refused when it is not a regular file
         assert code == BAD_INPUT and cmd == "sumo run" and "/dev/full" in last, err
     assert f"wrote {full}" not in out
+
+
+def test_every_output_is_checked_before_any_is_opened(
+    workdir: Path,
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    monkeypatch.chdir(workdir)
+    recording = tmp_path / "run.mcap"
+    recording.write_bytes(b"an earlier recording")
+    bag = tmp_path / "bag"
+    bag.mkdir()
+    args = [*BACKEND_RUN, "--out", str(recording), "--rosbag2", str(bag), "--force"]
+    code, _, err = run(args, capsys)
+    assert code == BAD_INPUT and "Traceback" not in err, err
+    assert recording.read_bytes() == b"an earlier recording"  # not emptied by a later refusal
+    same = [*BACKEND_RUN, "--out", str(recording), "--plot", str(recording), "--force"]
+    code, _, err = run(same, capsys)
+    assert code == BAD_INPUT and "is also --out" in err

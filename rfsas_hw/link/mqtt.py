@@ -273,6 +273,11 @@ class _LostError(Exception):
     """The broker connection is gone; the message says why."""
 
 
+class _RefusedError(LinkError):
+    """The broker refused this client (its connection or every subscription): trying
+    again changes nothing until someone changes the broker's configuration."""
+
+
 class MqttTransport(Transport):
     """Sends and receives signed datagrams through an MQTT 5 broker.
 
@@ -345,8 +350,16 @@ class MqttTransport(Transport):
             target=self._run, name=f"mqtt {endpoint.url()}", daemon=True
         )
         self._thread.start()
-        if not self._connected.wait(endpoint.connect_s):
+        deadline = time.monotonic() + endpoint.connect_s
+        while not self._connected.is_set() and self._thread.is_alive():
+            self._connected.wait(min(0.05, max(deadline - time.monotonic(), 0.0)))
+            if time.monotonic() >= deadline:
+                break
+        if not self._connected.is_set():
+            refused = not self._thread.is_alive()
             self.close(flush_s=0.0)
+            if refused:
+                raise LinkError(f"{endpoint.url()}: {self._last_error}")
             raise LinkError(
                 f"{endpoint.url()}: no connection within {endpoint.connect_s:g} s "
                 f"({self._last_error})"
@@ -372,6 +385,8 @@ class MqttTransport(Transport):
                 self._open()
             except (OSError, LinkError) as err:
                 self._last_error = str(err) or type(err).__name__
+                if isinstance(err, _RefusedError) and self.stats.connects == 0:
+                    return  # the start fails with this reason (see __init__)
                 if self._closed.wait(delay):
                     return
                 delay = min(2.0 * delay, 8.0)
@@ -404,8 +419,8 @@ class MqttTransport(Transport):
 
         Raises:
             OSError: no TCP or TLS connection.
-            LinkError: the broker refused the connection or a subscription was
-                not answered in time.
+            LinkError: the broker refused the connection or every subscription, or
+                a subscription was not answered in time.
         """
         ep = self.endpoint
         raw = socket.create_connection((ep.host, ep.port), timeout=ep.connect_s)
@@ -436,7 +451,15 @@ class MqttTransport(Transport):
             if self.subscriptions:
                 filters = [(t, 1 if "/nonce/" in t else 0) for t in self.subscriptions]
                 sock.sendall(subscribe_packet(self._packet_id(), filters))
-                early += self._await(sock, reader, wire.SUBACK, deadline)[1]
+                suback, more = self._await(sock, reader, wire.SUBACK, deadline)
+                early += more
+                self._count_suback(suback)
+                if suback.reasons and all(code >= 0x80 for code in suback.reasons):
+                    # a receiver the broker lets hear nothing would wait in silence
+                    raise _RefusedError(
+                        f"the broker refused every subscription "
+                        f"({reason_text(suback.reasons[0])}): {', '.join(self.subscriptions)}"
+                    )
         except BaseException:
             sock.close()
             raise

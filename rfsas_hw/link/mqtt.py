@@ -45,6 +45,7 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import re
 import secrets
 import select
 import socket
@@ -77,6 +78,7 @@ from rfsas_hw.link.mqtt_wire import (
 )
 from rfsas_hw.link.tls_stream import TlsStream
 from rfsas_hw.link.topics import (
+    ZOOM,
     Route,
     TopicRouter,
     advisory_filter,
@@ -164,9 +166,11 @@ def parse_mqtt_url(url: str) -> MqttEndpoint:
     if parts.scheme not in DEFAULT_PORTS:
         raise LinkError(f"{url!r}: expected mqtt://HOST[:PORT] or mqtts://HOST[:PORT]")
     try:
-        port = parts.port or DEFAULT_PORTS[parts.scheme]
+        port = DEFAULT_PORTS[parts.scheme] if parts.port is None else parts.port
     except ValueError as err:
         raise LinkError(f"{url!r}: bad port: {err}") from err
+    if not 1 <= port <= 65535:
+        raise LinkError(f"{url!r}: port {port} outside 1-65535")
     if not parts.hostname:
         raise LinkError(f"{url!r}: no broker host")
     if parts.path not in ("", "/"):
@@ -189,6 +193,8 @@ def parse_mqtt_url(url: str) -> MqttEndpoint:
         files[name] = None if raw is None else Path(raw)
         if raw is not None and not Path(raw).is_file():
             raise LinkError(f"{url!r}: {name} file {raw} does not exist")
+        if name == "key" and raw is not None and Path(raw).stat().st_mode & 0o077:
+            raise LinkError(f"{url!r}: key file {raw} is readable by others (chmod 600 it)")
     origin = None
     raw_origin = _one(query, "origin", url)
     if raw_origin is not None:
@@ -224,11 +230,35 @@ def parse_mqtt_url(url: str) -> MqttEndpoint:
         origin=origin,
         subscriptions=tuple(dict.fromkeys(subs)),
         schedule=schedule,
-        keepalive_s=max(1, int(_number(query, "keepalive", url, 5))),
-        connect_s=_number(query, "connect_s", url, 5.0),
-        queue=int(_number(query, "queue", url, 65_536)),
-        client_id=_one(query, "client_id", url) or "",
+        keepalive_s=max(1, int(_bounded(query, "keepalive", url, 5, KEEPALIVE_MAX_S))),
+        connect_s=_bounded(query, "connect_s", url, 5.0, CONNECT_MAX_S),
+        queue=int(_bounded(query, "queue", url, 65_536, QUEUE_MAX)),
+        client_id=_client_id(_one(query, "client_id", url) or "", url),
     )
+
+
+KEEPALIVE_MAX_S = 65_535
+"""MQTT's keep-alive is a 16-bit number of seconds."""
+CONNECT_MAX_S = 3600.0
+"""The longest wait for a connection ``connect_s`` may ask for, seconds."""
+QUEUE_MAX = 10_000_000
+"""The most received messages ``queue`` may hold."""
+CLIENT_ID_MAX = 128
+"""The longest ``client_id`` (brokers must take 23 characters; most take more)."""
+_CLIENT_ID_RE = re.compile(r"[A-Za-z0-9._-]*")
+
+
+def _bounded(query: dict[str, list[str]], name: str, url: str, default: float, top: float) -> float:
+    value = _number(query, name, url, default)
+    if not value <= top:
+        raise LinkError(f"{url!r}: {name}={value:g} is more than {top:g}")
+    return value
+
+
+def _client_id(value: str, url: str) -> str:
+    if len(value) > CLIENT_ID_MAX or not _CLIENT_ID_RE.fullmatch(value):
+        raise LinkError(f"{url!r}: client_id must be at most {CLIENT_ID_MAX} of A-Z a-z 0-9 . _ -")
+    return value
 
 
 def _csv(query: dict[str, list[str]], name: str, url: str) -> list[str]:
@@ -236,9 +266,15 @@ def _csv(query: dict[str, list[str]], name: str, url: str) -> list[str]:
     for raw in query.get(name, []):
         for item in raw.split(","):
             try:
-                out.append(check_quadkey(item.strip()))
+                key = check_quadkey(item.strip())
             except LinkError as err:
                 raise LinkError(f"{url!r}: {name}: {err}") from err
+            if len(key) > ZOOM:
+                raise LinkError(
+                    f"{url!r}: {name}: {key!r} is deeper than the topics' {ZOOM} tile levels "
+                    "and would match nothing"
+                )
+            out.append(key)
     return out
 
 
@@ -878,4 +914,14 @@ def open_mqtt(url: str, mode: Literal["send", "recv"]) -> MqttTransport:
     Raises:
         LinkError: a bad URL or no connection.
     """
-    return MqttTransport(parse_mqtt_url(url), mode)
+    endpoint = parse_mqtt_url(url)
+    if mode == "send":
+        query = parse_qs(urlsplit(url).query)
+        given = sorted(RECEIVER_OPTIONS & set(query))
+        if given:
+            raise LinkError(f"{endpoint.url()}: {', '.join(given)} apply to receiving URLs only")
+    return MqttTransport(endpoint, mode)
+
+
+RECEIVER_OPTIONS = frozenset({"sub", "tiles", "nonces", "advisories", "queue"})
+"""URL options that only a receiver uses."""

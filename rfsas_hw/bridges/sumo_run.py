@@ -128,6 +128,10 @@ class SeedResult:
     """Mean wall time of one SUMO step, milliseconds."""
     bridge_ms: float = math.nan
     """Mean wall time of one bridge step, milliseconds."""
+    sent: int = 0
+    """Bearings sent to a separate backend (``send``)."""
+    send_problems: list[str] = field(default_factory=list)
+    """Why sending failed, one line per unit (empty: it did not, or nothing was sent)."""
 
     def as_dict(self) -> dict[str, Any]:
         """JSON-ready (non-finite numbers as None)."""
@@ -305,6 +309,8 @@ def run_seed(
     finally:
         if bridge is not None:
             bridge.close()
+            result.sent = bridge.sent_bearings
+            result.send_problems = list(bridge.send_problems)
         sumo.close()
     if not adapter.ego_seen:
         raise SimulationError(f"{cfg_path}: the ego vehicle {run.ego!r} never appeared")

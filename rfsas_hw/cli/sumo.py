@@ -13,6 +13,7 @@ from rich.console import Console
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
+from rfsas_hw.cli.exitcodes import WorkFailed
 from rfsas_hw.cli.outopts import OutputPath
 from rfsas_hw.errors import ConfigError
 from rfsas_hw.outpaths import check_output
@@ -99,7 +100,9 @@ def _fmt(x: float | None, digits: int = 2) -> str:
     "keys_dir",
     type=click.Path(file_okay=False, path_type=Path),
     default=None,
-    help="One sensor key directory per unit id (rfsas keys new --role sensor), for --send.",
+    help="One sensor key directory per unit id, named by it (rfsas keys new --role sensor "
+    "--id ID -o KEYS/ID), for --send; the ego's own unit is 'ego-unit' unless the run "
+    "file names it otherwise.",
 )
 @click.option("--force", is_flag=True, help="Replace existing output files (never an input).")
 def run(
@@ -192,6 +195,12 @@ def run(
         if sink is not None:
             sink.close()
     _summary(cfg_path, ctl, results)
+    if send is not None:
+        sent = sum(r.sent for r in results)
+        Console().print(f"sent {sent:,} bearings to {send}", highlight=False)
+        problems = [p for r in results for p in r.send_problems]
+        if problems:
+            raise WorkFailed("; ".join(dict.fromkeys(problems)))
 
 
 def _summary(cfg_path: Path, controller: str, results: list[SeedResult]) -> None:

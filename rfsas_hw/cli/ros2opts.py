@@ -8,6 +8,7 @@ and the backend; :func:`ros2_options` adds the backend's ``--rosbag2`` and
 
 from __future__ import annotations
 
+import ipaddress
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -103,9 +104,15 @@ def live_writers(opts: dict[str, Any], writers: list[Any], lines: list[str]) -> 
     if opts.get("foxglove_port") is not None:
         from rfsas_hw.ros2.foxglove_live import LAYOUT_FILE, FoxgloveServer
 
-        server = FoxgloveServer(opts["foxglove_host"], opts["foxglove_port"])
+        host = opts["foxglove_host"]
+        server = FoxgloveServer(host, opts["foxglove_port"])
         writers.append(server)
         lines.append(f"foxglove: open {server.url} in the Foxglove app")
+        if not _loopback(host):
+            lines.append(
+                f"foxglove: WARNING: the server has no authentication and listens on {host}: "
+                "anyone who reaches this host sees the live scene"
+            )
         lines.append(f"foxglove: layout {LAYOUT_FILE}")
     if opts.get("ros2_publish"):
         from rfsas_hw.ros2.dds import DdsConfig, DdsPublisher
@@ -113,6 +120,16 @@ def live_writers(opts: dict[str, Any], writers: list[Any], lines: list[str]) -> 
         dds = DdsConfig(domain_id=opts["ros2_domain"], interface=opts.get("ros2_interface"))
         writers.append(DdsPublisher(dds))
         lines.append(f"ros2: publishing on domain {dds.domain_id}")
+
+
+def _loopback(host: str) -> bool:
+    """Whether ``host`` names this host only (localhost, 127.0.0.0/8, ::1)."""
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False
 
 
 def sensor_scene(opts: dict[str, Any], pose_of: Callable[[str], Any]) -> tuple[Any, list[str]]:

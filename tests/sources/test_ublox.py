@@ -107,6 +107,8 @@ def test_garbage_and_partial_lines_are_counted(
         b'+UUDF:ZZF9578E0D8A,-42,20,0,-43,37,"A","",1,2',  # not a hex address
         b'+UUDF:CCF9578E0D8A,-42,x,0,-43,37,"A","",1,2',  # not a number
         b'+UUDF:CCF9578E0D8A,0,20,0,0,37,"A","",1,2',  # no RSSI at all
+        b'+UUDF:CCF9578E0D8A,99999,20,0,-43,37,"A","",1,2',  # RSSI beyond a signed byte
+        b'+UUDF:CCF9578E0D8A,-99999,20,0,0,37,"A","",1,2',  # SNR -99,895 dB otherwise
         b"hello world",
     ]
     caplog.set_level(logging.DEBUG)

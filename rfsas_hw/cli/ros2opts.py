@@ -9,6 +9,7 @@ and the backend; :func:`ros2_options` adds the backend's ``--rosbag2`` and
 from __future__ import annotations
 
 import ipaddress
+import socket
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -17,6 +18,7 @@ from typing import Any, TypeVar
 import click
 
 from rfsas_hw.cli.outopts import OutputPath
+from rfsas_hw.errors import ConfigError
 
 F = TypeVar("F", bound=Callable[..., Any])
 
@@ -117,9 +119,32 @@ def live_writers(opts: dict[str, Any], writers: list[Any], lines: list[str]) -> 
     if opts.get("ros2_publish"):
         from rfsas_hw.ros2.dds import DdsConfig, DdsPublisher
 
-        dds = DdsConfig(domain_id=opts["ros2_domain"], interface=opts.get("ros2_interface"))
+        dds = DdsConfig(domain_id=opts["ros2_domain"], interface=_interface(opts))
         writers.append(DdsPublisher(dds))
         lines.append(f"ros2: publishing on domain {dds.domain_id}")
+
+
+def _interface(opts: dict[str, Any]) -> str | None:
+    """``--ros2-interface``: a network interface of this host by name or address.
+
+    Raises:
+        ConfigError: no interface of this host has that name, and it is no IP address.
+    """
+    name = opts.get("ros2_interface")
+    if name is None:
+        return None
+    try:
+        ipaddress.ip_address(name)
+        return str(name)
+    except ValueError:
+        pass
+    names = [n for _, n in socket.if_nameindex()]
+    if name not in names:
+        raise ConfigError(
+            f"--ros2-interface {name!r}: no such network interface here "
+            f"(there are: {', '.join(names)}); give a name or an address"
+        )
+    return str(name)
 
 
 def _loopback(host: str) -> bool:
@@ -191,7 +216,7 @@ def attach_scene(service: Any, out: Path | None, opts: dict[str, Any]) -> Ros2Ou
         if opts.get("odom_topic"):
             from rfsas_hw.ros2.dds import DdsConfig, OdometryFeed
 
-            dds = DdsConfig(domain_id=opts["ros2_domain"], interface=opts.get("ros2_interface"))
+            dds = DdsConfig(domain_id=opts["ros2_domain"], interface=_interface(opts))
             feed = OdometryFeed(opts["odom_topic"], dds)
             result.vehicle_feed = feed
             result.closers.append(feed.close)

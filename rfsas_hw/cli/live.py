@@ -55,7 +55,10 @@ def parse_channels(text: str) -> list[int]:
     type=click.FloatRange(min=0, min_open=True),
     help="Stop after this many seconds.",
 )
-@click.option("--channels", help="Hop over these channels (wifi: sources), e.g. 1,6,11.")
+@click.option(
+    "--channels",
+    help="Hop over these channels (wifi: sources; a serial: board's scan plan), e.g. 1,6,11.",
+)
 @click.option(
     "--dwell",
     type=click.FloatRange(min=0, min_open=True),
@@ -141,10 +144,16 @@ def live(
         elif nonce_secret is not None:
             options["hasher"] = MacHasher(DerivedNonces.from_file(nonce_secret), epoch_s)
     if channels is not None:
-        if scheme != "wifi":
-            raise ConfigError("--channels needs a wifi: source (it hops the interface with iw)")
+        if scheme not in ("wifi", "serial"):
+            raise ConfigError(
+                "--channels needs a wifi: source (hopped with iw) or a serial: DF board "
+                "(its scan plan)"
+            )
         options["channels"] = parse_channels(channels)
-        options["dwell_s"] = dwell
+        if scheme == "wifi":
+            options["dwell_s"] = dwell
+        else:
+            options["dwell_ms"] = max(1, round(dwell * 1000))
     if cues is not None:
         if channels is None or keys_dir is None:
             raise ConfigError("--cues needs --channels (the plan cues interrupt) and --keys")

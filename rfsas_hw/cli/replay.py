@@ -22,8 +22,9 @@ from rfsas_hw.cli.sensoropts import (
     sensor_options,
 )
 from rfsas_hw.errors import ConfigError
+from rfsas_hw.privacy.hashing import DerivedNonces, MacHasher
 from rfsas_hw.runner import Runner
-from rfsas_hw.sources.registry import schemes
+from rfsas_hw.sources.registry import parse_spec, schemes, source_class
 
 
 def capture_spec(capture: str) -> str:
@@ -100,13 +101,26 @@ def replay(
     console = Console(stderr=True)
     where = parse_pose(pose, origin)
     epoch_schedule(epoch_s)
-    pipeline = build_pipeline(
-        calibration_path, sensor_id, where, min_snr_db, nonce_secret=nonce_secret, epoch_s=epoch_s
-    )
+    spec = capture_spec(capture)
+    scheme, _ = parse_spec(spec)
+    options: dict[str, Any] = {"errors": errors}
+    pipeline = None
+    if source_class(scheme).yields_bearings:
+        # an AoA unit measures the angle itself: no calibration; it hashes its ids
+        # with the deployment's nonces when given, as live does
+        if nonce_secret is not None and getattr(source_class(scheme), "hashes_ids", False):
+            options["hasher"] = MacHasher(DerivedNonces.from_file(nonce_secret), epoch_s)
+    else:
+        pipeline = build_pipeline(
+            calibration_path,
+            sensor_id,
+            where,
+            min_snr_db,
+            nonce_secret=nonce_secret,
+            epoch_s=epoch_s,
+        )
     if speed is not None and speed <= 0:
         raise ConfigError(f"--speed must be positive, got {speed}")
-    spec = capture_spec(capture)
-    options: dict[str, Any] = {"errors": errors}
     if spec.startswith("pcap:"):
         options["n_antennas"] = n_antennas
     source = rfsas_hw.sources.open(spec, **options)

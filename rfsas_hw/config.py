@@ -8,6 +8,7 @@ falls back to a default.
 from __future__ import annotations
 
 import dataclasses
+import math
 import os
 import types
 import typing
@@ -211,9 +212,12 @@ def _convert(value: Any, hint: Any, where: str) -> Any:
         if isinstance(value, bool):
             raise ConfigError(f"{where}: expected a number, got {value!r}")
         try:
-            return float(value)
+            number = float(value)
         except (TypeError, ValueError) as err:
             raise ConfigError(f"{where}: expected a number, got {value!r}") from err
+        if math.isnan(number):  # never a setting: it would poison every result silently
+            raise ConfigError(f"{where}: expected a number, got {value!r}")
+        return number
     if hint is int:
         if isinstance(value, bool) or (isinstance(value, float) and not value.is_integer()):
             raise ConfigError(f"{where}: expected an integer, got {value!r}")

@@ -2,7 +2,8 @@
 
 Every error says what was wrong and where (file, line, key, frame number, byte
 offset). Errors that wrap a lower-level failure chain it with ``raise … from``.
-The CLI turns any :class:`RfsasError` into one line on stderr and exit code 2.
+The CLI turns any :class:`RfsasError` into one line on stderr and exit code 2
+(:class:`OutputError`, a write that failed, into exit code 1).
 """
 
 from __future__ import annotations
@@ -70,6 +71,14 @@ class SimulationError(RfsasError):
 
 class ExportError(RfsasError):
     """A run cannot be exported (unreadable log, no site origin, unwritable output)."""
+
+
+class OutputError(RfsasError):
+    """An output could not be written while the command ran (disk full, I/O error).
+
+    Unlike the other errors (bad input, exit code 2) this is a failed run: the
+    CLI prints ``failed: MESSAGE`` and exits with code 1.
+    """
 
 
 class MissingDependencyError(RfsasError):

@@ -12,6 +12,7 @@ run never leaves a half-written file where a good one was.
 from __future__ import annotations
 
 import contextlib
+import io
 import os
 import re
 import stat
@@ -19,9 +20,9 @@ import tempfile
 from collections.abc import Iterable
 from pathlib import Path
 from types import TracebackType
-from typing import IO, Self
+from typing import IO, Any, Self
 
-from rfsas_hw.errors import ConfigError
+from rfsas_hw.errors import ConfigError, OutputError
 
 STDIO = "-"
 """The name that means standard output (or input)."""
@@ -107,7 +108,8 @@ def check_output(
 
 
 class AtomicFile:
-    """A text file written beside its target and renamed over it on a clean close.
+    """A file (text, or bytes with ``binary``) written beside its target and renamed
+    over it on a clean close.
 
     For a device or pipe target (``/dev/null``, a FIFO) the target is opened
     directly: there is nothing to protect and renaming over a device is wrong.
@@ -119,21 +121,28 @@ class AtomicFile:
     """
 
     def __init__(
-        self, path: str | Path, *, newline: str | None = "", mode: int | None = None
+        self,
+        path: str | Path,
+        *,
+        newline: str | None = "",
+        binary: bool = False,
+        mode: int | None = None,
     ) -> None:
         self.path = Path(path)
         self.mode = mode
         """Permissions of the file once renamed (default: 0666 less the umask)."""
         self._tmp: Path | None = None
         direct = self.path.exists() and not self.path.is_file()
+        text: dict[str, Any] = {} if binary else {"encoding": "utf-8", "newline": newline}
+        open_mode = "wb" if binary else "w"
         if direct:
-            self.stream: IO[str] = self.path.open("w", encoding="utf-8", newline=newline)
+            self.stream: IO[Any] = self.path.open(open_mode, **text)
         else:
             fd, tmp = tempfile.mkstemp(
                 prefix=f".{self.path.name}.", suffix=".part", dir=self.path.parent or "."
             )
             self._tmp = Path(tmp)
-            self.stream = os.fdopen(fd, "w", encoding="utf-8", newline=newline)
+            self.stream = os.fdopen(fd, open_mode, **text)
 
     def commit(self) -> None:
         """Flush, sync and rename over the target.
@@ -186,14 +195,39 @@ def _read_umask() -> int:
 _UMASK = _read_umask()
 
 
-def write_text_atomic(path: str | Path, text: str) -> None:
-    """Write ``text`` to ``path`` through :class:`AtomicFile`.
+def write_text_atomic(path: str | Path, text: str | bytes) -> None:
+    """Write ``text`` (or bytes) to ``path`` through :class:`AtomicFile`.
 
     Raises:
-        ConfigError: the file cannot be written (the message names it).
+        ConfigError: the file cannot be created (no such directory, no permission).
+        OutputError: writing it failed (disk full, I/O error); the target is unchanged.
     """
     try:
-        with AtomicFile(path, newline=None) as out:
-            out.stream.write(text)
+        out = AtomicFile(path, newline=None, binary=isinstance(text, bytes))
     except OSError as err:
         raise ConfigError(f"{path}: cannot write: {err.strerror or err}") from err
+    try:
+        with out:
+            out.stream.write(text)
+    except OSError as err:
+        raise OutputError(f"{path}: write failed: {err.strerror or err}") from err
+
+
+def save_figure(fig: Any, path: str | Path, **options: Any) -> Path:
+    """Save a matplotlib figure to ``path`` through :func:`write_text_atomic`.
+
+    The image is drawn in memory first (its format from the suffix): matplotlib
+    writing to a file itself does not report every failed write.
+
+    Raises:
+        ConfigError: the file cannot be created.
+        OutputError: writing it failed (disk full); the target is unchanged.
+    """
+    p = Path(path)
+    image = io.BytesIO()
+    fmt = p.suffix.lstrip(".").lower() or "png"
+    if fmt not in fig.canvas.get_supported_filetypes():
+        raise ConfigError(f"{p}: cannot draw a .{fmt} image; use .png, .svg or .pdf")
+    fig.savefig(image, format=fmt, **options)
+    write_text_atomic(p, image.getvalue())
+    return p

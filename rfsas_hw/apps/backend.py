@@ -33,6 +33,7 @@ from rfsas_hw.backend.service import (
 )
 from rfsas_hw.backend.vehicle import VehicleFeed, VehicleState, load_vehicle
 from rfsas_hw.errors import ConfigError
+from rfsas_hw.fleet.certname import check_certificate_names
 from rfsas_hw.geo import SiteOrigin
 from rfsas_hw.link import Receiver, ReceiverConfig, open_transport
 from rfsas_hw.link.keys import KeyStore
@@ -170,6 +171,11 @@ class BackendApp:
         self.config = config
         self.settings = self._checked_settings()
         self.store = KeyStore.open(config.keys_dir)
+        check_certificate_names(
+            [u for u in (config.advise, config.send_cues) if u],
+            self.store.id,
+            "--advise/--send-cues",
+        )
         if len(self.store.trust) == 0:
             raise ConfigError(
                 f"{config.keys_dir}: no enrolled sensors in trust/ (rfsas keys enroll)"
@@ -255,6 +261,7 @@ class BackendApp:
 
             plan = load_tile_plan(self.config.tile_plan)
             urls = [with_tiles(u, plan, self.store.id) for u in urls]
+        check_certificate_names(urls, self.store.id, "--listen")
         grace_s = min(5.0, epoch / 4)
         return Receiver.listen(
             urls,

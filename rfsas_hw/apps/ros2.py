@@ -9,10 +9,14 @@ the applications run without the ``ros2`` extra.
 
 from __future__ import annotations
 
+import ipaddress
+import socket
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
+
+from rfsas_hw.errors import ConfigError
 
 
 @dataclass(frozen=True, slots=True)
@@ -50,16 +54,54 @@ def live_writers(opts: Ros2Options, writers: list[Any], lines: list[str]) -> Non
     if opts.foxglove_port is not None:
         from rfsas_hw.ros2.foxglove_live import LAYOUT_FILE, FoxgloveServer
 
-        server = FoxgloveServer(opts.foxglove_host, opts.foxglove_port)
+        host = opts.foxglove_host
+        server = FoxgloveServer(host, opts.foxglove_port)
         writers.append(server)
         lines.append(f"foxglove: open {server.url} in the Foxglove app")
+        if not _loopback(host):
+            lines.append(
+                f"foxglove: WARNING: the server has no authentication and listens on {host}: "
+                "anyone who reaches this host sees the live scene"
+            )
         lines.append(f"foxglove: layout {LAYOUT_FILE}")
     if opts.publish:
         from rfsas_hw.ros2.dds import DdsConfig, DdsPublisher
 
-        dds = DdsConfig(domain_id=opts.domain_id, interface=opts.interface)
+        dds = DdsConfig(domain_id=opts.domain_id, interface=_interface(opts.interface))
         writers.append(DdsPublisher(dds))
         lines.append(f"ros2: publishing on domain {dds.domain_id}")
+
+
+def _interface(name: str | None) -> str | None:
+    """The DDS network interface ``name``: an interface of this host by name, or an address.
+
+    Raises:
+        ConfigError: no interface of this host has that name, and it is no IP address.
+    """
+    if name is None:
+        return None
+    try:
+        ipaddress.ip_address(name)
+        return name
+    except ValueError:
+        pass
+    names = [n for _, n in socket.if_nameindex()]
+    if name not in names:
+        raise ConfigError(
+            f"--ros2-interface {name!r}: no such network interface here "
+            f"(there are: {', '.join(names)}); give a name or an address"
+        )
+    return name
+
+
+def _loopback(host: str) -> bool:
+    """Whether ``host`` names this host only (localhost, 127.0.0.0/8, ::1)."""
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False
 
 
 def sensor_scene(opts: Ros2Options, pose_of: Callable[[str], Any]) -> tuple[Any, list[str]]:
@@ -123,7 +165,7 @@ def attach_scene(service: Any, out: Path | None, opts: Ros2Options) -> Ros2Outpu
         if opts.odom_topic:
             from rfsas_hw.ros2.dds import DdsConfig, OdometryFeed
 
-            dds = DdsConfig(domain_id=opts.domain_id, interface=opts.interface)
+            dds = DdsConfig(domain_id=opts.domain_id, interface=_interface(opts.interface))
             feed = OdometryFeed(opts.odom_topic, dds)
             result.vehicle_feed = feed
             result.closers.append(feed.close)

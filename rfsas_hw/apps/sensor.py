@@ -29,6 +29,7 @@ import rfsas_hw.sources
 from rfsas_hw.apps.ros2 import Ros2Options, sensor_scene
 from rfsas_hw.df import load_calibration
 from rfsas_hw.errors import ConfigError
+from rfsas_hw.fleet.certname import check_certificate_names
 from rfsas_hw.link.cue_publisher import CuePublisher
 from rfsas_hw.link.cue_receiver import CueInbox, CueReceiver
 from rfsas_hw.link.distribution import NonceInbox
@@ -176,9 +177,12 @@ def open_publisher(
         return None
     if keys_dir is None:
         raise ConfigError("--send needs --keys DIR: messages are signed with the sensor's key")
+    store = KeyStore.open(keys_dir)
+    check_certificate_names(urls, store.id, "--send")
+    check_certificate_names([fallback] if fallback else [], store.id, "--fallback")
     if fallback is None:
         return Publisher.from_keys(urls, keys_dir, pose, epoch_s=epoch_s, preauth=preauth)
-    signer = KeyStore.open(keys_dir).signer()
+    signer = store.signer()
     primary = open_transports(urls, "send")
     try:
         secondary = open_transport(fallback, "send")
@@ -204,7 +208,9 @@ def open_cue_publisher(
         return None
     if keys_dir is None:
         raise ConfigError("--send-cues needs --keys DIR: cues are signed with the sensor's key")
-    signer = KeyStore.open(keys_dir).signer()
+    store = KeyStore.open(keys_dir)
+    check_certificate_names([url], store.id, "--send-cues")
+    signer = store.signer()
     return CuePublisher(signer, open_transport(url, "send"), pose, epoch_s=epoch_s)
 
 
@@ -225,7 +231,9 @@ def open_nonce_inbox(
     """
     if keys_dir is None:
         raise ConfigError("--nonces needs --keys DIR: envelopes are sealed to the sensor's key")
-    store = KeyStore.open(keys_dir).nonce_store(EpochSchedule(epoch_s, grace_s))
+    keys = KeyStore.open(keys_dir)
+    check_certificate_names([url], keys.id, "--nonces")
+    store = keys.nonce_store(EpochSchedule(epoch_s, grace_s))
     inbox = NonceInbox(store, open_transport(url, "recv"), wait_s=wait_s)
     # whoever holds the inbox keeps it for the whole run; close the socket when it goes
     weakref.finalize(inbox, inbox.transport.close)

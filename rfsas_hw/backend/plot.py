@@ -15,6 +15,7 @@ import numpy.typing as npt
 
 from rfsas_hw.backend.vehicle import VehicleState
 from rfsas_hw.errors import BackendError
+from rfsas_hw.outpaths import save_figure
 from rfsas_hw.records import Assessment, Fix, Pose
 
 __all__ = ["ellipse_axes", "plot_map"]
@@ -121,10 +122,6 @@ def plot_map(
         ax.set_ylabel("north (m)")
         ax.set_title(f"{title} ({k_sigma:g}σ ellipses)")
         out = Path(path)
-        try:
-            fig.savefig(out, dpi=100)
-        except OSError as err:
-            raise BackendError(f"{out}: cannot write the map: {err.strerror or err}") from err
-        return out
+        return save_figure(fig, out, dpi=100)
     finally:
         plt.close(fig)

@@ -320,6 +320,26 @@ class BackendService:
         """Latest assessment of every live emitter, by emitter id."""
         self.link_stats: Callable[[], dict[str, int]] | None = None
         """Counters of the link (verified, rejected by reason), merged into :meth:`all_stats`."""
+        self.sink_errors: dict[str, str] = {}
+        """The first error of every sink that raised, by sink name."""
+
+    def _sink_failed(self, sink: object, err: Exception, what: str) -> None:
+        name = str(getattr(sink, "path", None) or type(sink).__name__)
+        if name not in self.sink_errors:
+            # one line: the run's end reports it, and a full disk must not bury the
+            # operator's console in tracebacks
+            self.sink_errors[name] = f"{what}: {getattr(err, 'strerror', None) or err}"
+            log.warning("result sink %s %s: %s", name, what, err)
+            log.debug("result sink %s failure", name, exc_info=True)
+
+    def problems(self) -> list[str]:
+        """One line per sink whose output failed (a write error), for the run's end."""
+        found = [f"{name}: {text}" for name, text in self.sink_errors.items()]
+        for sink in self.sinks:
+            error = getattr(sink, "error", None)
+            if isinstance(error, str):
+                found.append(error)
+        return found
 
     def set_vehicle(self, vehicle: VehicleState | None) -> None:
         """Use ``vehicle`` as the vehicle state from now on (None: stop judging risk)."""
@@ -336,8 +356,8 @@ class BackendService:
                 continue
             try:
                 take(bearings, pose)
-            except Exception:
-                log.exception("result sink %s failed on bearings", type(sink).__name__)
+            except Exception as err:
+                self._sink_failed(sink, err, "failed on bearings")
 
     def on_verified(self, message: VerifiedLike) -> None:
         """Take a verified safety message (``rfsas_hw.link.VerifiedMessage``)."""
@@ -362,8 +382,8 @@ class BackendService:
         for sink in self.sinks:
             try:
                 sink.on_results(fixes, assessments)
-            except Exception:
-                log.exception("result sink %s failed", type(sink).__name__)
+            except Exception as err:
+                self._sink_failed(sink, err, "failed")
         return assessments
 
     def _triangulate(self, now: int) -> list[Fix]:
@@ -585,5 +605,5 @@ class BackendService:
                 if isinstance(sink, JsonlSink):
                     sink.write_stats(self.all_stats())
                 sink.close()
-            except Exception:
-                log.exception("closing result sink %s failed", type(sink).__name__)
+            except Exception as err:
+                self._sink_failed(sink, err, "could not be closed")

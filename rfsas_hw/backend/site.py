@@ -22,6 +22,7 @@ sensors not heard yet.
 from __future__ import annotations
 
 import math
+import re
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -72,6 +73,10 @@ class SiteConfig:
     def sensor(self, sensor_id: str) -> SiteSensor | None:
         """The declared sensor ``sensor_id``, or None."""
         return next((s for s in self.sensors if s.id == sensor_id), None)
+
+
+_TILES_RE = re.compile(r"https?://[A-Za-z0-9.-]+(:[0-9]{1,5})?(/[A-Za-z0-9._~:/?&=%{}-]*)?")
+"""A tile URL template: a plain host (and port), then a path of URL characters."""
 
 
 def _number(data: Mapping[str, Any], key: str, where: str) -> float:
@@ -191,4 +196,11 @@ def site_from_mapping(data: Any, where: str, base_dir: Path | None = None) -> Si
             raise ConfigError(f"{where}.tiles: expected a URL template with {{z}}, {{x}}, {{y}}")
         if not tiles.startswith(("http://", "https://")):
             raise ConfigError(f"{where}.tiles: expected an http(s) URL, got {tiles!r}")
+        if not _TILES_RE.fullmatch(tiles):
+            # the host goes into the dashboard's Content-Security-Policy header: a ';'
+            # or a space there would add directives of its own
+            raise ConfigError(
+                f"{where}.tiles: {tiles!r} has characters a tile URL does not need "
+                "(only letters, digits and - . _ ~ : / ? & = % { } are taken)"
+            )
     return SiteConfig(origin=origin, sensors=tuple(sensors), map=map_path, tiles=tiles)

@@ -303,6 +303,10 @@ class Bridge:
         self._sources: dict[str, StreamTwinSource] = {}
         self._pipelines: dict[str, SensorPipeline] = {}
         self._publishers: dict[str, Any] = {}
+        self.sent_bearings = 0
+        """Bearings the units' publishers sent (``publish_to``), counted on close."""
+        self.send_problems: list[str] = []
+        """Why a unit's sending failed (one line per unit), found on close."""
         """Per unit, the publisher of signed messages (with :meth:`publish_to`)."""
         self._mounted = {s.id for s in self.scenario.spec.sensors if s.mounted_on is not None}
         """Units on a vehicle (their pose is looked up every step)."""
@@ -550,6 +554,10 @@ class Bridge:
             src.close()
         for pub in self._publishers.values():
             pub.close()
+            self.sent_bearings += pub.stats.bearings
+            problem = pub.problem()
+            if problem is not None:
+                self.send_problems.append(f"{pub.signer.sender_id}: {problem}")
         self._publishers.clear()
         self.backend.close()
         if self._truth is not None:

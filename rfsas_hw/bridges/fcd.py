@@ -29,7 +29,9 @@ import yaml
 from rfsas_hw.bridges.bridge import EGO_MOVER, device_mac, device_model_of
 from rfsas_hw.bridges.config import BridgeConfig, EgoUnitSpec, UnitSpec
 from rfsas_hw.bridges.coords import FRAMES
+from rfsas_hw.bridges.sumofiles import check_no_dtd
 from rfsas_hw.errors import DataFormatError, SimulationError
+from rfsas_hw.outpaths import write_text_atomic
 from rfsas_hw.records import int_to_mac
 from rfsas_hw.twin.scenario import BuildingSpec, scenario_from_mapping
 
@@ -53,13 +55,18 @@ class FcdTrack:
     width_m: float = 0.5
 
 
-def _float(el: ET.Element, name: str, where: str) -> float:
+def _float(el: ET.Element, name: str, where: str, default: float | None = None) -> float:
+    if name not in el.attrib and default is not None:
+        return default
     try:
-        return float(el.attrib[name])
+        value = float(el.attrib[name])
     except KeyError:
         raise DataFormatError(f"{where}: <{el.tag}> has no {name!r} attribute") from None
     except ValueError:
         raise DataFormatError(f"{where}: {name}={el.attrib[name]!r} is not a number") from None
+    if not math.isfinite(value):
+        raise DataFormatError(f"{where}: {name}={el.attrib[name]!r} is not a finite number")
+    return value
 
 
 def read_fcd(
@@ -68,13 +75,15 @@ def read_fcd(
     """Every entity's samples of an FCD file, box centres in the rfsas frame.
 
     Raises:
-        DataFormatError: not an FCD file, a sample without position or time,
-            an unreadable file.
+        DataFormatError: not an FCD file, a sample without position or time or
+            with a value that is not a finite number, an unreadable file.
+        ConfigError: the file declares a DTD.
     """
     p = Path(path)
     sumo = FRAMES["sumo"]
     tracks: dict[str, FcdTrack] = {}
     t = math.nan
+    check_no_dtd(p)  # entities a DTD defines would expand without bound
     try:
         for event, el in ET.iterparse(p, events=("start", "end")):
             if event == "start" and el.tag == "timestep":
@@ -86,7 +95,7 @@ def read_fcd(
                     raise DataFormatError(f"{where}: <{el.tag}> without id or outside a timestep")
                 person = el.tag == "person"
                 eid = f"person:{vid}" if person else vid
-                length = float(el.attrib.get("length", 0.5 if person else vehicle_length_m))
+                length = _float(el, "length", where, 0.5 if person else vehicle_length_m)
                 e, n, _ = sumo.to_rfsas(
                     _float(el, "x", where),
                     _float(el, "y", where),
@@ -98,7 +107,7 @@ def read_fcd(
                 tr = tracks.get(eid)
                 if tr is None:
                     kind = "pedestrian" if person else "vehicle"
-                    width = float(el.attrib.get("width", 0.5 if person else 1.8))
+                    width = _float(el, "width", where, 0.5 if person else 1.8)
                     tr = tracks[eid] = FcdTrack(eid, kind, length_m=length, width_m=width)
                 tr.t_s.append(t)
                 tr.x_m.append(float(e))
@@ -276,14 +285,12 @@ def fcd_to_scenario(
 
 
 def write_scenario(data: dict[str, Any], path: str | Path) -> Path:
-    """Write a scenario mapping as YAML.
+    """Write a scenario mapping as YAML (beside the target, then renamed over it).
 
     Raises:
-        SimulationError: the file cannot be written.
+        ConfigError: the file cannot be created.
+        OutputError: writing it failed (disk full); the target is unchanged.
     """
     p = Path(path)
-    try:
-        p.write_text(yaml.safe_dump(data, sort_keys=False), encoding="utf-8")
-    except OSError as err:
-        raise SimulationError(f"{p}: cannot write: {err.strerror or err}") from err
+    write_text_atomic(p, yaml.safe_dump(data, sort_keys=False))
     return p

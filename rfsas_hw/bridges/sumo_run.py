@@ -82,6 +82,10 @@ class SumoRunConfig:
                 raise ValueError("person_speed_mps must be [low, high] with 0 < low <= high")
         if not self.end_s > 0:
             raise ValueError("end_s must be positive")
+        if not 0 <= self.hold_s < math.inf:
+            raise ValueError("hold_s must be a number of seconds >= 0")
+        if self.caution_speed_mps is not None and not 0 < self.caution_speed_mps < math.inf:
+            raise ValueError("caution_speed_mps must be a positive speed, m/s")
 
 
 def load_run_file(path: str | Path) -> tuple[BridgeConfig, SumoRunConfig]:
@@ -135,6 +139,10 @@ class SeedResult:
     """Mean wall time of one SUMO step, milliseconds."""
     bridge_ms: float = math.nan
     """Mean wall time of one bridge step, milliseconds."""
+    sent: int = 0
+    """Bearings sent to a separate backend (``send``)."""
+    send_problems: list[str] = field(default_factory=list)
+    """Why sending failed, one line per unit (empty: it did not, or nothing was sent)."""
 
     def as_dict(self) -> dict[str, Any]:
         """JSON-ready (non-finite numbers as None)."""
@@ -324,6 +332,8 @@ def run_seed(
     finally:
         if bridge is not None:
             bridge.close()
+            result.sent = bridge.sent_bearings
+            result.send_problems = list(bridge.send_problems)
         sumo.close()
     if not adapter.ego_seen:
         raise SimulationError(f"{cfg_path}: the ego vehicle {run.ego!r} never appeared")

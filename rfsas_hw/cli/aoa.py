@@ -73,8 +73,20 @@ def _serve(
     show_default=True,
     help="+UUDF field count of the emulated firmware.",
 )
-@click.option("--rate", type=float, default=10.0, show_default=True, help="Events per tag per s.")
-@click.option("--noise", type=float, default=2.0, show_default=True, help="Azimuth σ, degrees.")
+@click.option(
+    "--rate",
+    type=click.FloatRange(0, 1000, min_open=True),
+    default=10.0,
+    show_default=True,
+    help="Events per tag per s (above 0, at most 1000).",
+)
+@click.option(
+    "--noise",
+    type=click.FloatRange(0, 180),
+    default=2.0,
+    show_default=True,
+    help="Azimuth σ, degrees (0-180).",
+)
 @click.option("--garbage", type=float, default=0.0, help="Probability of a damaged line.")
 @click.option("--binary", is_flag=True, help="Send binary output (a unit left in binary mode).")
 @_seed_option
@@ -133,8 +145,20 @@ def emulate_ublox(
     multiple=True,
     help="FREQ_MHZ,BEARING[,CONFIDENCE] of a transmitter (repeatable); bearing 0…360.",
 )
-@click.option("--rate", type=float, default=5.0, show_default=True, help="Frames per second.")
-@click.option("--noise", type=float, default=2.0, show_default=True, help="Bearing σ, degrees.")
+@click.option(
+    "--rate",
+    type=click.FloatRange(0, 1000, min_open=True),
+    default=5.0,
+    show_default=True,
+    help="Frames per second (above 0, at most 1000).",
+)
+@click.option(
+    "--noise",
+    type=click.FloatRange(0, 180),
+    default=2.0,
+    show_default=True,
+    help="Bearing σ, degrees (0-180).",
+)
 @click.option("--torn", type=float, default=0.0, help="Probability a poll gets a torn page.")
 @click.option("--markup", is_flag=True, help="Serve an HTML page (the wrong output mode).")
 @_seed_option

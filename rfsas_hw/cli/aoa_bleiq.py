@@ -8,10 +8,11 @@ from pathlib import Path
 import click
 import numpy as np
 
+from rfsas_hw.cli.options import out_option
+from rfsas_hw.cli.outopts import OutputPath
 from rfsas_hw.df import fit_calibration, save_calibration
 from rfsas_hw.df.array import C_MPS, ArrayGeometry
 from rfsas_hw.df.arraycal import ArrayCalibration, ElementCalibration
-from rfsas_hw.errors import ConfigError
 from rfsas_hw.outpaths import check_output
 from rfsas_hw.rf import GaussianBeamPair, ReceiverModel, turntable_sweep
 from rfsas_hw.sources.ble_iq import ble_channel_mhz
@@ -19,16 +20,14 @@ from rfsas_hw.sources.ble_iq_emulator import btsnoop_file, h4_stream, iq_reports
 
 
 @click.command("bleiq")
-@click.option(
-    "-o",
-    "--output",
-    type=click.Path(dir_okay=False, path_type=Path),
+@out_option(
+    "File to write: .h4 for a raw H4 stream, anything else btsnoop.",
+    dest="output",
     required=True,
-    help="File to write: .h4 for a raw H4 stream, anything else btsnoop.",
 )
 @click.option(
     "--calibration-out",
-    type=click.Path(dir_okay=False, path_type=Path),
+    type=OutputPath(),
     help="Also write a calibration with the array's geometry (ideal elements).",
 )
 @click.option(
@@ -100,10 +99,8 @@ def emulate_bleiq(
         if output.suffix == ".h4"
         else btsnoop_file(reports, 1_800_000_000 * 10**9)
     )
-    try:
-        output.write_bytes(data)
-    except OSError as err:
-        raise ConfigError(f"{output}: cannot write: {err.strerror or err}") from err
+    # a failed write (disk full) ends as OutputError through the commands' output guard
+    output.write_bytes(data)
     click.echo(f"wrote {packets} IQ reports to {output}", err=True)
     if calibration_out is not None:
         ideal = ElementCalibration(np.zeros(elements), np.zeros(elements))

@@ -18,8 +18,10 @@ from rfsas_hw.apps.backend import BackendApp, BackendAppConfig, SettingsOverride
 from rfsas_hw.backend.collision import THREAT_SIZES
 from rfsas_hw.backend.service import BackendService
 from rfsas_hw.backend.site import parse_origin
+from rfsas_hw.cli.exitcodes import WorkFailed
 from rfsas_hw.cli.linkopts import join_urls, split_urls
 from rfsas_hw.cli.options import duration_option, keys_option, out_option
+from rfsas_hw.cli.outopts import OutputPath
 from rfsas_hw.cli.ros2opts import ros2_config, ros2_options
 from rfsas_hw.privacy.epochs import DEFAULT_EPOCH_S
 from rfsas_hw.records import Assessment
@@ -94,7 +96,7 @@ def render_table(service: BackendService, alarm: bool) -> Table:
 @out_option("Write every fix and assessment as JSON lines (and a final stats line).")
 @click.option(
     "--plot",
-    type=click.Path(dir_okay=False, path_type=Path),
+    type=OutputPath(),
     help="At the end, draw a map PNG with 2σ covariance ellipses (needs the plot extra).",
 )
 @duration_option()
@@ -202,7 +204,7 @@ def render_table(service: BackendService, alarm: bool) -> Table:
 @click.option(
     "--prior",
     "prior_file",
-    type=click.Path(dir_okay=False, path_type=Path),
+    type=OutputPath("update"),
     help="RF activity prior file (counts per tile and hour, no emitter ids): read, or "
     "started when missing, counted with this run's fixes, written back when the run ends.",
 )
@@ -303,11 +305,14 @@ def backend(
     console.print(f"ran {elapsed:.1f} s: " + ", ".join(f"{k} {v}" for k, v in stats.items()))
     if app.cpm_sink is not None:
         console.print(", ".join(f"{k} {v}" for k, v in app.cpm_sink.counters().items()))
-    if out is not None:
+    problems = app.service.problems()
+    if out is not None and not problems:
         click.echo(f"wrote {out}")
     drawn = app.draw_map()
     if drawn is not None:
         click.echo(f"wrote {drawn}")
+    if problems:
+        raise WorkFailed("; ".join(problems))
 
 
 def _run_with_table(app: BackendApp, console: Console) -> None:

@@ -19,11 +19,16 @@ def broker() -> None:
 @keys_option("Key directory whose trust/ enrols everyone (usually the nonce authority's).")
 @out_option(
     "Output directory (the CA and certificates already in it are kept).",
-    file_okay=False,
-    dir_okay=True,
+    kind="dir",
     required=True,
 )
-@click.option("--host", default="localhost", show_default=True, help="Broker address.")
+@click.option(
+    "--host",
+    default="localhost",
+    show_default=True,
+    help="Broker address clients connect to (an IP address or DNS name); the listener "
+    "binds it when it is an IP address or localhost, else every address.",
+)
 @click.option(
     "--port",
     type=click.IntRange(0, 65535),
@@ -59,6 +64,8 @@ def config(
     )
     for ident in sorted(files.identities, key=lambda i: (i.role, i.id)):
         state = "new certificate" if ident.id in files.issued else "kept"
+        if ident.id in files.replaced:
+            state = "new certificate (the one found was not this CA's for it)"
         click.echo(f"{ident.role:9} {ident.id:32} {state}")
     click.echo(f"wrote {files.conf} and {files.acl}; start with: mosquitto -c {files.conf}")
     click.echo(f"keep {files.root / 'ca' / 'ca.key'} offline: it admits new clients")

@@ -14,6 +14,7 @@ from rich.table import Table
 from rfsas_hw.cli.calibrate_phase import phase_options, run_phase
 from rfsas_hw.cli.exitcodes import WorkFailed
 from rfsas_hw.cli.options import json_option, out_option
+from rfsas_hw.cli.outopts import OutputPath
 from rfsas_hw.df import MODES, fit_calibration, load_calibration, read_samples_csv, save_calibration
 from rfsas_hw.df.calibration import Calibration
 from rfsas_hw.df.check import (
@@ -153,7 +154,7 @@ def check_record(report: CheckReport, cal_path: Path, samples_path: Path) -> dic
 @click.option(
     "--plot",
     "plot_path",
-    type=click.Path(dir_okay=False, path_type=Path),
+    type=OutputPath(),
     help="Draw ψ_D and the samples to this PNG.",
 )
 @click.option("--check", "check", is_flag=True, help="Check: INPUTS are CAL.yaml SAMPLES.csv.")

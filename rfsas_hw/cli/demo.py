@@ -74,8 +74,7 @@ def _table(result: DemoResult, every_s: float) -> Table:
 @out_option(
     "Where the outputs go.",
     dest="out_dir",
-    file_okay=False,
-    dir_okay=True,
+    kind="dir",
     default=Path("out/demo"),
 )
 @click.option(

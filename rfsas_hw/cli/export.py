@@ -13,6 +13,7 @@ from typing import Any
 
 import click
 
+from rfsas_hw.cli.exitcodes import WorkFailed
 from rfsas_hw.cli.exportmaps import export_map
 from rfsas_hw.cli.options import out_option
 from rfsas_hw.cli.sensoropts import parse_pose
@@ -47,11 +48,19 @@ def _export_ros(runs: tuple[Path, ...], out: Path, fmt: str, opts: dict[str, Any
         poses=parse_sensor_poses(opts["poses"]),
         storage=opts["storage"],
     )
+    if not result.messages:
+        skipped = sum(result.skipped.values())
+        raise WorkFailed(
+            f"nothing to export: 0 messages ({skipped} line(s) skipped"
+            + (f", first: {result.errors[0]}" if result.errors else "")
+            + "); give a run log of rfsas backend --out, or a bearings file of replay/live"
+        )
     lines = [
         f"wrote {out}: {result.messages} messages on {len(result.counts)} topics",
         *(f"  {topic}: {n}" for topic, n in sorted(result.counts.items())),
     ]
-    lines += [f"skipped: {message}" for message in result.errors[:5]]
+    lines += [f"skipped {n} line(s): {reason}" for reason, n in sorted(result.skipped.items())]
+    lines += [f"  {message}" for message in result.errors[:5]]
     if result.no_pose:
         lines.append(
             "no pose for sensor(s) "
@@ -87,7 +96,7 @@ DEFAULT_SUFFIX = {
 @out_option(
     "Output file (a directory for rosbag2) [default: the run's name with the format's "
     "suffix; rosbag2 needs it].",
-    dir_okay=True,
+    kind="file_or_new_dir",
 )
 @click.option(
     "--pose",
@@ -111,6 +120,7 @@ DEFAULT_SUFFIX = {
     "run log carries none, or to override it.",
 )
 @click.option("--flagged", is_flag=True, help="geojson/kml/cot: also export flagged fixes.")
+@click.option("--force", is_flag=True, help="Replace an existing output file (never an input).")
 def export(
     runs: tuple[Path, ...],
     fmt: str,
@@ -119,6 +129,7 @@ def export(
     storage: str,
     origin: str | None,
     flagged: bool,
+    force: bool,
 ) -> None:
     """Export RUNS (JSON lines of rfsas backend, replay or live) as FMT.
 
@@ -135,9 +146,8 @@ def export(
         out = runs[0].with_suffix(DEFAULT_SUFFIX[fmt])
         if out == runs[0]:
             raise click.UsageError(f"{out} is the input; give --out")
-    # an export of a previous run may be replaced; an input never (same path or inode)
-    if not out.is_dir():  # rosbag2 writes a directory
-        check_output(out, runs, force=True)
+        # the default name is not an option value: checked here as the options are
+        check_output(out, runs, force=force)
     opts = {"poses": poses, "storage": storage, "origin": origin, "flagged": flagged}
     for line in FORMATS[fmt](runs, out, fmt, opts):
         click.echo(line)

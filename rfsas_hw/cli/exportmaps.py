@@ -6,6 +6,7 @@ from pathlib import Path
 from typing import Any
 
 from rfsas_hw.backend.site import parse_origin
+from rfsas_hw.cli.exitcodes import WorkFailed
 from rfsas_hw.errors import ConfigError
 from rfsas_hw.exports import export_run
 
@@ -26,6 +27,13 @@ def export_map(runs: tuple[Path, ...], out: Path, fmt: str, opts: dict[str, Any]
     path, scene, run = export_run(
         runs[0], fmt, out, origin=origin, flagged=bool(opts.get("flagged"))
     )
+    if not (scene.fixes or scene.bearings or scene.tracks):
+        skipped = sum(run.skipped.values())
+        raise WorkFailed(
+            f"{runs[0]}: nothing to export (0 fixes, 0 bearings; {skipped} line(s) skipped"
+            + (f", first: {run.errors[0]}" if run.errors else "")
+            + "); give a run log of rfsas backend --out, or bearings with poses"
+        )
     lines = [
         f"wrote {path}: {len(scene.fixes)} fixes, {len(scene.bearings)} bearings, "
         f"{len(scene.tracks)} tracks, {len(scene.sensors)} sensors"

@@ -27,8 +27,7 @@ def keys() -> None:
 @out_option(
     "Key directory to create (existing key files are never overwritten).",
     dest="directory",
-    file_okay=False,
-    dir_okay=True,
+    kind="dir",
     required=True,
 )
 def new(role: str, ident: str | None, directory: Path) -> None:
@@ -62,6 +61,7 @@ def show(directory: Path) -> None:
 @out_option(
     "Write the card here (refuses to overwrite); default: standard output.",
     dest="output",
+    kind="new_file",
 )
 def export(directory: Path, output: Path | None) -> None:
     """Export the public card of an identity (no private key ever leaves DIR)."""

@@ -38,7 +38,10 @@ def parse_channels(text: str) -> list[int]:
 @live_options
 @click.option("--nonces", metavar="udp://HOST:PORT", help=NONCES_HELP)
 @duration_option("Stop after this many seconds.")
-@click.option("--channels", help="Hop over these channels (wifi: sources), e.g. 1,6,11.")
+@click.option(
+    "--channels",
+    help="Hop over these channels (wifi: sources; a serial: board's scan plan), e.g. 1,6,11.",
+)
 @click.option(
     "--dwell",
     type=click.FloatRange(min=0, min_open=True),
@@ -91,10 +94,16 @@ def live(
     scheme, _ = parse_spec(spec)
     options: dict[str, Any] = {"errors": errors}
     if channels is not None:
-        if scheme != "wifi":
-            raise ConfigError("--channels needs a wifi: source (it hops the interface with iw)")
+        if scheme not in ("wifi", "serial"):
+            raise ConfigError(
+                "--channels needs a wifi: source (hopped with iw) or a serial: DF board "
+                "(its scan plan)"
+            )
         options["channels"] = parse_channels(channels)
-        options["dwell_s"] = dwell
+        if scheme == "wifi":
+            options["dwell_s"] = dwell
+        else:
+            options["dwell_ms"] = max(1, round(dwell * 1000))
     if cues is not None:
         options["cues"] = SchedulerConfig()
     if any_link_type:

@@ -2,7 +2,9 @@
 
 Subcommands live in their own modules and are added to :data:`COMMANDS`.
 Any :class:`~rfsas_hw.errors.RfsasError` becomes one line on stderr and exit
-code 2; a traceback means a bug. Exit codes: :mod:`rfsas_hw.cli.exitcodes`.
+code 2 (an :class:`~rfsas_hw.errors.OutputError`, a failed write, exit code 1);
+a traceback means a bug. Every command's output options follow
+:mod:`rfsas_hw.cli.outopts`. Exit codes: :mod:`rfsas_hw.cli.exitcodes`.
 SIGTERM ends a command the way Ctrl-C does (outputs and summary written).
 """
 
@@ -20,8 +22,9 @@ from typing import SupportsFloat, SupportsIndex
 import click
 
 from rfsas_hw import __version__
-from rfsas_hw.cli.exitcodes import BAD_INPUT, EPILOG, INTERRUPTED
-from rfsas_hw.errors import RfsasError
+from rfsas_hw.cli.exitcodes import BAD_INPUT, EPILOG, FAILED, INTERRUPTED
+from rfsas_hw.cli.outopts import guard_outputs
+from rfsas_hw.errors import OutputError, RfsasError
 from rfsas_hw.runner import Terminated
 
 EXIT_BAD_INPUT = BAD_INPUT
@@ -63,6 +66,7 @@ def _load_commands() -> None:
         module_name, _, attr = path.partition(":")
         command = getattr(importlib.import_module(module_name), attr)
         _add_epilog(command)
+        guard_outputs(command)
         cli.add_command(command)
 
 
@@ -110,11 +114,15 @@ def sigterm_as_interrupt() -> None:
 
 
 def main(argv: Sequence[str] | None = None) -> None:
-    """Run the CLI; turn library errors into one clear line and exit code 2."""
+    """Run the CLI; turn library errors into one clear line and exit code 2 (1 for a
+    failed write)."""
     _load_commands()
     sigterm_as_interrupt()
     try:
         cli.main(args=list(argv) if argv is not None else None, standalone_mode=False)
+    except OutputError as err:
+        click.echo(f"failed: {err}", err=True)
+        sys.exit(FAILED)
     except RfsasError as err:
         click.echo(f"error: {err}", err=True)
         sys.exit(EXIT_BAD_INPUT)

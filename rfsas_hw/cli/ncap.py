@@ -11,6 +11,7 @@ from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
+from rfsas_hw.cli.outopts import OutputPath
 from rfsas_hw.errors import ConfigError
 
 ALL = "all"
@@ -102,7 +103,7 @@ def _speeds(value: str | None) -> list[float] | None:
     "--out",
     "out_dir",
     required=True,
-    type=click.Path(file_okay=False, path_type=Path),
+    type=OutputPath("dir"),
     help="Directory for runs.jsonl, summary.json and one PNG per scenario.",
 )
 @click.option("--no-plots", is_flag=True, help="Do not draw the grids.")

@@ -10,6 +10,7 @@ import click
 from rfsas_hw.cli.exitcodes import WorkFailed
 from rfsas_hw.cli.options import duration_option, keys_option, out_option
 from rfsas_hw.errors import ConfigError
+from rfsas_hw.fleet.certname import check_certificate_names
 from rfsas_hw.link.distribution import NonceDistributor, NonceInbox
 from rfsas_hw.link.keys import KeyStore
 from rfsas_hw.link.transport import Transport, open_transport
@@ -95,6 +96,7 @@ def serve(
                 f"--to {rid}: not enrolled with authority {authority.authority_id!r} "
                 f"(rfsas keys enroll {keys_dir} CARD)"
             )
+        check_certificate_names([url], authority.authority_id, f"--to {rid}")
         destinations[rid] = open_transport(url, "send")
     dist = NonceDistributor(authority, destinations, resend_s=resend_s)
     click.echo(
@@ -119,7 +121,11 @@ def serve(
         dist.close()
     sent = ", ".join(f"{rid} {n}" for rid, n in sorted(dist.sent.items())) or "none"
     errors = sum(dist.errors.values())
-    click.echo(f"envelopes sent: {sent}; send errors: {errors}")
+    # a broker that refuses a publish (not authorised) says so only in its acknowledgement
+    refused = sum(getattr(getattr(t, "stats", None), "refused", 0) for t in destinations.values())
+    click.echo(f"envelopes sent: {sent}; send errors: {errors}; refused by the broker: {refused}")
+    if refused:
+        raise WorkFailed(f"the broker refused {refused} envelope(s) (not authorised?)")
     # an outage ridden out is counted and logged, not a failed run: only a receiver
     # still unreachable at the end is
     if dist.failing:
@@ -150,7 +156,9 @@ def serve(
 @duration_option("How long to listen, seconds.", default=10.0)
 def listen(keys_dir: Path, url: str, epoch_s: float, grace_s: float, duration: float) -> None:
     """Check that this sensor or backend receives its nonces (prints epochs, never nonces)."""
-    store = KeyStore.open(keys_dir).nonce_store(_schedule(epoch_s, grace_s))
+    keys = KeyStore.open(keys_dir)
+    check_certificate_names([url], keys.id, "URL")
+    store = keys.nonce_store(_schedule(epoch_s, grace_s))
     inbox = NonceInbox(store, open_transport(url, "recv"))
     stop = time.monotonic() + duration
     shown: tuple[int, ...] = ()
@@ -174,6 +182,7 @@ def listen(keys_dir: Path, url: str, epoch_s: float, grace_s: float, duration: f
     "File to create (mode 0600; an existing file is never overwritten).",
     dest="output",
     required=True,
+    kind="new_file",
 )
 def secret(output: Path) -> None:
     """Create a shared nonce secret for sensors without a nonce authority.

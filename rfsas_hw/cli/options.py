@@ -15,6 +15,8 @@ from typing import Any, TypeVar
 
 import click
 
+from rfsas_hw.cli.outopts import OutputKind, OutputPath
+
 F = TypeVar("F", bound=Callable[..., Any])
 
 
@@ -42,8 +44,7 @@ def out_option(
     help: str,
     *,
     dest: str = "out",
-    file_okay: bool = True,
-    dir_okay: bool = False,
+    kind: OutputKind = "file",
     required: bool = False,
     default: Path | None = None,
     short: bool = True,
@@ -53,7 +54,9 @@ def out_option(
     Args:
         help: what is written there.
         dest: name of the command's parameter.
-        file_okay / dir_okay: whether the path names a file, a directory (or both).
+        kind: what the path names and when it may already exist (see
+            :class:`~rfsas_hw.cli.outopts.OutputPath`: every command's outputs are checked
+            against its inputs and existing files before it opens anything).
         required: whether the command needs it.
         default: the path without the option (shown in ``--help``).
         short: also take ``-o`` (False where ``-o`` means something else).
@@ -64,7 +67,7 @@ def out_option(
         dest,
         cls=AliasedOption,
         hidden_aliases=("--output",),
-        type=click.Path(file_okay=file_okay, dir_okay=dir_okay, path_type=Path),
+        type=OutputPath(kind),
         required=required,
         default=default,
         show_default=default is not None,

@@ -9,12 +9,12 @@ and the backend; :func:`ros2_options` adds the backend's ``--rosbag2`` and
 from __future__ import annotations
 
 from collections.abc import Callable
-from pathlib import Path
 from typing import Any, TypeVar
 
 import click
 
 from rfsas_hw.apps.ros2 import Ros2Options
+from rfsas_hw.cli.outopts import OutputPath
 
 F = TypeVar("F", bound=Callable[..., Any])
 
@@ -70,7 +70,7 @@ def ros2_options(func: F) -> F:
         click.option(
             "--rosbag2",
             "rosbag2_dir",
-            type=click.Path(file_okay=False, path_type=Path),
+            type=OutputPath("new_dir"),
             help="Record the scene into this new rosbag2 directory (sqlite3 storage). "
             "An --out name ending in .mcap records an MCAP file instead of JSON lines.",
         ),

@@ -11,6 +11,7 @@ from rich.console import Console
 from rich.table import Table
 
 from rfsas_hw.cli.options import json_option, out_option
+from rfsas_hw.cli.outopts import OutputPath
 from rfsas_hw.df import save_calibration
 from rfsas_hw.errors import ConfigError
 from rfsas_hw.outpaths import check_output, inside
@@ -31,8 +32,7 @@ def sim() -> None:
 @out_option(
     "Directory for the captures and truth.jsonl.",
     dest="out_dir",
-    file_okay=False,
-    dir_okay=True,
+    kind="dir",
     required=True,
 )
 @click.option(
@@ -154,7 +154,7 @@ def turntable(scenario: Path, sensors: tuple[str, ...], mode: str, force: bool) 
 @click.option(
     "--plot",
     "plot_path",
-    type=click.Path(dir_okay=False, path_type=Path),
+    type=OutputPath(),
     help="Draw gap, speed and P_coll over time to this PNG.",
 )
 @json_option("Print one JSON object.")

@@ -11,6 +11,7 @@ from rich.console import Console
 from rich.table import Table
 
 from rfsas_hw.cli.options import json_option
+from rfsas_hw.cli.outopts import OutputPath
 from rfsas_hw.errors import ConfigError
 from rfsas_hw.studies.cueing import PLANS, CueingConfig, Summary, brake_comparison, run_study
 
@@ -53,7 +54,7 @@ def _table(summaries: list[Summary]) -> Table:
 @click.option(
     "--demo",
     "demo_dir",
-    type=click.Path(file_okay=False, path_type=Path),
+    type=OutputPath("dir"),
     help="Instead: run the end-to-end demo with the vehicle sensor fixed, hopping 13 "
     "channels, and hopping cued (with and without the phone's probe sweeps); outputs here.",
 )

@@ -24,6 +24,7 @@ from rich.progress import (
 from rich.table import Table
 
 from rfsas_hw.cli.options import out_option
+from rfsas_hw.cli.outopts import OutputPath
 from rfsas_hw.outpaths import check_output
 
 if TYPE_CHECKING:
@@ -124,7 +125,7 @@ def _env_config(
 @click.option(
     "--logs",
     "log_dir",
-    type=click.Path(file_okay=False, path_type=Path),
+    type=OutputPath("dir"),
     default=None,
     help="Directory for progress.csv and monitor.csv [default: MODEL-logs].",
 )
@@ -341,14 +342,14 @@ def _table(
 @click.option(
     "--csv",
     "csv_path",
-    type=click.Path(dir_okay=False, path_type=Path),
+    type=OutputPath(),
     default=None,
     help="Write distance_m,policy,p_collision,p_fatality,risk here.",
 )
 @click.option(
     "--plot",
     "plot_path",
-    type=click.Path(dir_okay=False, path_type=Path),
+    type=OutputPath(),
     default=None,
     help="Draw the three measures against distance (PNG).",
 )

@@ -13,14 +13,19 @@ from rich.console import Console
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
+from rfsas_hw.cli.exitcodes import WorkFailed
 from rfsas_hw.cli.options import keys_option, out_option
+from rfsas_hw.cli.outopts import OutputPath
 from rfsas_hw.errors import ConfigError
+from rfsas_hw.outpaths import check_output
 
 if TYPE_CHECKING:
     from rfsas_hw.bridges.sumo_run import Controller, SeedResult
 
 EXAMPLE_DIR = Path(__file__).resolve().parents[2] / "examples" / "sumo"
 """The bundled SUMO scenario (in a source checkout)."""
+MAX_SEEDS = 10_000
+"""The most seeds one ``sumo run`` takes (each is a full SUMO run)."""
 RUN_FILE = "units.yaml"
 """The run file looked for next to a SUMO configuration when ``--units`` is not given."""
 
@@ -69,13 +74,13 @@ def _fmt(x: float | None, digits: int = 2) -> str:
 @out_option("JSON lines: every step (hashed ids only) and every seed's result.")
 @click.option(
     "--truth",
-    type=click.Path(dir_okay=False, path_type=Path),
+    type=OutputPath(),
     default=None,
     help="Truth file (entity, device, MAC, emitter id); one per seed with -seedN in its name.",
 )
 @click.option(
     "--fcd",
-    type=click.Path(dir_okay=False, path_type=Path),
+    type=OutputPath(),
     default=None,
     help="SUMO FCD output of the first seed (for 'rfsas sumo fcd').",
 )
@@ -87,9 +92,12 @@ def _fmt(x: float | None, digits: int = 2) -> str:
     "udp://127.0.0.1:47000); paces the run to the wall clock (needs --keys).",
 )
 @keys_option(
-    "One sensor key directory per unit id (rfsas keys new --role sensor), for --send.",
+    "One sensor key directory per unit id, named by it (rfsas keys new --role sensor "
+    "--id ID -o KEYS/ID), for --send; the ego's own unit is 'ego-unit' unless the run "
+    "file names it otherwise.",
     required=False,
 )
+@click.option("--force", is_flag=True, help="Replace existing output files (never an input).")
 def run(
     net_or_sumocfg: Path | None,
     ego: str | None,
@@ -104,9 +112,11 @@ def run(
     fcd: Path | None,
     send: str | None,
     keys_dir: Path | None,
+    force: bool,
 ) -> None:
     """Run NET_OR_SUMOCFG closed loop with RF-SAS (default: the bundled crossing)."""
     from rfsas_hw.bridges.sumo_run import Controller, load_run_file, run_seed
+    from rfsas_hw.bridges.sumofiles import sumo_inputs
 
     cfg_path = net_or_sumocfg or EXAMPLE_DIR / "crossing.sumocfg"
     if not cfg_path.exists():
@@ -114,6 +124,24 @@ def run(
     units_file = units_path or cfg_path.parent / RUN_FILE
     if not units_file.exists():
         raise ConfigError(f"{units_file}: no run file; give --units")
+    if seeds > MAX_SEEDS:
+        raise ConfigError(f"--seeds {seeds}: at most {MAX_SEEDS} in one run")
+    inputs = [*sumo_inputs(cfg_path), units_file]
+    truths = {
+        seed: truth.with_name(f"{truth.stem}-seed{seed}{truth.suffix}")
+        for seed in range(first_seed, first_seed + seeds)
+        if truth is not None
+    }
+    if truth is not None:  # the per-seed names derive from it: it must not name an input
+        check_output(truth, inputs, force=True, what="--truth")
+    for option, target in (("--truth", truth), ("--fcd", fcd)):
+        if target is not None and target.exists() and not target.is_file():
+            # SUMO writes the FCD itself, and per-seed truth names sit beside the
+            # given one: only a file can be checked afterwards
+            raise ConfigError(f"{option} {target}: name a file, not a device or directory")
+    for target in (out, fcd, *truths.values()):
+        if target is not None:
+            check_output(target, inputs, force=force)
     bridge_cfg, run_cfg = load_run_file(units_file)
     if ego is not None:
         run_cfg = dataclasses.replace(run_cfg, ego=ego)
@@ -137,11 +165,7 @@ def run(
             task = bar.add_task("sumo", total=run_cfg.end_s, seed=first_seed)
             for k, seed in enumerate(range(first_seed, first_seed + seeds)):
                 bar.update(task, completed=0.0, seed=seed)
-                truth_k = (
-                    None
-                    if truth is None
-                    else truth.with_name(f"{truth.stem}-seed{seed}{truth.suffix}")
-                )
+                truth_k = truths.get(seed)
                 r = run_seed(
                     cfg_path,
                     bridge_cfg,
@@ -164,6 +188,12 @@ def run(
         if sink is not None:
             sink.close()
     _summary(cfg_path, ctl, results)
+    if send is not None:
+        sent = sum(r.sent for r in results)
+        Console().print(f"sent {sent:,} bearings to {send}", highlight=False)
+        problems = [p for r in results for p in r.send_problems]
+        if problems:
+            raise WorkFailed("; ".join(dict.fromkeys(problems)))
 
 
 def _summary(cfg_path: Path, controller: str, results: list[SeedResult]) -> None:

@@ -9,6 +9,7 @@ import numpy as np
 from rfsas_hw.df.calibration import Calibration
 from rfsas_hw.df.monopulse import ratio
 from rfsas_hw.optional import pyplot
+from rfsas_hw.outpaths import save_figure
 from rfsas_hw.rf.synth import TurntableSamples
 
 
@@ -40,5 +41,7 @@ def plot_calibration(cal: Calibration, samples: TurntableSamples | None, path: s
     ax.legend(loc="best", fontsize=8)
     ax.grid(True, alpha=0.3)
     fig.tight_layout()
-    fig.savefig(path)
-    plt.close(fig)
+    try:
+        save_figure(fig, path)
+    finally:
+        plt.close(fig)

@@ -34,6 +34,7 @@ from rfsas_hw.envs.envconfig import EnvConfig
 from rfsas_hw.envs.rl import Policy, Progress, TrainResult, train
 from rfsas_hw.errors import ConfigError
 from rfsas_hw.optional import pyplot
+from rfsas_hw.outpaths import save_figure
 
 __all__ = [
     "Outcomes",
@@ -349,5 +350,7 @@ def plot_speed_profiles(curves: Mapping[str, tuple[Array, Array]], path: str | P
         ax.grid(alpha=0.3)
         ax.legend(fontsize=7)
     axes[0].set_ylabel("mean speed (km/h)")
-    fig.savefig(str(path), dpi=110)
-    plt.close(fig)
+    try:
+        save_figure(fig, path, dpi=110)
+    finally:
+        plt.close(fig)

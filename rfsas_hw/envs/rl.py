@@ -36,6 +36,7 @@ from rfsas_hw.envs.env import ACCELERATE, BRAKE, COAST, IntersectionEnv, ObsArra
 from rfsas_hw.envs.envconfig import EnvConfig
 from rfsas_hw.errors import ConfigError, DataFormatError, SimulationError
 from rfsas_hw.optional import pyplot, require
+from rfsas_hw.outpaths import save_figure
 
 PPO_DEFAULTS: dict[str, Any] = {
     "batch_size": 64,
@@ -439,8 +440,10 @@ def plot(rows: Sequence[EvalRow], path: str | Path) -> None:
         ax.set_title(title)
         ax.grid(alpha=0.3)
     axes[0].legend()
-    fig.savefig(str(path), dpi=110)
-    plt.close(fig)
+    try:
+        save_figure(fig, path, dpi=110)
+    finally:
+        plt.close(fig)
 
 
 def record_episode(

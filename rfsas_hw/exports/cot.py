@@ -28,10 +28,10 @@ import math
 from pathlib import Path
 from xml.etree import ElementTree as ET
 
-from rfsas_hw.errors import ExportError
 from rfsas_hw.exports.scene import Scene
 from rfsas_hw.exports.shapes import ELLIPSE_SIGMA, Ellipse, ellipse_of, iso_utc
 from rfsas_hw.geo import SiteOrigin
+from rfsas_hw.outpaths import write_text_atomic
 from rfsas_hw.records import Assessment, Fix
 
 UNKNOWN = "9999999"
@@ -266,13 +266,9 @@ def write_cot(scene: Scene, path: str | Path) -> Path:
     """Write the scene's CoT events to ``path``, one event per line.
 
     Raises:
-        ExportError: the file cannot be written.
+        ConfigError: the file cannot be created.
+        OutputError: writing it failed (disk full); the target is unchanged.
     """
     p = Path(path)
-    try:
-        with p.open("wb") as f:
-            for event in scene_to_cot(scene):
-                f.write(event + b"\n")
-    except OSError as err:
-        raise ExportError(f"{p}: cannot write: {err.strerror or err}") from err
+    write_text_atomic(p, b"".join(event + b"\n" for event in scene_to_cot(scene)))
     return p

@@ -23,9 +23,9 @@ import math
 from pathlib import Path
 from typing import Any
 
-from rfsas_hw.errors import ExportError
 from rfsas_hw.exports.scene import Scene
 from rfsas_hw.exports.shapes import iso_utc
+from rfsas_hw.outpaths import write_text_atomic
 
 DECIMALS = 8
 """Decimals of a coordinate in degrees (1e-8° ≈ 1.1 mm of latitude)."""
@@ -142,11 +142,9 @@ def write_geojson(scene: Scene, path: str | Path) -> Path:
     """Write the scene as GeoJSON to ``path``.
 
     Raises:
-        ExportError: the file cannot be written.
+        ConfigError: the file cannot be created.
+        OutputError: writing it failed (disk full); the target is unchanged.
     """
     p = Path(path)
-    try:
-        p.write_text(json.dumps(scene_to_geojson(scene), allow_nan=False), encoding="utf-8")
-    except OSError as err:
-        raise ExportError(f"{p}: cannot write: {err.strerror or err}") from err
+    write_text_atomic(p, json.dumps(scene_to_geojson(scene), allow_nan=False))
     return p

@@ -17,13 +17,14 @@ the ground.
 
 from __future__ import annotations
 
+import io
 from pathlib import Path
 from typing import Any
 from xml.etree import ElementTree as ET
 
-from rfsas_hw.errors import ExportError
 from rfsas_hw.exports.scene import Scene
 from rfsas_hw.exports.shapes import iso_utc
+from rfsas_hw.outpaths import write_text_atomic
 
 KML_NS = "http://www.opengis.net/kml/2.2"
 GX_NS = "http://www.google.com/kml/ext/2.2"
@@ -162,11 +163,11 @@ def write_kml(scene: Scene, path: str | Path, name: str = "rfsas run") -> Path:
     """Write the scene as KML to ``path``.
 
     Raises:
-        ExportError: the file cannot be written.
+        ConfigError: the file cannot be created.
+        OutputError: writing it failed (disk full); the target is unchanged.
     """
     p = Path(path)
-    try:
-        scene_to_kml(scene, name).write(p, encoding="utf-8", xml_declaration=True)
-    except OSError as err:
-        raise ExportError(f"{p}: cannot write: {err.strerror or err}") from err
+    document = io.BytesIO()
+    scene_to_kml(scene, name).write(document, encoding="utf-8", xml_declaration=True)
+    write_text_atomic(p, document.getvalue())
     return p

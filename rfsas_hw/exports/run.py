@@ -4,7 +4,8 @@ A run log is JSON lines with a ``"record"`` key: ``site`` (the origin on
 WGS-84), ``bearing`` (with the sensor's pose), ``fix``, ``assessment`` and
 ``stats`` (see :class:`~rfsas_hw.backend.service.JsonlSink`). A line that is
 not JSON or not a known record is skipped and counted, with its line number
-in :attr:`RunLog.errors`: a corrupted line costs only that line.
+in :attr:`RunLog.errors`: a corrupted line costs only that line (a number out
+of range, a time before 1970 or after 2038, nesting too deep for the parser).
 """
 
 from __future__ import annotations
@@ -27,6 +28,10 @@ T = TypeVar("T")
 
 __all__ = ["BearingLine", "RunLog", "RunRecord", "SiteLine", "iter_records", "read_run"]
 
+MAX_ABS = 1.0e9
+"""A number of a record beyond this (metres, degrees, dB, m²) is corrupt, not data."""
+MAX_T_NS = (2**31 - 1) * 1_000_000_000
+"""The last time a record may carry: ROS 2 time counts seconds in 32 bits (2038)."""
 MAX_ERRORS_KEPT = 20
 _EMITTER = re.compile(r"[0-9a-fA-F]{1,16}")
 """A hashed emitter id as written: a 64-bit number in hex."""
@@ -100,7 +105,10 @@ def _num(data: Mapping[str, Any], key: str, where: str) -> float:
         return math.nan
     if isinstance(value, bool) or not isinstance(value, int | float):
         raise ValueError(f"{where}: {key} is not a number")
-    return float(value)
+    number = float(value)
+    if not abs(number) <= MAX_ABS:
+        raise ValueError(f"{where}: {key} {value!r} is out of range (|value| <= {MAX_ABS:g})")
+    return number
 
 
 def _int(data: Mapping[str, Any], key: str, where: str) -> int:
@@ -109,6 +117,10 @@ def _int(data: Mapping[str, Any], key: str, where: str) -> int:
     value = data[key]
     if isinstance(value, bool) or not isinstance(value, int):
         raise ValueError(f"{where}: {key} is not an integer")
+    if key == "t_ns" and not 0 <= value <= MAX_T_NS:
+        raise ValueError(f"{where}: t_ns {value} is not a time from 1970 to 2038")
+    if not abs(value) <= MAX_T_NS:
+        raise ValueError(f"{where}: {key} {value} is out of range")
     return value
 
 
@@ -207,6 +219,12 @@ def iter_records(
                     continue
                 else:
                     raise ValueError(f"{where}: unknown record {kind!r}")
+            except RecursionError:
+                # nesting deeper than the parser's stack: no record of ours nests so
+                skipped["not JSON"] += 1
+                if len(errors) < MAX_ERRORS_KEPT:
+                    errors.append(f"{where}: nested too deeply")
+                continue
             except (ValueError, TypeError) as err:
                 reason = "not JSON" if isinstance(err, json.JSONDecodeError) else "bad record"
                 skipped[reason] += 1
@@ -224,7 +242,8 @@ def read_run(path: str | Path) -> RunLog:
     """
     run = RunLog(source=str(Path(path)))
     try:
-        for record in iter_records(path, run.skipped, run.errors):
+        # a bearings file of replay/live has no record key: its lines are bearings
+        for record in iter_records(path, run.skipped, run.errors, default_record="bearing"):
             if isinstance(record, BearingLine):
                 run.bearings.append(record)
             elif isinstance(record, Fix):

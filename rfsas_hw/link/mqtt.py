@@ -46,6 +46,7 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import re
 import secrets
 import select
 import socket
@@ -78,6 +79,7 @@ from rfsas_hw.link.mqtt_wire import (
 )
 from rfsas_hw.link.tls_stream import TlsStream
 from rfsas_hw.link.topics import (
+    ZOOM,
     Route,
     TopicRouter,
     advisory_filter,
@@ -165,9 +167,11 @@ def parse_mqtt_url(url: str) -> MqttEndpoint:
     if parts.scheme not in DEFAULT_PORTS:
         raise LinkError(f"{url!r}: expected mqtt://HOST[:PORT] or mqtts://HOST[:PORT]")
     try:
-        port = parts.port or DEFAULT_PORTS[parts.scheme]
+        port = DEFAULT_PORTS[parts.scheme] if parts.port is None else parts.port
     except ValueError as err:
         raise LinkError(f"{url!r}: bad port: {err}") from err
+    if not 1 <= port <= 65535:
+        raise LinkError(f"{url!r}: port {port} outside 1-65535")
     if not parts.hostname:
         raise LinkError(f"{url!r}: no broker host")
     if parts.path not in ("", "/"):
@@ -190,6 +194,8 @@ def parse_mqtt_url(url: str) -> MqttEndpoint:
         files[name] = None if raw is None else Path(raw)
         if raw is not None and not Path(raw).is_file():
             raise LinkError(f"{url!r}: {name} file {raw} does not exist")
+        if name == "key" and raw is not None and Path(raw).stat().st_mode & 0o077:
+            raise LinkError(f"{url!r}: key file {raw} is readable by others (chmod 600 it)")
     origin = None
     raw_origin = _one(query, "origin", url)
     if raw_origin is not None:
@@ -225,11 +231,35 @@ def parse_mqtt_url(url: str) -> MqttEndpoint:
         origin=origin,
         subscriptions=tuple(dict.fromkeys(subs)),
         schedule=schedule,
-        keepalive_s=max(1, int(_number(query, "keepalive", url, 5))),
-        connect_s=_number(query, "connect_s", url, 5.0),
-        queue=int(_number(query, "queue", url, 65_536)),
-        client_id=_one(query, "client_id", url) or "",
+        keepalive_s=max(1, int(_bounded(query, "keepalive", url, 5, KEEPALIVE_MAX_S))),
+        connect_s=_bounded(query, "connect_s", url, 5.0, CONNECT_MAX_S),
+        queue=int(_bounded(query, "queue", url, 65_536, QUEUE_MAX)),
+        client_id=_client_id(_one(query, "client_id", url) or "", url),
     )
+
+
+KEEPALIVE_MAX_S = 65_535
+"""MQTT's keep-alive is a 16-bit number of seconds."""
+CONNECT_MAX_S = 3600.0
+"""The longest wait for a connection ``connect_s`` may ask for, seconds."""
+QUEUE_MAX = 10_000_000
+"""The most received messages ``queue`` may hold."""
+CLIENT_ID_MAX = 128
+"""The longest ``client_id`` (brokers must take 23 characters; most take more)."""
+_CLIENT_ID_RE = re.compile(r"[A-Za-z0-9._-]*")
+
+
+def _bounded(query: dict[str, list[str]], name: str, url: str, default: float, top: float) -> float:
+    value = _number(query, name, url, default)
+    if not value <= top:
+        raise LinkError(f"{url!r}: {name}={value:g} is more than {top:g}")
+    return value
+
+
+def _client_id(value: str, url: str) -> str:
+    if len(value) > CLIENT_ID_MAX or not _CLIENT_ID_RE.fullmatch(value):
+        raise LinkError(f"{url!r}: client_id must be at most {CLIENT_ID_MAX} of A-Z a-z 0-9 . _ -")
+    return value
 
 
 def _csv(query: dict[str, list[str]], name: str, url: str) -> list[str]:
@@ -237,9 +267,15 @@ def _csv(query: dict[str, list[str]], name: str, url: str) -> list[str]:
     for raw in query.get(name, []):
         for item in raw.split(","):
             try:
-                out.append(check_quadkey(item.strip()))
+                key = check_quadkey(item.strip())
             except LinkError as err:
                 raise LinkError(f"{url!r}: {name}: {err}") from err
+            if len(key) > ZOOM:
+                raise LinkError(
+                    f"{url!r}: {name}: {key!r} is deeper than the topics' {ZOOM} tile levels "
+                    "and would match nothing"
+                )
+            out.append(key)
     return out
 
 
@@ -272,6 +308,11 @@ class MqttStats:
 
 class _LostError(Exception):
     """The broker connection is gone; the message says why."""
+
+
+class _RefusedError(LinkError):
+    """The broker refused this client (its connection or every subscription): trying
+    again changes nothing until someone changes the broker's configuration."""
 
 
 class MqttTransport(Transport):
@@ -348,8 +389,16 @@ class MqttTransport(Transport):
             target=self._run, name=f"mqtt {endpoint.url()}", daemon=True
         )
         self._thread.start()
-        if not self._connected.wait(endpoint.connect_s):
+        deadline = time.monotonic() + endpoint.connect_s
+        while not self._connected.is_set() and self._thread.is_alive():
+            self._connected.wait(min(0.05, max(deadline - time.monotonic(), 0.0)))
+            if time.monotonic() >= deadline:
+                break
+        if not self._connected.is_set():
+            refused = not self._thread.is_alive()
             self.close(flush_s=0.0)
+            if refused:
+                raise LinkError(f"{endpoint.url()}: {self._last_error}")
             raise LinkError(
                 f"{endpoint.url()}: no connection within {endpoint.connect_s:g} s "
                 f"({self._last_error})"
@@ -375,6 +424,8 @@ class MqttTransport(Transport):
                 self._open()
             except (OSError, LinkError) as err:
                 self._last_error = str(err) or type(err).__name__
+                if isinstance(err, _RefusedError) and self.stats.connects == 0:
+                    return  # the start fails with this reason (see __init__)
                 if self._closed.wait(delay):
                     return
                 delay = min(2.0 * delay, 8.0)
@@ -412,8 +463,8 @@ class MqttTransport(Transport):
 
         Raises:
             OSError: no TCP or TLS connection.
-            LinkError: the broker refused the connection or a subscription was
-                not answered in time.
+            LinkError: the broker refused the connection or every subscription, or
+                a subscription was not answered in time.
         """
         ep = self.endpoint
         raw = socket.create_connection((ep.host, ep.port), timeout=ep.connect_s)
@@ -444,7 +495,15 @@ class MqttTransport(Transport):
             if self.subscriptions:
                 filters = [(t, 1 if "/nonce/" in t else 0) for t in self.subscriptions]
                 sock.sendall(subscribe_packet(self._packet_id(), filters))
-                early += self._await(sock, reader, wire.SUBACK, deadline)[1]
+                suback, more = self._await(sock, reader, wire.SUBACK, deadline)
+                early += more
+                self._count_suback(suback)
+                if suback.reasons and all(code >= 0x80 for code in suback.reasons):
+                    # a receiver the broker lets hear nothing would wait in silence
+                    raise _RefusedError(
+                        f"the broker refused every subscription "
+                        f"({reason_text(suback.reasons[0])}): {', '.join(self.subscriptions)}"
+                    )
         except BaseException:
             sock.close()
             raise
@@ -871,4 +930,14 @@ def open_mqtt(url: str, mode: Literal["send", "recv"]) -> MqttTransport:
     Raises:
         LinkError: a bad URL or no connection.
     """
-    return MqttTransport(parse_mqtt_url(url), mode)
+    endpoint = parse_mqtt_url(url)
+    if mode == "send":
+        query = parse_qs(urlsplit(url).query)
+        given = sorted(RECEIVER_OPTIONS & set(query))
+        if given:
+            raise LinkError(f"{endpoint.url()}: {', '.join(given)} apply to receiving URLs only")
+    return MqttTransport(endpoint, mode)
+
+
+RECEIVER_OPTIONS = frozenset({"sub", "tiles", "nonces", "advisories", "queue"})
+"""URL options that only a receiver uses."""

@@ -12,6 +12,7 @@ rosbag2 directory is written by ``rosbags`` (``metadata.yaml`` plus a
 from __future__ import annotations
 
 import shutil
+import time
 from pathlib import Path
 from typing import Any, Literal, Protocol
 
@@ -62,19 +63,45 @@ def record_format(path: str | Path, fmt: str | None = None) -> RecordFormat | No
     return "mcap" if Path(path).suffix.lower() == ".mcap" else None
 
 
+FLUSH_S = 2.0
+"""A recording writes what it holds to disk at least this often (seconds of wall
+time), so a crash or SIGKILL loses seconds of it, not the run."""
+
+
+class _Every:
+    """True at most once per ``period_s`` of monotonic time."""
+
+    def __init__(self, period_s: float) -> None:
+        self.period_s = period_s
+        self._next = time.monotonic() + period_s
+
+    def due(self) -> bool:
+        now = time.monotonic()
+        if now < self._next:
+            return False
+        self._next = now + self.period_s
+        return True
+
+
 class McapFileWriter:
     """Write messages into one MCAP file (``ros2`` profile).
 
+    Every :data:`FLUSH_S` the chunk in progress is written out and the file
+    flushed: a file cut short by a crash holds every earlier chunk, and the
+    ``mcap`` tools (``mcap recover``) or a streaming reader read them.
+
     Args:
         path: the file to create (replaced if it exists).
+        flush_s: write out and flush at least this often, seconds.
 
     Raises:
         MissingDependencyError: ``mcap`` is not installed.
         ConfigError: the file cannot be created.
     """
 
-    def __init__(self, path: str | Path) -> None:
+    def __init__(self, path: str | Path, flush_s: float = FLUSH_S) -> None:
         writer_mod = require("mcap.writer")
+        self._flush = _Every(flush_s)
         self.path = Path(path)
         try:
             self._file: Any = self.path.open("wb")
@@ -125,6 +152,8 @@ class McapFileWriter:
             sequence=seq,
         )
         self.messages += 1
+        if self._flush.due():
+            self._writer.flush()
 
     def close(self) -> None:
         """Write the summary and close the file; idempotent."""
@@ -140,11 +169,16 @@ class McapFileWriter:
 class Rosbag2Writer:
     """Write messages into a rosbag2 directory with ``rosbags``.
 
+    With ``sqlite3`` storage the rows are committed every :data:`FLUSH_S`, so a
+    crash keeps them (``ros2 bag reindex`` then rebuilds ``metadata.yaml``,
+    which is written on close).
+
     Args:
         path: the directory to create; it must not exist (rosbag2's rule),
             unless ``overwrite``.
         storage: ``sqlite3`` (readable by every ROS 2 release) or ``mcap``.
         overwrite: remove an existing directory first.
+        flush_s: commit at least this often, seconds.
 
     Raises:
         MissingDependencyError: ``rosbags`` is not installed.
@@ -152,7 +186,12 @@ class Rosbag2Writer:
     """
 
     def __init__(
-        self, path: str | Path, storage: str = "sqlite3", *, overwrite: bool = False
+        self,
+        path: str | Path,
+        storage: str = "sqlite3",
+        *,
+        overwrite: bool = False,
+        flush_s: float = FLUSH_S,
     ) -> None:
         rosbag2 = require("rosbags.rosbag2")
         self.path = Path(path)
@@ -171,6 +210,7 @@ class Rosbag2Writer:
         self._connections: dict[str, Any] = {}
         self.messages = 0
         self._closed = False
+        self._commit = _Every(flush_s)
 
     def _connection(self, topic: Topic) -> Any:
         conn = self._connections.get(topic.name)
@@ -191,6 +231,12 @@ class Rosbag2Writer:
             raise ConfigError(f"{self.path}: writer is closed")
         self._writer.write(self._connection(topic), int(log_time_ns), data)
         self.messages += 1
+        if self._commit.due():
+            # the sqlite3 storage holds one transaction until close; committing
+            # it now and then keeps the rows of a run that crashes
+            conn = getattr(getattr(self._writer, "storage", None), "conn", None)
+            if conn is not None:
+                conn.commit()
 
     def close(self) -> None:
         """Write ``metadata.yaml`` and close the storage; idempotent."""

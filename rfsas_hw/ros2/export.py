@@ -31,10 +31,10 @@ from rfsas_hw.errors import ConfigError
 from rfsas_hw.exports.run import BearingLine, iter_records
 from rfsas_hw.records import Assessment, BearingBatch, Fix, Pose
 from rfsas_hw.ros2.bag import RecordFormat, open_recording
-from rfsas_hw.ros2.scene import SceneBuilder, SceneConfig
+from rfsas_hw.ros2.scene import BEARING_ARRAY_SPAN_NS, SceneBuilder, SceneConfig
 from rfsas_hw.ros2.sink import BackendScene, SceneSink
 
-BATCH_GAP_NS = 100_000_000
+BATCH_GAP_NS = BEARING_ARRAY_SPAN_NS
 """Bearings of one sensor closer than this to the batch's first become one array, ns."""
 
 

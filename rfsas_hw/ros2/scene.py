@@ -15,6 +15,7 @@ by ``yaw = 90° − azimuth``.
 
 from __future__ import annotations
 
+import itertools
 import math
 import zlib
 from collections.abc import Iterable, Mapping, Sequence
@@ -32,6 +33,9 @@ from rfsas_hw.ros2.topics import Topic
 from rfsas_hw.ros2.types import msg_class
 
 NS_PER_S = 1_000_000_000
+BEARING_ARRAY_SPAN_NS = 100_000_000
+"""A ``BearingArray`` holds one sensor's bearings within this span of its first, ns
+(a live batch, a replayed capture and an export are cut the same way)."""
 ADVISORY_CODE = {"none": 0, "clear": 1, "caution": 2, "brake": 3}
 """``Assessment.advisory`` text → the ``rfsas_msgs/Assessment`` ADVISORY_* constant."""
 ADVISORY_RGBA = {
@@ -300,6 +304,23 @@ class SceneBuilder:
         ]
 
     # -- records ---------------------------------------------------------------------
+
+    @staticmethod
+    def spans(batch: BearingBatch) -> list[BearingBatch]:
+        """``batch`` cut into consecutive runs of rows, each within
+        :data:`BEARING_ARRAY_SPAN_NS` of its first row: one message each, stamped
+        with its own time (a replayed capture arrives as one large batch)."""
+        times = batch.t_ns.tolist()
+        if not times or max(times) - min(times) <= BEARING_ARRAY_SPAN_NS:
+            return [batch] if times else []
+        cuts = [0]
+        first = times[0]
+        for i, t in enumerate(times):
+            if abs(t - first) > BEARING_ARRAY_SPAN_NS:
+                cuts.append(i)
+                first = t
+        cuts.append(len(times))
+        return [batch.select(slice(a, b)) for a, b in itertools.pairwise(cuts)]
 
     def bearings(self, batch: BearingBatch, pose: Pose | None) -> list[Out]:
         """A ``BearingArray``, the sensor's TF and its bearing rays (when its pose is known).

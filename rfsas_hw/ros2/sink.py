@@ -29,7 +29,8 @@ NS_PER_S = 1_000_000_000
 class SceneSink:
     """Serialise scene messages once and write them to every writer.
 
-    A writer that fails is logged once and counted; the others keep receiving.
+    A writer that fails is logged once (one line) and counted, and its first error
+    kept (:attr:`error`) for the run's end; the others keep receiving.
     """
 
     def __init__(self, writers: Iterable[MessageWriter], builder: SceneBuilder | None = None):
@@ -38,7 +39,20 @@ class SceneSink:
         self.counts: dict[str, int] = {}
         """Messages written, by topic name."""
         self.failures: dict[str, int] = {}
+        """Failed writes (and closes), by writer name."""
+        self.error: str | None = None
+        """The first failure (``run.mcap: No space left on device``), or None."""
         self._closed = False
+
+    def _failed(self, writer: MessageWriter, err: Exception, what: str) -> None:
+        name = str(getattr(writer, "path", None) or type(writer).__name__)
+        self.failures[name] = self.failures.get(name, 0) + 1
+        if self.error is None:
+            self.error = f"{name}: {what}: {getattr(err, 'strerror', None) or err}"
+        if self.failures[name] == 1:
+            # one line: the run's summary counts the rest
+            log.warning("scene writer %s %s: %s", name, what, err)
+            log.debug("scene writer %s failure", name, exc_info=True)
 
     def emit(self, outs: Iterable[Out]) -> None:
         """Serialise and write each item to every writer."""
@@ -48,11 +62,8 @@ class SceneSink:
             for writer in self.writers:
                 try:
                     writer.write(out.topic, out.stamp_ns, data)
-                except Exception:
-                    name = type(writer).__name__
-                    self.failures[name] = self.failures.get(name, 0) + 1
-                    if self.failures[name] == 1:
-                        log.exception("scene writer %s failed; it keeps receiving", name)
+                except Exception as err:
+                    self._failed(writer, err, "write failed")
 
     def close(self) -> None:
         """Close every writer; idempotent."""
@@ -62,8 +73,8 @@ class SceneSink:
         for writer in self.writers:
             try:
                 writer.close()
-            except Exception:
-                log.exception("closing scene writer %s failed", type(writer).__name__)
+            except Exception as err:
+                self._failed(writer, err, "could not be finished")
 
 
 class SensorScene:
@@ -78,10 +89,17 @@ class SensorScene:
         self.sink = sink
         self.pose_of = pose_of
 
+    @property
+    def error(self) -> str | None:
+        """The first write failure of the recording, or None (the run's summary reports it)."""
+        return self.sink.error
+
     def on_bearings(self, batch: BearingBatch) -> None:
-        """Bearing array, sensor TF and rays of one batch."""
-        if len(batch):
-            self.sink.emit(self.sink.builder.bearings(batch, self.pose_of(batch.sensor_id)))
+        """Bearing array, sensor TF and rays of one batch (one array per
+        :meth:`~rfsas_hw.ros2.scene.SceneBuilder.spans` of it)."""
+        builder = self.sink.builder
+        for part in builder.spans(batch):
+            self.sink.emit(builder.bearings(part, self.pose_of(part.sensor_id)))
 
     def close(self) -> None:
         """Close the sink (and its writers)."""
@@ -138,6 +156,11 @@ class BackendScene:
         """Bearings the backend received from a sensor at ``pose``."""
         if len(batch):
             self.sink.emit(self.sink.builder.bearings(batch, pose))
+
+    @property
+    def error(self) -> str | None:
+        """The first write failure of the scene's writers, or None."""
+        return self.sink.error
 
     def on_results(self, fixes: Sequence[Fix], assessments: Sequence[Assessment]) -> None:
         """Publish one step: results, sensors, vehicle and (at most once per period) the link."""

@@ -76,6 +76,10 @@ def mac_from_hex(text: str) -> int:
     return int(text, 16)
 
 
+RSSI_MIN_DBM = -128
+"""The lowest RSSI an event may carry (a signed byte, dBm); beyond it a line is bad."""
+
+
 def sigma_from_rssi(
     rssi_dbm: float,
     azimuth_deg: float,
@@ -184,6 +188,8 @@ class UbloxSource(SerialLineSource):
             return "+UUDF angle outside -90..90"
         if not 0 <= channel <= 39:
             return "+UUDF channel outside 0..39"
+        if not all(RSSI_MIN_DBM <= r <= 0 for r in (rssi1, rssi2)):
+            return f"+UUDF RSSI outside {RSSI_MIN_DBM}..0 dBm"
         # a reserved polarisation reads 0; a real RSSI is negative
         present = [r for r in (rssi1, rssi2) if r < 0]
         if not present:

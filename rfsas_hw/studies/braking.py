@@ -37,6 +37,7 @@ from rfsas_hw.backend.collision import (
 )
 from rfsas_hw.backend.risk import BRAKE_DECEL_MPS2, fatality_risk, impact_speed
 from rfsas_hw.errors import SimulationError
+from rfsas_hw.outpaths import save_figure
 from rfsas_hw.studies.locate import locate, run_pipelines
 from rfsas_hw.twin.scenario import Detail, Scenario, scenario_from_mapping
 from rfsas_hw.twin.world import World
@@ -311,8 +312,6 @@ def plot_braking(result: BrakingResult, path: str) -> None:
     )
     fig.tight_layout()
     try:
-        fig.savefig(path, dpi=110)
-    except OSError as err:
-        raise SimulationError(f"{path}: cannot write plot: {err.strerror or err}") from err
+        save_figure(fig, path, dpi=110)
     finally:
         plt.close(fig)

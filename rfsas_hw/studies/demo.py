@@ -36,6 +36,7 @@ from rfsas_hw.backend.vehicle import VehicleState
 from rfsas_hw.errors import SimulationError
 from rfsas_hw.geo import SiteOrigin
 from rfsas_hw.link import Publisher, Receiver, Signer, TrustedKeys, open_transport
+from rfsas_hw.outpaths import save_figure
 from rfsas_hw.pipeline import SensorPipeline
 from rfsas_hw.privacy.hashing import FixedNonce, MacHasher
 from rfsas_hw.records import Assessment, Fix, ObservationBatch, Pose
@@ -610,9 +611,7 @@ def plot_demo(result: DemoResult, world: World, path: Path) -> Path:
     fig.suptitle(f"{spec.name}: pedestrian located by a roadside unit and the car, over signed UDP")
     fig.tight_layout()
     try:
-        fig.savefig(path, dpi=110)
-    except OSError as err:
-        raise SimulationError(f"{path}: cannot write map: {err.strerror or err}") from err
+        save_figure(fig, path, dpi=110)
     finally:
         plt.close(fig)
     return path

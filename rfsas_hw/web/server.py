@@ -133,7 +133,7 @@ class DashboardServer:
         self.site = site
         self.host = host
         self.port = port
-        if token is None and not is_loopback(host):
+        if not token and not is_loopback(host):  # '' is no token either: never open
             token = secrets.token_urlsafe(18)
         self.token = token
         self._thread: threading.Thread | None = None

@@ -115,6 +115,15 @@ def test_bad_emulator_options_exit_2(capsys: pytest.CaptureFixture[str]) -> None
     assert code == 2 and "give --pty or --tcp, not both" in err
 
 
+@pytest.mark.parametrize("unit", ["ublox", "kraken"])
+@pytest.mark.parametrize("option", [("--noise", "-1"), ("--rate", "0"), ("--rate", "1e9")])
+def test_impossible_emulator_settings_exit_2(
+    capsys: pytest.CaptureFixture[str], unit: str, option: tuple[str, str]
+) -> None:
+    code, _, err = run(["aoa", "emulate", unit, *option, "--duration", "0"], capsys)
+    assert code == 2 and option[0] in err and "Traceback" not in err
+
+
 def test_ublox_emulator_refuses_to_replace_a_file(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

@@ -147,3 +147,19 @@ def test_foxglove_client_receives_the_scene(tmp_path: Path) -> None:
         "rfsas/ego",
     }
     assert any(a.advisory == 2 for m in scene[topics.ASSESSMENTS.name] for a in m.assessments)
+
+
+@pytest.mark.parametrize(("host", "warned"), [("127.0.0.1", False), ("0.0.0.0", True)])
+def test_a_server_reachable_from_other_hosts_is_announced_with_a_warning(
+    host: str, warned: bool
+) -> None:
+    from rfsas_hw.cli.ros2opts import live_writers
+
+    writers: list[Any] = []
+    lines: list[str] = []
+    live_writers({"foxglove_port": 0, "foxglove_host": host}, writers, lines)
+    try:
+        assert any("WARNING" in line and "no authentication" in line for line in lines) == warned
+    finally:
+        for writer in writers:
+            writer.close()

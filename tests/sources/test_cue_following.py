@@ -221,3 +221,51 @@ def test_live_command_obeys_signed_cues_from_the_link(
     lines = fake_iw.read_text().splitlines()
     assert f"dev {veth} set channel 149" in lines
     assert not any(line.endswith((" 40", " 44")) for line in lines)
+
+
+def test_live_command_takes_channels_and_cues_for_a_serial_board(
+    board: tuple[BoardEmulator, str], tmp_path: Path, cal_path: Path
+) -> None:
+    """``rfsas live serial:… --channels … --cues URL --keys DIR`` sets the board's scan plan
+    and follows cues, as the serial driver does (cueing.md); a signed cue retunes it."""
+    emu, path = board
+    vehicle = KeyStore.create(tmp_path / "obu", "sensor")
+    rsu = KeyStore.create(tmp_path / "rsu-1", "sensor")
+    vehicle.trust.enroll(rsu.card)
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "rfsas_hw.cli.main", "live", f"serial:{path}",
+         "--channels", "1,6,36", "--dwell", "0.25", "--duration", "4",
+         "--cues", f"udp://127.0.0.1:{port}", "--keys", str(vehicle.path),
+         "--calibration", str(cal_path), "--out", str(tmp_path / "b.jsonl")],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    out = open_transport(f"udp://127.0.0.1:{port}", "send")
+    try:
+        deadline = time.monotonic() + 20.0
+        while _tuned_mhz(emu) not in (2412, 2437, 5180):  # the plan is running
+            assert time.monotonic() < deadline and proc.poll() is None, "live did not start"
+            time.sleep(0.05)
+        heard = False
+        while not heard and time.monotonic() < deadline and proc.poll() is None:
+            t_us = time.time_ns() // 1000
+            cue = Cue(
+                sender_id="rsu-1", t_gen_us=t_us, seq=int(t_us % 1_000_000),
+                epoch=EpochSchedule().epoch_of(t_us * 1000), emitter=7, t_obs_us=t_us,
+                valid_until_us=t_us + 1_000_000, channel=11, band=band_of(11),
+                phy=Phy.UNKNOWN, kind=CueKind.BEARING, risk=0.9, x_m=0.0, y_m=0.0, a=10.0, b=2.0,
+            )  # fmt: skip
+            out.send(sign_cue(rsu.signer(), cue))
+            end = time.monotonic() + 0.5
+            while time.monotonic() < end and not heard:
+                heard = _tuned_mhz(emu) == 2462
+                time.sleep(0.01)
+        _, stderr = proc.communicate(timeout=60)
+    finally:
+        out.close()
+        if proc.poll() is None:
+            proc.kill()
+    assert "Traceback" not in stderr and "needs a wifi" not in stderr, stderr
+    assert heard, "the board was not retuned to the cued channel 11"

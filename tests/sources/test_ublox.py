@@ -8,6 +8,7 @@ import math
 import os
 import re
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -107,6 +108,8 @@ def test_garbage_and_partial_lines_are_counted(
         b'+UUDF:ZZF9578E0D8A,-42,20,0,-43,37,"A","",1,2',  # not a hex address
         b'+UUDF:CCF9578E0D8A,-42,x,0,-43,37,"A","",1,2',  # not a number
         b'+UUDF:CCF9578E0D8A,0,20,0,0,37,"A","",1,2',  # no RSSI at all
+        b'+UUDF:CCF9578E0D8A,99999,20,0,-43,37,"A","",1,2',  # RSSI beyond a signed byte
+        b'+UUDF:CCF9578E0D8A,-99999,20,0,0,37,"A","",1,2',  # SNR -99,895 dB otherwise
         b"hello world",
     ]
     caplog.set_level(logging.DEBUG)
@@ -245,3 +248,19 @@ def test_events_without_a_nonce_are_dropped_not_sent_raw(unit: tuple[int, str]) 
         batch = _read_all(src, seconds=0.3)
         assert len(batch) == 0
         assert src.stats.skipped["no_nonce"] == 1
+
+
+def test_replay_of_an_aoa_unit_needs_no_calibration(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """The unit measures the angle itself: ``replay ublox:…`` goes straight to opening it
+    (here a missing one) instead of asking for a calibration."""
+    from rfsas_hw.cli.main import main
+
+    out = tmp_path / "b.jsonl"
+    with pytest.raises(SystemExit) as exit_info:
+        main(["replay", f"ublox:{tmp_path / 'ttyNONE'}", "--out", str(out)])
+    assert exit_info.value.code == 2
+    err = capsys.readouterr().err
+    assert "--calibration" not in err and "u-blox unit" in err
+    assert not out.exists()

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import sys
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -128,7 +129,7 @@ def _env_config(
     "--steps",
     type=click.IntRange(min=1),
     default=None,
-    help="Environment steps to train [default: the preset's; protocol 100000, method 40000].",
+    help="Environment steps to train [default: the preset's; protocol 150000, method 40000].",
 )
 @click.option(
     "-o",
@@ -301,53 +302,49 @@ def _fmt(x: float, digits: int = 3) -> str:
 
 def _paired_table(rows: list[PairedRow], start_m: float, title: str, reward: str) -> Table:
     """Learned against rule per distance: risks with standard errors, the paired test,
-    collisions, timeouts, returns and whether learned ≤ rule holds there."""
+    timeouts, returns and whether learned ≤ rule holds there."""
     several = rows[0].seeds > 1
     table = Table(title=title)
     columns = [
         "from centre\n(m)",
         "from start\n(m)",
-        "learned\nrisk",
-        "± SE\nseeds" if several else "± SE",
-        "rule\nrisk",
-        "± SE",
+        f"learned risk\n± SE{' (seeds)' if several else ''}",
+        "rule risk\n± SE",
         "difference\n± SE",
         "paired\np",
         *(["seeds\n≤ rule"] if several else []),
-        "learned\nP(coll)",
-        "rule\nP(coll)",
         "learned\ntimeouts",
-        "learned\nreturn",
-        "rule\nreturn",
+        "return\nlearned / rule",
         "≤ rule",
     ]
     for col in columns:
         table.add_column(col, justify="right")
     for r in rows:
+        se = r.risk_se_seeds if several else r.risk_se_episodes
         table.add_row(
             f"{r.distance_m:g}",
             f"{start_m - r.distance_m:g}",
-            f"{r.risk:.4f}",
-            _fmt(r.risk_se_seeds if several else r.risk_se_episodes, 4),
-            f"{r.baseline_risk:.4f}",
-            _fmt(r.baseline_se, 4),
+            f"{r.risk:.4f} ± {_fmt(se, 4)}",
+            f"{r.baseline_risk:.4f} ± {_fmt(r.baseline_se, 4)}",
             f"{r.risk - r.baseline_risk:+.4f} ± {_fmt(r.difference_se, 4)}",
             f"{r.p_value:.3g}",
             *([f"{r.seeds_at_or_below}/{r.seeds}"] if several else []),
-            f"{r.p_collision:.2f}",
-            f"{r.baseline_p_collision:.2f}",
             f"{r.timeouts:.0%}",
-            _fmt(r.mean_return, 2),
-            _fmt(r.baseline_return, 2),
+            f"{_fmt(r.mean_return, 2)} / {_fmt(r.baseline_return, 2)}",
             "yes" if r.holds else "NO",
         )
     table.caption = (
-        f"risk: mean realised fatality risk per episode; SE over the "
-        f"{'seeds' if several else 'episodes'} (rule: over the episodes); difference: "
-        f"learned − rule over the same episodes, its SE and the two-sided paired t-test; "
-        f"return under the {reward} reward; timeouts: episodes that never crossed"
+        f"risk: mean realised fatality risk per episode, SE over the "
+        f"{'seeds' if several else 'episodes'} (rule: over the episodes); difference: learned "
+        f"− rule over the same episodes, with the two-sided paired t-test; timeouts: episodes "
+        f"that never crossed; return under the {reward} reward"
     )
     return table
+
+
+def _console() -> Console:
+    """Standard output; wide enough for the tables when it is not a terminal."""
+    return Console() if sys.stdout.isatty() else Console(width=140)
 
 
 def _verdict(rows: list[PairedRow], config: EnvConfig) -> list[str]:
@@ -487,7 +484,7 @@ def evaluate(
             )
     rows = protocol.compare([runs["learned"]], runs["rule"])
     title = f"learned vs rule-based braking, the same {episodes} episodes per distance"
-    console = Console()
+    console = _console()
     console.print(_paired_table(rows, config.vehicle.start_distance_m, title, config.reward.kind))
     for line in _verdict(rows, config):
         console.print(line)
@@ -568,7 +565,7 @@ def _evaluate_seeds(
     env.close()
     rows = protocol.compare(learned, base)
     title = f"learned ({len(seeds)} seeds) vs rule, same {episodes} episodes"
-    console = Console()
+    console = _console()
     console.print(_paired_table(rows, config.vehicle.start_distance_m, title, config.reward.kind))
     for line in _verdict(rows, config):
         console.print(line)

@@ -65,7 +65,7 @@ PRESETS: dict[str, Preset] = {
         scenario="corners",
         prior=False,
         n_envs=8,
-        steps=100_000,
+        steps=150_000,
         ppo={**PPO_DEFAULTS, "n_steps": 128, "batch_size": 256, "ent_coef": 0.01},
     ),
     "method": Preset(

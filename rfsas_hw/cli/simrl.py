@@ -252,7 +252,8 @@ def train(
         f"entropy {ppo['ent_coef']:g}"
     )
     console.print(f"model: {result.model_path}")
-    console.print(f"logs:  {logs / 'progress.csv'}, {logs / 'monitor.csv'}")
+    monitor = "monitor.csv" if n_envs == 1 else "env-<i>.monitor.csv"
+    console.print(f"logs:  {logs / 'progress.csv'}, {logs / monitor}")
 
 
 def _train_seeds(

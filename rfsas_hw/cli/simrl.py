@@ -315,6 +315,7 @@ def _paired_table(rows: list[PairedRow], start_m: float, title: str, reward: str
         "paired\np",
         *(["seeds\n≤ rule"] if several else []),
         "learned\ntimeouts",
+        "time (s)\nlearned / rule",
         "return\nlearned / rule",
         "≤ rule",
     ]
@@ -331,6 +332,7 @@ def _paired_table(rows: list[PairedRow], start_m: float, title: str, reward: str
             f"{r.p_value:.3g}",
             *([f"{r.seeds_at_or_below}/{r.seeds}"] if several else []),
             f"{r.timeouts:.0%}",
+            f"{r.time_s:.1f} / {r.baseline_time_s:.1f}",
             f"{_fmt(r.mean_return, 2)} / {_fmt(r.baseline_return, 2)}",
             "yes" if r.holds else "NO",
         )
@@ -338,7 +340,7 @@ def _paired_table(rows: list[PairedRow], start_m: float, title: str, reward: str
         f"risk: mean realised fatality risk per episode, SE over the "
         f"{'seeds' if several else 'episodes'} (rule: over the episodes); difference: learned "
         f"− rule over the same episodes, with the two-sided paired t-test; timeouts: episodes "
-        f"that never crossed; return under the {reward} reward"
+        f"that never crossed; time: mean episode duration; return under the {reward} reward"
     )
     return table
 

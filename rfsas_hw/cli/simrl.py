@@ -347,7 +347,7 @@ def _paired_table(rows: list[PairedRow], start_m: float, title: str, reward: str
 
 def _console() -> Console:
     """Standard output; wide enough for the tables when it is not a terminal."""
-    return Console() if sys.stdout.isatty() else Console(width=140)
+    return Console() if sys.stdout.isatty() else Console(width=160)
 
 
 def _verdict(rows: list[PairedRow], config: EnvConfig) -> list[str]:

@@ -49,13 +49,14 @@ _prior_option = click.option(
     "--prior",
     type=click.Choice(["on", "off"]),
     default=None,
-    help="RF activity prior ahead of the car in the observation (default: the config's, off).",
+    help="RF activity prior ahead of the car in the observation [default: the preset's, off].",
 )
 _scenario_option = click.option(
     "--scenario",
     type=click.Choice(["single", "corners"]),
     default=None,
-    help="Episodes: one crosser, or quiet and busy corners (default: the config's, single).",
+    help="Episodes: one crosser, or quiet and busy corners "
+    "[default: the preset's; protocol corners, method single].",
 )
 _preset_option = click.option(
     "--preset",

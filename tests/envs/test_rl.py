@@ -210,6 +210,9 @@ def test_cli_evaluate_and_render(
     # one line says whether learned ≤ rule holds at every distance
     verdict = [line for line in output.splitlines() if "at every distance (40–80 m)" in line]
     assert len(verdict) == 1 and verdict[0].rstrip().endswith(("yes", "m)"))
+    # a model is judged in the environment it was trained in
+    code, output = rfsas(*args, "--prior", "on")
+    assert code == 2 and "--prior" in output
     with out_csv.open() as fh:
         got = list(csv.DictReader(fh))
     assert [(r["distance_m"], r["policy"]) for r in got] == [

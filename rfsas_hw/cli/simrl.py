@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import sys
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -29,7 +30,7 @@ from rfsas_hw.outpaths import check_output
 
 if TYPE_CHECKING:
     from rfsas_hw.envs.envconfig import EnvConfig
-    from rfsas_hw.envs.rl import EvalRow
+    from rfsas_hw.envs.protocol import PairedRow
 
 _config_option = click.option(
     "--config",
@@ -50,13 +51,25 @@ _prior_option = click.option(
     "--prior",
     type=click.Choice(["on", "off"]),
     default=None,
-    help="RF activity prior ahead of the car in the observation (default: the config's, off).",
+    help="RF activity prior ahead of the car in the observation [default: the preset's, off].",
 )
 _scenario_option = click.option(
     "--scenario",
     type=click.Choice(["single", "corners"]),
     default=None,
-    help="Episodes: one crosser, or quiet and busy corners (default: the config's, single).",
+    help="Episodes: one crosser, or quiet and busy corners "
+    "[default: the preset's; protocol corners, method single].",
+)
+_preset_option = click.option(
+    "--preset",
+    type=click.Choice(["protocol", "method"]),
+    default="protocol",
+    show_default=True,
+    help="protocol: the risk-progress reward at quiet and busy corners, no prior, 8 "
+    "environments, PPO n_steps 128, batch 256, entropy 0.01 (learned at or below the rule "
+    "in the multi-seed protocol); method: method.md §10 as written (its reward, one crosser, "
+    "one environment, n_steps 64, batch 64, entropy 0). --reward, --scenario, --prior and "
+    "the PPO options override it.",
 )
 _seeds_option = click.option(
     "--seeds",
@@ -83,10 +96,15 @@ def _env_config(
     reward: str | None = None,
     prior: str | None = None,
     scenario: str | None = None,
+    preset: str = "protocol",
 ) -> EnvConfig:
+    """The configuration file (or the defaults), then the preset's reward, scenario and
+    prior, then the options given."""
     from rfsas_hw.envs.envconfig import EnvConfig, load_env_config
+    from rfsas_hw.envs.presets import preset as named
 
     config = load_env_config(config_path) if config_path is not None else EnvConfig()
+    config = named(preset).apply(config)
     if prior is not None:
         config = dataclasses.replace(
             config, prior=dataclasses.replace(config.prior, observe=prior == "on")
@@ -113,9 +131,8 @@ def _env_config(
 @click.option(
     "--steps",
     type=click.IntRange(min=1),
-    default=40_000,
-    show_default=True,
-    help="Environment steps to train.",
+    default=None,
+    help="Environment steps to train [default: the preset's; protocol 150000, method 40000].",
 )
 @out_option(
     "Where to save the model (zip).",
@@ -134,63 +151,69 @@ def _env_config(
     "--reward",
     type=click.Choice(["method", "risk-progress"]),
     default=None,
-    help="Reward (default: the config's, method).",
+    help="Reward [default: the preset's; protocol risk-progress, method method].",
 )
 @click.option(
     "--envs",
     "n_envs",
     type=click.IntRange(min=1),
-    default=1,
-    show_default=True,
-    help="Environments stepped side by side (vectorised, one process).",
+    default=None,
+    help="Environments stepped side by side (vectorised, one process) "
+    "[default: the preset's; protocol 8, method 1].",
 )
 @click.option(
     "--n-steps",
     type=click.IntRange(min=2),
     default=None,
-    help="PPO rollout steps per environment [default: 64, the method's].",
+    help="PPO rollout steps per environment [default: the preset's; protocol 128, method 64].",
 )
 @click.option(
     "--batch-size",
     type=click.IntRange(min=2),
     default=None,
-    help="PPO minibatch size [default: 64, the method's].",
+    help="PPO minibatch size [default: the preset's; protocol 256, method 64].",
 )
 @click.option(
     "--ent-coef",
     type=click.FloatRange(min=0.0),
     default=None,
-    help="PPO entropy coefficient [default: 0, the method's].",
+    help="PPO entropy coefficient [default: the preset's; protocol 0.01, method 0].",
 )
+@_preset_option
 @_seeds_option
 @_prior_option
 @_scenario_option
 @_config_option
 @_detail_option
 def train(
-    steps: int,
+    steps: int | None,
     model_path: Path,
     log_dir: Path | None,
     seed: int,
     reward: str | None,
-    n_envs: int,
+    n_envs: int | None,
     n_steps: int | None,
     batch_size: int | None,
     ent_coef: float | None,
+    preset: str,
     seeds: str | None,
     prior: str | None,
     scenario: str | None,
     config_path: Path | None,
     detail: str | None,
 ) -> None:
-    """Train a PPO agent (MlpPolicy, seed 0, batch 64, n_steps 64, lr 3e-4) to brake."""
+    """Train a PPO agent (MlpPolicy, seed 0) to brake, with the preset's settings."""
     from rfsas_hw.envs import rl
+    from rfsas_hw.envs.presets import preset as named
 
     if config_path is not None:
         check_output(model_path, [config_path], force=True)
-    config = _env_config(config_path, detail, reward, prior, scenario)
+    config = _env_config(config_path, detail, reward, prior, scenario, preset)
+    chosen = named(preset)
+    steps = chosen.steps if steps is None else steps
+    n_envs = chosen.n_envs if n_envs is None else n_envs
     given = {"n_steps": n_steps, "batch_size": batch_size, "ent_coef": ent_coef}
-    ppo = {k: v for k, v in given.items() if v is not None}
+    ppo = {**chosen.ppo, **{k: v for k, v in given.items() if v is not None}}
     seed_list = _parse_seeds(seeds)
     if seed_list is not None:
         _train_seeds(seed_list, steps, model_path, config, n_envs, ppo)
@@ -222,11 +245,15 @@ def train(
     console = Console()
     console.print(
         f"trained {result.steps} steps ({result.episodes} episodes) in {result.seconds:.1f} s "
-        f"({result.steps / max(result.seconds, 1e-9):.0f} steps/s), "
-        f"detail {config.sensing.detail}, reward {config.reward.kind}"
+        f"({result.steps / max(result.seconds, 1e-9):.0f} steps/s), preset {preset}: "
+        f"detail {config.sensing.detail}, reward {config.reward.kind}, "
+        f"scenario {config.scenario.kind}, prior {'on' if config.prior.observe else 'off'}, "
+        f"{n_envs} env(s), PPO n_steps {ppo['n_steps']}, batch {ppo['batch_size']}, "
+        f"entropy {ppo['ent_coef']:g}"
     )
     console.print(f"model: {result.model_path}")
-    console.print(f"logs:  {logs / 'progress.csv'}, {logs / 'monitor.csv'}")
+    monitor = "monitor.csv" if n_envs == 1 else "env-<i>.monitor.csv"
+    console.print(f"logs:  {logs / 'progress.csv'}, {logs / monitor}")
 
 
 def _train_seeds(
@@ -274,35 +301,80 @@ def _fmt(x: float, digits: int = 3) -> str:
     return "—" if math.isnan(x) else f"{x:.{digits}f}"
 
 
-def _table(
-    rows: list[EvalRow], per: dict[float, float], pooled: float, names: list[str], reward: str
-) -> Table:
-    table = Table(title="learned vs rule-based braking, by reaction distance")
-    table.add_column("distance\n(m)", justify="right")
-    for name in names:
-        for col in ("P(coll)", "P_f", "risk", "return"):
-            table.add_column(f"{name}\n{col}", justify="right")
-    table.add_column("risk\nreduction", justify="right")
-    by = {(r.distance_m, r.policy): r for r in rows}
-    for d in sorted({r.distance_m for r in rows}):
-        cells = [f"{d:g}"]
-        for name in names:
-            r = by[(d, name)]
-            cells += [
-                _fmt(r.p_collision, 2),
-                _fmt(r.p_fatality),
-                _fmt(r.risk, 4),
-                _fmt(r.mean_return, 2),
-            ]
-        cells.append("—" if math.isnan(per.get(d, math.nan)) else f"{per[d]:+.0%}")
-        table.add_row(*cells)
-    total = "—" if math.isnan(pooled) else f"{pooled:+.0%}"
+def _paired_table(rows: list[PairedRow], start_m: float, title: str, reward: str) -> Table:
+    """Learned against rule per distance: risks with standard errors, the paired test,
+    timeouts, returns and whether learned ≤ rule holds there."""
+    several = rows[0].seeds > 1
+    table = Table(title=title)
+    columns = [
+        "from centre\n(m)",
+        "from start\n(m)",
+        f"learned risk\n± SE{' (seeds)' if several else ''}",
+        "rule risk\n± SE",
+        "difference\n± SE",
+        "paired\np",
+        *(["seeds\n≤ rule"] if several else []),
+        "learned\ntimeouts",
+        "time (s)\nlearned / rule",
+        "return\nlearned / rule",
+        "≤ rule",
+    ]
+    for col in columns:
+        table.add_column(col, justify="right")
+    for r in rows:
+        se = r.risk_se_seeds if several else r.risk_se_episodes
+        table.add_row(
+            f"{r.distance_m:g}",
+            f"{start_m - r.distance_m:g}",
+            f"{r.risk:.4f} ± {_fmt(se, 4)}",
+            f"{r.baseline_risk:.4f} ± {_fmt(r.baseline_se, 4)}",
+            f"{r.risk - r.baseline_risk:+.4f} ± {_fmt(r.difference_se, 4)}",
+            f"{r.p_value:.3g}",
+            *([f"{r.seeds_at_or_below}/{r.seeds}"] if several else []),
+            f"{r.timeouts:.0%}",
+            f"{r.time_s:.1f} / {r.baseline_time_s:.1f}",
+            f"{_fmt(r.mean_return, 2)} / {_fmt(r.baseline_return, 2)}",
+            "yes" if r.holds else "NO",
+        )
     table.caption = (
-        f"risk reduction = 1 − risk(learned)/risk(rule); over all distances: {total}. "
-        f"P_f is the mean fatality risk of the collisions; return: mean episode return "
-        f"under the {reward} reward."
+        f"risk: mean realised fatality risk per episode, SE over the "
+        f"{'seeds' if several else 'episodes'} (rule: over the episodes); difference: learned "
+        f"− rule over the same episodes, with the two-sided paired t-test; timeouts: episodes "
+        f"that never crossed; time: mean episode duration; return under the {reward} reward"
     )
     return table
+
+
+def _console() -> Console:
+    """Standard output; wide enough for the tables when it is not a terminal."""
+    return Console() if sys.stdout.isatty() else Console(width=160)
+
+
+def _verdict(rows: list[PairedRow], config: EnvConfig) -> list[str]:
+    """The lines under the table: pooled risks and whether learned ≤ rule holds everywhere."""
+    from rfsas_hw.envs import protocol
+
+    dists = [r.distance_m for r in rows]
+    overall = protocol.pooled_ratio(rows, dists)  # Σ rule / Σ learned
+    reduction = "—" if math.isnan(overall) or overall == 0 else f"{1 - 1 / overall:+.0%}"
+    lines = [f"risk reduction over all distances, 1 − Σ learned / Σ rule: {reduction}"]
+    stop = [d for d in dists if protocol.cannot_stop(config, d)]
+    if stop:
+        ratio = protocol.pooled_ratio(rows, stop)
+        where = ", ".join(f"{d:g}" for d in stop)
+        lines.append(
+            f"rule/learned pooled risk where the rule cannot stop ({where} m): {ratio:.2f}"
+        )
+    failing = protocol.not_holding(rows)
+    span = f"{min(dists):g}–{max(dists):g} m" if len(dists) > 1 else f"{dists[0]:g} m"
+    if failing:
+        where = ", ".join(f"{d:g}" for d in failing)
+        lines.append(
+            f"learned ≤ rule within one SE at every distance ({span}): NO (not at {where} m)"
+        )
+    else:
+        lines.append(f"learned ≤ rule within one SE at every distance ({span}): yes")
+    return lines
 
 
 @click.command()
@@ -357,9 +429,10 @@ def _table(
     "--reward",
     type=click.Choice(["method", "risk-progress"]),
     default=None,
-    help="Reward whose mean episode return is reported (default: the config's, method); "
+    help="Reward whose mean episode return is reported [default: the preset's]; "
     "risk and collisions do not depend on it.",
 )
+@_preset_option
 @_seeds_option
 @_prior_option
 @_scenario_option
@@ -374,19 +447,22 @@ def evaluate(
     csv_path: Path | None,
     plot_path: Path | None,
     reward: str | None,
+    preset: str,
     seeds: str | None,
     prior: str | None,
     scenario: str | None,
     config_path: Path | None,
     detail: str | None,
 ) -> None:
-    """Compare the learned policy with the rule (brake above the risk threshold, else hold)."""
-    from rfsas_hw.envs import rl
+    """Compare the learned policy with the rule (brake above the risk threshold, else hold)
+    over the same episodes: risks with standard errors, the paired test, and whether the
+    learned policy is at or below the rule at every distance."""
+    from rfsas_hw.envs import protocol, rl
 
     for target in (csv_path, plot_path):
         if target is not None:  # a result of an earlier run may be replaced, an input never
             check_output(target, [p for p in (model_path, config_path) if p], force=True)
-    config = _env_config(config_path, detail, reward, prior=prior, scenario=scenario)
+    config = _env_config(config_path, detail, reward, prior, scenario, preset)
     dists = rl.parse_distances(distances)
     seed_list = _parse_seeds(seeds)
     if seed_list is not None:
@@ -395,25 +471,54 @@ def evaluate(
         _evaluate_seeds(model_path, seed_list, dists, episodes, seed, threshold, config)
         return
     learned = rl.LearnedPolicy.load(model_path)
+    _check_shape(learned, config, "the model")
     rule = rl.RulePolicy(config.risk_threshold if threshold is None else threshold)
+    runs = {}
+    policies: tuple[rl.Policy, ...] = (learned, rule)
     with _episode_bar() as bar:
-        task = bar.add_task("episodes", total=None)
-        rows = rl.evaluate(
-            [learned, rule],
-            dists,
-            episodes,
-            config=config,
-            seed=seed,
-            progress=lambda done, total: bar.update(task, completed=done, total=total),
+        task = bar.add_task("episodes", total=2 * len(dists) * episodes)
+        for i, policy in enumerate(policies):
+
+            def progress(done: int, _: int, before: int = i * len(dists) * episodes) -> None:
+                bar.update(task, completed=before + done)
+
+            runs[policy.name] = protocol.outcomes(
+                policy, dists, episodes, config=config, seed=seed, progress=progress
+            )
+    rows = protocol.compare([runs["learned"]], runs["rule"])
+    title = f"learned vs rule-based braking, the same {episodes} episodes per distance"
+    console = _console()
+    console.print(_paired_table(rows, config.vehicle.start_distance_m, title, config.reward.kind))
+    for line in _verdict(rows, config):
+        console.print(line)
+    if csv_path is not None or plot_path is not None:
+        summary = protocol.eval_rows(runs["learned"], "learned")
+        summary += protocol.eval_rows(runs["rule"], "rule")
+        summary.sort(key=lambda r: dists.index(r.distance_m))
+        if csv_path is not None:
+            rl.write_csv(summary, csv_path)
+            click.echo(f"wrote {csv_path}")
+        if plot_path is not None:
+            rl.plot(summary, plot_path)
+            click.echo(f"wrote {plot_path}")
+
+
+def _check_shape(policy: Any, config: EnvConfig, what: str) -> None:
+    """Refuse a model whose observation size differs from the environment's.
+
+    Raises:
+        ConfigError: the sizes differ (a model trained with the other --prior).
+    """
+    from rfsas_hw.envs.env import OBS_SIZE
+    from rfsas_hw.errors import ConfigError
+
+    shape = policy.model.observation_space.shape
+    expected = (OBS_SIZE + int(config.prior.observe),)
+    if shape != expected:
+        raise ConfigError(
+            f"{what} observes {shape}, the environment gives {expected}: "
+            f"pass the --prior (or --preset) it was trained with"
         )
-    per, pooled = rl.risk_reduction(rows)
-    Console().print(_table(rows, per, pooled, ["learned", "rule"], config.reward.kind))
-    if csv_path is not None:
-        rl.write_csv(rows, csv_path)
-        click.echo(f"wrote {csv_path}")
-    if plot_path is not None:
-        rl.plot(rows, plot_path)
-        click.echo(f"wrote {plot_path}")
 
 
 def _episode_bar() -> Progress:
@@ -439,7 +544,6 @@ def _evaluate_seeds(
 ) -> None:
     from rfsas_hw.envs import protocol, rl
     from rfsas_hw.envs.env import IntersectionEnv
-    from rfsas_hw.errors import ConfigError
 
     env = IntersectionEnv(config)
     rule = rl.RulePolicy(config.risk_threshold if threshold is None else threshold)
@@ -453,12 +557,7 @@ def _evaluate_seeds(
     with Progress(*columns, transient=True) as bar:
         for s in seeds:
             policy = rl.LearnedPolicy.load(protocol.seed_model_path(model_path, s))
-            shape = policy.model.observation_space.shape
-            if shape != env.observation_space.shape:
-                raise ConfigError(
-                    f"model of seed {s} observes {shape}, the environment gives "
-                    f"{env.observation_space.shape}: pass the --prior it was trained with"
-                )
+            _check_shape(policy, config, f"model of seed {s}")
             task = bar.add_task(f"seed {s}", total=len(dists))
             runs = []
             for d in dists:
@@ -466,46 +565,13 @@ def _evaluate_seeds(
                 bar.update(task, advance=1)
             learned.append(_join(runs))
         base = protocol.outcomes(rule, dists, episodes, seed=first, env=env)
+    env.close()
     rows = protocol.compare(learned, base)
-    start = config.vehicle.start_distance_m
-    table = Table(title=f"learned ({len(seeds)} seeds) vs rule, same {episodes} episodes")
-    for col in (
-        "from centre\n(m)",
-        "from start\n(m)",
-        "learned\nrisk",
-        "± SE\nseeds",
-        "rule\nrisk",
-        "± SE",
-        "paired\np",
-        "seeds\n≤ rule",
-        "learned\nreturn",
-        "rule\nreturn",
-        "learned\ntimeouts",
-    ):
-        table.add_column(col, justify="right")
-    for r in rows:
-        table.add_row(
-            f"{r.distance_m:g}",
-            f"{start - r.distance_m:g}",
-            f"{r.risk:.4f}",
-            _fmt(r.risk_se_seeds, 4),
-            f"{r.baseline_risk:.4f}",
-            _fmt(r.baseline_se, 4),
-            f"{r.p_value:.3g}",
-            f"{r.seeds_at_or_below}/{r.seeds}",
-            _fmt(r.mean_return, 2),
-            _fmt(r.baseline_return, 2),
-            f"{r.timeouts:.0%}",
-        )
-    stop = [d for d in dists if protocol.cannot_stop(config, d)]
-    ratio = protocol.pooled_ratio(rows, stop)
-    table.caption = (
-        f"rule/learned pooled risk where the rule cannot stop ({', '.join(f'{d:g}' for d in stop)}"
-        f" m): {ratio:.2f}"
-        if stop
-        else "the rule can stop at every distance"
-    )
-    Console().print(table)
+    title = f"learned ({len(seeds)} seeds) vs rule, same {episodes} episodes"
+    console = _console()
+    console.print(_paired_table(rows, config.vehicle.start_distance_m, title, config.reward.kind))
+    for line in _verdict(rows, config):
+        console.print(line)
 
 
 def _join(runs: list[Any]) -> Any:
@@ -543,6 +609,9 @@ def _join(runs: list[Any]) -> Any:
     required=True,
 )
 @click.option("--seed", type=int, default=0, show_default=True, help="Episode seed.")
+@_preset_option
+@_prior_option
+@_scenario_option
 @_config_option
 @_detail_option
 def render(
@@ -550,6 +619,9 @@ def render(
     distance: float | None,
     output: Path,
     seed: int,
+    preset: str,
+    prior: str | None,
+    scenario: str | None,
     config_path: Path | None,
     detail: str | None,
 ) -> None:
@@ -557,7 +629,7 @@ def render(
     from rfsas_hw.envs import rl
 
     check_output(output, [p for p in (model_path, config_path) if p], force=True)
-    config = _env_config(config_path, detail)
+    config = _env_config(config_path, detail, prior=prior, scenario=scenario, preset=preset)
     policy: Any = (
         rl.LearnedPolicy.load(model_path)
         if model_path is not None

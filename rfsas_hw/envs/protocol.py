@@ -11,6 +11,12 @@
   seed-averaged learned risk against the baseline's (the same episodes).
 - :func:`pooled_ratio`: the baseline's summed risk over the learned one's
   over chosen distances (e.g. where the rule cannot stop in time).
+- :func:`not_holding`: the distances where the learned policy is *not* at
+  or below the baseline within one standard error, or times out more often
+  (a car that parks short of the crossing has no collision, but it is not
+  safe: it never arrives).
+- :func:`eval_rows`: one policy's outcomes as per-distance
+  :class:`~rfsas_hw.envs.rl.EvalRow` summaries (CSV, plot).
 - :func:`speed_profiles` and :func:`plot_speed_profiles`: the mean speed
   along the approach, with and without a warning.
 
@@ -31,7 +37,7 @@ import numpy.typing as npt
 
 from rfsas_hw.envs.env import IntersectionEnv
 from rfsas_hw.envs.envconfig import EnvConfig
-from rfsas_hw.envs.rl import Policy, Progress, TrainResult, train
+from rfsas_hw.envs.rl import EvalRow, Policy, Progress, TrainResult, train
 from rfsas_hw.errors import ConfigError
 from rfsas_hw.optional import pyplot
 from rfsas_hw.outpaths import save_figure
@@ -41,6 +47,8 @@ __all__ = [
     "PairedRow",
     "cannot_stop",
     "compare",
+    "eval_rows",
+    "not_holding",
     "outcomes",
     "plot_speed_profiles",
     "pooled_ratio",
@@ -132,10 +140,12 @@ def outcomes(
     seed: int = 10_000,
     options: Mapping[str, Any] | None = None,
     env: IntersectionEnv | None = None,
+    progress: Progress | None = None,
 ) -> Outcomes:
     """Run ``policy`` for ``episodes`` episodes at each reaction distance.
 
     A distance of None lets ``reset`` place the warning as in training.
+    ``progress`` is called after each episode with (episodes done, episodes in all).
 
     Raises:
         ConfigError: ``episodes`` < 1.
@@ -158,6 +168,8 @@ def outcomes(
             times[i, k] = info["t_s"]
             crossed[i, k] = info["crossed"]
             returns[i, k] = info["return"]
+            if progress is not None:
+                progress(i * episodes + k + 1, len(distances_m) * episodes)
     if own:
         env.close()
     dists = tuple(math.nan if d is None else float(d) for d in distances_m)
@@ -203,6 +215,22 @@ class PairedRow:
     """Mean episode return of the learned policy (all seeds; NaN: returns not kept)."""
     baseline_return: float = math.nan
     """Mean episode return of the baseline."""
+    difference_se: float = math.nan
+    """Standard error over the episodes of the paired difference, seed-averaged learned
+    risk minus the baseline's (NaN with one episode)."""
+    baseline_timeouts: float = 0.0
+    """Fraction of the baseline's episodes that timed out uncrossed."""
+
+    @property
+    def holds(self) -> bool:
+        """Whether the learned policy is at or below the baseline here: its risk exceeds
+        the baseline's by at most one standard error of the paired difference, and it
+        times out no more often (a timeout has no collision, but the car never arrived)."""
+        margin = 0.0 if math.isnan(self.difference_se) else self.difference_se
+        return (
+            self.risk <= self.baseline_risk + margin + 1e-12
+            and self.timeouts <= self.baseline_timeouts + 1e-12
+        )
 
 
 def _se(x: Array) -> float:
@@ -256,6 +284,38 @@ def compare(learned: Sequence[Outcomes], baseline: Outcomes) -> list[PairedRow]:
                 baseline_return=float(baseline.returns[i].mean())  # type: ignore[index]
                 if returns is not None
                 else math.nan,
+                difference_se=_se(diff),
+                baseline_timeouts=float(baseline.timeouts[i].mean()),
+            )
+        )
+    return rows
+
+
+def not_holding(rows: Sequence[PairedRow]) -> list[float]:
+    """The distances (metres) where the learned policy does not hold against the baseline
+    (:attr:`PairedRow.holds`); empty when it holds at every distance."""
+    return [r.distance_m for r in rows if not r.holds]
+
+
+def eval_rows(o: Outcomes, name: str) -> list[EvalRow]:
+    """Per-distance summaries of one policy's episodes, named ``name``."""
+    rows = []
+    for i, d in enumerate(o.distances_m):
+        risk, hit = o.risk[i], o.collision[i]
+        n = risk.size
+        rows.append(
+            EvalRow(
+                distance_m=d,
+                policy=name,
+                episodes=n,
+                collisions=int(hit.sum()),
+                p_collision=float(hit.mean()),
+                p_fatality=float(risk[hit].mean()) if hit.any() else math.nan,
+                risk=float(risk.mean()),
+                risk_stderr=_se(risk),
+                mean_time_s=float(o.time_s[i].mean()),
+                mean_return=float(o.returns[i].mean()) if o.returns is not None else math.nan,
+                timeouts=float(o.timeouts[i].mean()),
             )
         )
     return rows

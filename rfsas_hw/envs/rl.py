@@ -267,6 +267,9 @@ class EvalRow:
     """Mean episode duration, seconds (how much the policy slows the car down)."""
     mean_return: float = math.nan
     """Mean undiscounted episode return under the environment's reward."""
+    timeouts: float = 0.0
+    """Fraction of episodes that ended at ``max_steps`` with the car short of the crossing
+    (no collision, but not safe either: the car never arrived)."""
 
 
 def run_episode(
@@ -308,52 +311,37 @@ def evaluate(
     """Run every policy for ``episodes`` episodes at each reaction distance.
 
     Episode ``k`` uses seed ``seed + k`` for every policy and distance, so the
-    policies meet the same cross traffic and measurement noise. ``progress`` is
-    called after each episode with (episodes done, episodes in all).
+    policies meet the same cross traffic and measurement noise
+    (:func:`rfsas_hw.envs.protocol.outcomes` runs them). ``progress`` is called
+    after each episode with (episodes done, episodes in all). Rows come by
+    distance, the policies in the order given.
 
     Raises:
         ConfigError: ``episodes`` < 1.
     """
+    # the protocol runs the episodes; it builds on this module, hence the late import
+    from rfsas_hw.envs.protocol import eval_rows, outcomes
+
     if episodes < 1:
         raise ConfigError(f"evaluation needs at least one episode, got {episodes}")
-    env = IntersectionEnv(config)
+    distances = [float(d) for d in distances_m]
+    per_policy = len(distances) * episodes
+    total = len(policies) * per_policy
     rows: list[EvalRow] = []
-    distances_m = list(distances_m)
-    total, done = len(distances_m) * len(policies) * episodes, 0
-    for d in distances_m:
-        for policy in policies:
-            realised = np.zeros(episodes)
-            fatal: list[float] = []
-            times = np.zeros(episodes)
-            returns = np.zeros(episodes)
-            for k in range(episodes):
-                info = run_episode(env, policy, seed + k, d)
-                done += 1
+    env = IntersectionEnv(config)
+    try:
+        for j, policy in enumerate(policies):
+
+            def report(done: int, _: int, before: int = j * per_policy) -> None:
                 if progress is not None:
-                    progress(done, total)
-                times[k] = info["t_s"]
-                returns[k] = info["return"]
-                if info["collision"]:
-                    fatal.append(info["realised_risk"])
-                    realised[k] = info["realised_risk"]
-            n_coll = len(fatal)
-            rows.append(
-                EvalRow(
-                    distance_m=float(d),
-                    policy=policy.name,
-                    episodes=episodes,
-                    collisions=n_coll,
-                    p_collision=n_coll / episodes,
-                    p_fatality=float(np.mean(fatal)) if fatal else math.nan,
-                    risk=float(np.mean(realised)),
-                    risk_stderr=float(np.std(realised, ddof=1) / math.sqrt(episodes))
-                    if episodes > 1
-                    else math.nan,
-                    mean_time_s=float(np.mean(times)),
-                    mean_return=float(np.mean(returns)),
-                )
-            )
-    env.close()
+                    progress(before + done, total)
+
+            o = outcomes(policy, distances, episodes, seed=seed, env=env, progress=report)
+            rows += eval_rows(o, policy.name)
+    finally:
+        env.close()
+    # by distance, the policies in the order given within each
+    rows.sort(key=lambda r: distances.index(r.distance_m))
     return rows
 
 

@@ -14,11 +14,14 @@ import pytest
 pytest.importorskip("gymnasium", reason="needs the sim extra: pip install 'rfsas-hw[sim]'")
 
 from rfsas_hw.cli.main import main
+from rfsas_hw.envs.env import BRAKE
 from rfsas_hw.envs.envconfig import EnvConfig, env_config_from_mapping
 from rfsas_hw.envs.protocol import (
     Outcomes,
     cannot_stop,
     compare,
+    eval_rows,
+    not_holding,
     outcomes,
     pooled_ratio,
     seed_model_path,
@@ -62,6 +65,50 @@ def test_compare_pairs_the_episodes_and_pools() -> None:
     assert math.isnan(pooled_ratio(rows, [60.0]))
     with pytest.raises(ConfigError, match="same distances"):
         compare([fake([[0.0]])], base)
+
+
+class StopPolicy:
+    """Brakes from the first step and stays stopped: the degenerate exit."""
+
+    name = "stop"
+
+    def act(self, obs: Any) -> int:
+        return BRAKE
+
+
+def test_a_policy_that_always_stops_does_not_score_as_safe() -> None:
+    # A parked car hits nobody, so its collision risk is 0 and risk alone would call it
+    # safer than the rule; but it never arrives: every episode times out, and the
+    # verdict counts that against it.
+    config = env_config_from_mapping({"reward": {"kind": "risk-progress"}, "max_steps": 120})
+    stop = outcomes(StopPolicy(), [60.0, 90.0], 3, config=config)
+    rule = outcomes(RulePolicy(0.0015), [60.0, 90.0], 3, config=config)
+    assert stop.risk.sum() == 0.0 and stop.timeouts.all()
+    assert not rule.timeouts.any() and rule.crossed.any()
+    rows = compare([stop], rule)
+    assert all(r.risk <= r.baseline_risk for r in rows)  # the risk alone would pass it
+    assert all(r.timeouts == 1.0 and r.baseline_timeouts == 0.0 for r in rows)
+    assert not any(r.holds for r in rows)
+    assert not_holding(rows) == [60.0, 90.0]
+    # and training pays it less than the rule: time and the timeout cost
+    assert all(r.mean_return < r.baseline_return for r in rows)
+    summary = eval_rows(stop, "stop")
+    assert [s.timeouts for s in summary] == [1.0, 1.0]
+    assert [s.risk for s in summary] == [0.0, 0.0]
+
+
+def test_learned_holds_within_one_standard_error_of_the_paired_difference() -> None:
+    base = fake([[0.1, 0.0, 0.0, 0.0], [0.1, 0.0, 0.0, 0.0]])
+    # 40 m: 0.025 above the rule, within the SE of the difference (0.048); 60 m: 0.075
+    # above it, beyond its SE (0.025)
+    learned = fake([[0.0, 0.1, 0.1, 0.0], [0.1, 0.1, 0.1, 0.1]])
+    r40, r60 = compare([learned], base)
+    assert r40.difference_se == pytest.approx(np.std([-0.1, 0.1, 0.1, 0], ddof=1) / 2)
+    assert r40.risk - r40.baseline_risk == pytest.approx(0.025)
+    assert r60.risk - r60.baseline_risk > r60.difference_se
+    assert r40.holds and not r60.holds
+    assert not_holding([r40, r60]) == [60.0]
+    assert not_holding(compare([base], base)) == []
 
 
 def test_the_rule_cannot_stop_only_from_close() -> None:
@@ -140,3 +187,32 @@ def test_cli_trains_and_evaluates_several_seeds(tmp_path: Path) -> None:
     assert code == 2 and "--seeds" in out
     code, out = rfsas("sim", "train", "--seeds", "1,1", "-o", str(model))
     assert code == 2 and "distinct" in out
+
+
+def test_cli_defaults_train_the_protocol_configuration(tmp_path: Path) -> None:
+    pytest.importorskip("stable_baselines3", reason="stable-baselines3 is not installed (make rl)")
+    from rfsas_hw.envs.presets import PRESETS
+    from rfsas_hw.envs.rl import PPO_DEFAULTS, LearnedPolicy
+
+    model = tmp_path / "m.zip"
+    code, out = rfsas("sim", "train", "--steps", "64", "-o", str(model))
+    assert code == 0, out
+    assert "preset protocol" in out and "reward risk-progress" in out
+    assert "scenario corners" in out and "prior off" in out
+    ppo = LearnedPolicy.load(model).model
+    assert (ppo.n_envs, ppo.n_steps, ppo.batch_size, ppo.ent_coef) == (8, 128, 256, 0.01)
+    assert PRESETS["protocol"].steps <= 150_000  # the documented budget of a few minutes
+    # the method's settings are one option away
+    code, out = rfsas("sim", "train", "--steps", "64", "--preset", "method", "-o", str(model))
+    assert code == 0, out
+    assert "reward method" in out and "scenario single" in out
+    ppo = LearnedPolicy.load(model).model
+    assert (ppo.n_envs, ppo.n_steps, ppo.batch_size, ppo.ent_coef) == (
+        1,
+        PPO_DEFAULTS["n_steps"],
+        PPO_DEFAULTS["batch_size"],
+        PPO_DEFAULTS["ent_coef"],
+    )
+    # an option given wins over the preset
+    code, out = rfsas("sim", "train", "--steps", "64", "--reward", "method", "-o", str(model))
+    assert code == 0 and "preset protocol" in out and "reward method" in out

@@ -50,10 +50,11 @@ def rfsas(*args: str) -> tuple[int, str]:
 
 @pytest.fixture(scope="module")
 def model(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """A short PPO run through the CLI (the method.md §10 hyper-parameters)."""
+    """A short PPO run through the CLI (the method.md §10 set-up, ``--preset method``)."""
     pytest.importorskip("stable_baselines3", reason="stable-baselines3 is not installed (make rl)")
     out = tmp_path_factory.mktemp("rl") / "model.zip"
-    code, output = rfsas("sim", "train", "--steps", str(TRAIN_STEPS), "-o", str(out))
+    args = ("sim", "train", "--steps", str(TRAIN_STEPS), "--preset", "method", "-o", str(out))
+    code, output = rfsas(*args)
     assert code == 0, output
     assert f"trained {TRAIN_STEPS} steps" in output
     return out
@@ -207,7 +208,13 @@ def test_cli_evaluate_and_render(
     args = ["sim", "evaluate", "--model", str(model), "--distances", "40,80", "--episodes", "3"]
     code, output = rfsas(*args, "--csv", str(out_csv), "--plot", str(out_png))
     assert code == 0, output
-    assert "risk reduction" in output
+    assert "risk reduction" in output and "paired" in output and "difference" in output
+    # one line says whether learned ≤ rule holds at every distance
+    verdict = [line for line in output.splitlines() if "at every distance (40–80 m)" in line]
+    assert len(verdict) == 1 and verdict[0].rstrip().endswith(("yes", "m)"))
+    # a model is judged in the environment it was trained in
+    code, output = rfsas(*args, "--prior", "on")
+    assert code == 2 and "--prior" in output
     with out_csv.open() as fh:
         got = list(csv.DictReader(fh))
     assert [(r["distance_m"], r["policy"]) for r in got] == [

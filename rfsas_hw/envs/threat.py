@@ -112,12 +112,19 @@ class Locator(Protocol):
         """A fix, or None when this instant gives none (too few bearings, bad geometry)."""
         ...
 
+    def reset(self) -> None:
+        """Forget what earlier episodes left behind (their times start again at 0)."""
+        ...
+
 
 @dataclass
 class ParametricLocator:
     """``low`` detail: the true position with an assigned isotropic error."""
 
     sigma_m: float
+
+    def reset(self) -> None:
+        """Nothing to forget: each fix is drawn on its own."""
 
     def locate(
         self, t_s: float, obstacle_xy: Array, poses: SensorPoses, rng: np.random.Generator
@@ -169,6 +176,9 @@ class SnrLocator:
         self.freq_mhz = channel_to_freq_mhz(self.channel)
         self.threshold_dbm = DEFAULT_THRESHOLD_DBM["wifi"]
         self.options = TriangulationOptions(max_range_fraction=self.sensing.max_range_fraction)
+
+    def reset(self) -> None:
+        """Nothing to forget: each instant's bearings are drawn on their own."""
 
     def _link(self, pose: Pose, xy: Array, extra_loss_db: float = 0.0) -> _Link:
         dx, dy = float(xy[0] - pose.x_m), float(xy[1] - pose.y_m)
@@ -263,6 +273,11 @@ class PipelineLocator(SnrLocator):
         self.rects = rects
         return self
 
+    def reset(self) -> None:
+        """Start the pipelines afresh: their field-of-view guard remembers each emitter's
+        levels by time, and a new episode's times start again at 0."""
+        self._pipelines.clear()
+
     def _pipeline(self, sensor_id: str, pose: Pose) -> SensorPipeline:
         pipe = self._pipelines.get(sensor_id)
         if pipe is None:
@@ -330,6 +345,7 @@ class ThreatTrack:
 
     def __init__(self, locator: Locator, sensing: SensingConfig) -> None:
         self.locator = locator
+        locator.reset()  # times are seconds since this reset
         self.tracker = Tracker(
             TrackerConfig(
                 accel_sigma_mps2=sensing.accel_noise_mps2,

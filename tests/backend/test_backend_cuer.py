@@ -132,7 +132,7 @@ def test_backend_command_sends_fix_cues_the_vehicle_accepts(tmp_path: Path) -> N
     trust = TrustedKeys({"obu-1": KeyStore.open(tmp_path / "backend").signer().public_key})
     rx = CueReceiver(trust)
     cues = [rx.feed(d, decode_cue(d).t_gen_us * 1000) for d in got]
-    assert all(c is not None for c in cues)
+    assert all(c is not None for c in cues), dict(rx.stats.rejected)
     c = cues[0]
     assert c is not None and c.kind is CueKind.FIX and c.emitter == CLI_EMITTER
     assert c.channel == 11 and c.x_m == pytest.approx(TARGET[0], abs=0.01)

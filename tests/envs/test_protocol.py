@@ -203,6 +203,7 @@ def test_cli_defaults_train_the_protocol_configuration(tmp_path: Path) -> None:
     assert (ppo.n_envs, ppo.n_steps, ppo.batch_size, ppo.ent_coef) == (8, 128, 256, 0.01)
     assert PRESETS["protocol"].steps <= 150_000  # the documented budget of a few minutes
     # the method's settings are one option away
+    model = tmp_path / "method.zip"
     code, out = rfsas("sim", "train", "--steps", "64", "--preset", "method", "-o", str(model))
     assert code == 0, out
     assert "reward method" in out and "scenario single" in out
@@ -214,5 +215,6 @@ def test_cli_defaults_train_the_protocol_configuration(tmp_path: Path) -> None:
         PPO_DEFAULTS["ent_coef"],
     )
     # an option given wins over the preset
+    model = tmp_path / "reward.zip"
     code, out = rfsas("sim", "train", "--steps", "64", "--reward", "method", "-o", str(model))
     assert code == 0 and "preset protocol" in out and "reward method" in out

@@ -153,11 +153,11 @@ def test_foxglove_client_receives_the_scene(tmp_path: Path) -> None:
 def test_a_server_reachable_from_other_hosts_is_announced_with_a_warning(
     host: str, warned: bool
 ) -> None:
-    from rfsas_hw.cli.ros2opts import live_writers
+    from rfsas_hw.apps.ros2 import Ros2Options, live_writers
 
     writers: list[Any] = []
     lines: list[str] = []
-    live_writers({"foxglove_port": 0, "foxglove_host": host}, writers, lines)
+    live_writers(Ros2Options(foxglove_port=0, foxglove_host=host), writers, lines)
     try:
         assert any("WARNING" in line and "no authentication" in line for line in lines) == warned
     finally:

@@ -181,7 +181,7 @@ def test_dashboard_live_in_a_browser(
         sys.executable, "-m", "rfsas_hw.cli.main", "backend", "--listen", listen,
         "--keys", str(tmp_path / "backend"), "--vehicle", vehicle, "--reaction", "0.5",
         "--config", str(config), "--origin", ORIGIN, "--web", f"127.0.0.1:{web_port}",
-        "--no-table", "--out", str(tmp_path / "run.jsonl"), "--duration", "60",
+        "--no-table", "--out", str(tmp_path / "run.jsonl"), "--force", "--duration", "60",
     ]  # fmt: skip
 
     logs: list[Path] = []

@@ -70,6 +70,7 @@ from rfsas_hw.link.message import (
 )
 from rfsas_hw.link.preauth import PreauthKeys, RateLimiter, sign_datagram, tag_ok
 from rfsas_hw.link.replay import ReplayGuard
+from rfsas_hw.link.sendcount import send_counters, send_problem
 from rfsas_hw.link.signing import Signer, verify
 from rfsas_hw.link.topics import Route, TopicRouter, advisory_topic, vehicle_topic
 from rfsas_hw.link.transport import Transport
@@ -399,6 +400,22 @@ class AdvisorySink:
                 continue
             self.stats.messages += 1
             self.stats.assessments += len(chunk)
+
+    def _refused(self) -> int:
+        refused = getattr(self.transport, "refused", None)
+        return int(refused()) if callable(refused) else 0
+
+    def counters(self) -> dict[str, int]:
+        """Advisory messages ``sent``, ``failed``, ``refused`` by the broker, and
+        ``dropped.limited`` assessments (:func:`~rfsas_hw.link.sendcount.send_counters`)."""
+        st = self.stats
+        return send_counters(st.messages, st.errors, self._refused(), {"limited": st.limited})
+
+    def problem(self) -> str | None:
+        """Why no advisory got through, or None
+        (:func:`~rfsas_hw.link.sendcount.send_problem`)."""
+        st = self.stats
+        return send_problem("advisory messages", st.messages, st.errors, self._refused())
 
     def close(self) -> None:
         """Close the transport if this sink opened it; idempotent."""

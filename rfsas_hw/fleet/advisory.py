@@ -52,7 +52,7 @@ from typing import Protocol
 import numpy as np
 from cryptography.hazmat.primitives.asymmetric import ec
 
-from rfsas_hw.errors import LinkError
+from rfsas_hw.errors import ConfigError, LinkError
 from rfsas_hw.fleet.advisory_limits import AdvisoryLimiter, AdvisoryLimits
 from rfsas_hw.geo import SiteOrigin
 from rfsas_hw.link.message import (
@@ -72,7 +72,7 @@ from rfsas_hw.link.preauth import PreauthKeys, RateLimiter, sign_datagram, tag_o
 from rfsas_hw.link.replay import ReplayGuard
 from rfsas_hw.link.sendcount import send_counters, send_problem
 from rfsas_hw.link.signing import Signer, verify
-from rfsas_hw.link.topics import Route, TopicRouter, advisory_topic, vehicle_topic
+from rfsas_hw.link.topics import ROOT, Route, TopicRouter, advisory_topic, vehicle_topic
 from rfsas_hw.link.transport import Transport
 from rfsas_hw.privacy.epochs import EpochSchedule
 from rfsas_hw.records import Assessment, Fix, emitter_hex
@@ -293,6 +293,29 @@ def decode_advisory(datagram: bytes, head: PeekedAdvisory | None = None) -> Advi
     return AdvisoryMessage(
         head.sender_id, head.t_gen_us, head.seq, head.epoch, head.vehicle_id, tuple(items)
     )
+
+
+def check_advisory_urls(urls: Sequence[str]) -> None:
+    """Refuse a broker URL on which no advisory can arrive: without ``sub=`` or
+    ``advisories=`` a listener subscribes to the bearing topics only, and ``tiles=``
+    or ``nonces=`` alone name bearings and nonce envelopes. UDP URLs pass.
+
+    Raises:
+        ConfigError: such a URL (named, with what to add).
+        LinkError: a malformed broker URL.
+    """
+    from rfsas_hw.link.mqtt import parse_mqtt_url
+
+    not_advice = (f"{ROOT}/bearing/", f"{ROOT}/nonce/")
+    for url in urls:
+        if not url.startswith(("mqtt://", "mqtts://")):
+            continue
+        subs = parse_mqtt_url(url).subscriptions
+        if not any(not s.startswith(not_advice) for s in subs):
+            raise ConfigError(
+                f"{url!r}: subscribes to no advisory topic, so nothing would arrive; add "
+                "sub=rfsas/v1/vehicle/ID/advisory (this vehicle's) or advisories=TILES"
+            )
 
 
 class Publishing(Protocol):

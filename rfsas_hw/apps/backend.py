@@ -182,6 +182,9 @@ class BackendApp:
             )
         vehicle = self._vehicle()
         self.cpm_sink: Any = None
+        self.senders: dict[str, Any] = {}
+        """The signed-message senders by stats prefix (``advisories``, ``cues``): their
+        ``counters()`` (sent, failed, refused, dropped.*) are in :meth:`stats`."""
         """The CPM sender (its ``counters()``), or None."""
         self.notes: list[str] = []
         """What to tell the user about the outputs started (URLs, topics)."""
@@ -315,16 +318,16 @@ class BackendApp:
             from rfsas_hw.fleet.advisory import AdvisorySink
 
             signer = self.store.signer()
-            add(
-                AdvisorySink.to_url(
-                    cfg.advise, signer, origin, vehicle_id=cfg.vehicle_id, epoch_s=epoch
-                )
+            self.senders["advisories"] = AdvisorySink.to_url(
+                cfg.advise, signer, origin, vehicle_id=cfg.vehicle_id, epoch_s=epoch
             )
+            add(self.senders["advisories"])
         if cfg.send_cues is not None:
             from rfsas_hw.backend.cuer import BackendCuer
 
             link = self._cue_link(cfg.send_cues, cfg.cues_fallback)
-            add(BackendCuer(self.store.signer(), link, epoch_s=epoch))
+            self.senders["cues"] = BackendCuer(self.store.signer(), link, epoch_s=epoch)
+            add(self.senders["cues"])
         return sinks
 
     def _cue_link(self, url: str, fallback: str | None) -> Transport:
@@ -364,8 +367,13 @@ class BackendApp:
         )
 
     def stats(self) -> dict[str, int]:
-        """The service's and the link's counters (``link.`` prefixed), flat."""
-        return self.service.all_stats()
+        """The service's and the link's counters (``link.`` prefixed) and what the
+        advisory and cue senders sent, failed to send or had refused (``advisories.``,
+        ``cues.`` prefixed), flat."""
+        out = self.service.all_stats()
+        for prefix, sender in self.senders.items():
+            out.update({f"{prefix}.{k}": v for k, v in sender.counters().items()})
+        return out
 
     def draw_map(self) -> Path | None:
         """Draw the map PNG with 2σ covariance ellipses to ``plot`` of the configuration

@@ -28,6 +28,7 @@ import numpy as np
 
 from rfsas_hw.errors import LinkError
 from rfsas_hw.link.cue import Cue, CueKind, Phy, band_of, sign_cue
+from rfsas_hw.link.sendcount import send_counters, send_problem
 from rfsas_hw.link.signing import Signer
 from rfsas_hw.link.transport import Transport
 from rfsas_hw.privacy.epochs import DEFAULT_EPOCH_S, NS_PER_S
@@ -168,6 +169,18 @@ class BackendCuer:
         self.seq = (self.seq + 1) % (1 << 32)
         self._sent[emitter] = now
         self.stats.cues += 1
+
+    def counters(self) -> dict[str, int]:
+        """Cues ``sent``, ``failed``, ``refused`` by the broker, emitters at risk not cued
+        as ``dropped.REASON`` (:func:`~rfsas_hw.link.sendcount.send_counters`)."""
+        st = self.stats
+        dropped = {k: v for k, v in st.skipped.items() if k != "send_error"}
+        return send_counters(st.cues, st.skipped["send_error"], self.transport.refused(), dropped)
+
+    def problem(self) -> str | None:
+        """Why no cue got through, or None (:func:`~rfsas_hw.link.sendcount.send_problem`)."""
+        st = self.stats
+        return send_problem("cues", st.cues, st.skipped["send_error"], self.transport.refused())
 
     def close(self) -> None:
         """Close the transport; idempotent."""

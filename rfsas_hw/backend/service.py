@@ -333,12 +333,17 @@ class BackendService:
             log.debug("result sink %s failure", name, exc_info=True)
 
     def problems(self) -> list[str]:
-        """One line per sink whose output failed (a write error), for the run's end."""
+        """One line per sink whose output failed (a write error, or a sender whose
+        ``problem()`` says nothing got through), for the run's end."""
         found = [f"{name}: {text}" for name, text in self.sink_errors.items()]
         for sink in self.sinks:
             error = getattr(sink, "error", None)
             if isinstance(error, str):
                 found.append(error)
+            problem = getattr(sink, "problem", None)
+            text = problem() if callable(problem) else None
+            if isinstance(text, str):
+                found.append(f"{type(sink).__name__}: {text}")
         return found
 
     def set_vehicle(self, vehicle: VehicleState | None) -> None:

@@ -20,7 +20,11 @@ each taken as its bounding rectangle (the twin's buildings are axis-aligned).
 
 from __future__ import annotations
 
+import logging
 import math
+import os
+import sys
+import tempfile
 from dataclasses import dataclass
 from types import ModuleType
 from typing import Literal
@@ -37,7 +41,9 @@ BUILDING_TYPES = ("building",)
 BUILDING_LOSS_DB = 20.0
 """Extra loss of a path through a SUMO building, dB."""
 
-__all__ = ["SumoAdapter", "SumoControl", "load_sumo", "read_buildings"]
+__all__ = ["SumoAdapter", "SumoControl", "load_sumo", "read_buildings", "start_sumo"]
+
+log = logging.getLogger(__name__)
 
 
 def load_sumo(api: SumoApi) -> ModuleType:
@@ -57,6 +63,47 @@ def load_sumo(api: SumoApi) -> ModuleType:
         raise MissingDependencyError(
             f"{api} is not installed; install it with: pip install 'rfsas-hw[sumo]'"
         ) from err
+
+
+def start_sumo(sumo: ModuleType, cmd: list[str]) -> None:
+    """Start SUMO with ``cmd`` through ``sumo`` (libsumo or traci).
+
+    libsumo writes SUMO's own reasons to this process's standard error and raises
+    only "Process Error": its messages while starting are caught (standard error is
+    a temporary file for that moment) and its ``Error:`` lines end the raised
+    message; any other lines it wrote are logged at WARNING. A traci SUMO is a
+    process of its own and keeps writing to the console.
+
+    Raises:
+        SimulationError: SUMO did not start, with SUMO's reason when it gave one.
+    """
+    if getattr(sumo, "__name__", "") != "libsumo":
+        try:
+            sumo.start(cmd)
+        except Exception as err:  # traci raises its own types
+            raise SimulationError(f"SUMO did not start: {err}") from err
+        return
+    failed: Exception | None = None
+    with tempfile.TemporaryFile() as capture:
+        sys.stderr.flush()
+        saved = os.dup(2)
+        os.dup2(capture.fileno(), 2)
+        try:
+            sumo.start(cmd)
+        except Exception as err:  # libsumo's TraCIException
+            failed = err
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+        capture.seek(0)
+        lines = capture.read(1 << 20).decode("utf-8", "replace").splitlines()
+    errors = [ln.split(":", 1)[1].strip() for ln in lines if ln.startswith("Error:")]
+    for line in (ln for ln in lines if ln.strip() and not ln.startswith("Error:")):
+        log.warning("SUMO: %s", line.strip())
+    if failed is None:
+        return
+    reason = "; ".join(errors[-3:]) if errors else str(failed)
+    raise SimulationError(f"SUMO did not start: {reason}") from failed
 
 
 def read_buildings(sumo: ModuleType, origin: tuple[float, float]) -> list[BuildingSpec]:

@@ -35,7 +35,14 @@ import numpy as np
 
 from rfsas_hw.bridges.bridge import Bridge, Entity, StepResult
 from rfsas_hw.bridges.config import BridgeConfig, bridge_config_from_mapping
-from rfsas_hw.bridges.sumo import SumoAdapter, SumoApi, SumoControl, load_sumo, read_buildings
+from rfsas_hw.bridges.sumo import (
+    SumoAdapter,
+    SumoApi,
+    SumoControl,
+    load_sumo,
+    read_buildings,
+    start_sumo,
+)
 from rfsas_hw.bridges.vru_score import VruScore, vru_class
 from rfsas_hw.config import from_mapping, read_yaml
 from rfsas_hw.errors import ConfigError, SimulationError
@@ -305,9 +312,9 @@ def run_seed(
     if gui:
         cmd += ["--start", "true", "--quit-on-end", "true"]
     try:
-        sumo.start(cmd)
-    except Exception as err:  # libsumo and traci raise their own types
-        raise SimulationError(f"{cfg_path}: SUMO did not start: {err}") from err
+        start_sumo(sumo, cmd)
+    except SimulationError as err:
+        raise SimulationError(f"{cfg_path}: {err}") from err
     result = SeedResult(seed=seed, controller=controller)
     bridge: Bridge | None = None
     try:

@@ -12,7 +12,7 @@ import click
 from rfsas_hw.cli.linkopts import join_urls, split_urls
 from rfsas_hw.cli.options import duration_option, json_option
 from rfsas_hw.errors import ConfigError
-from rfsas_hw.fleet.advisory import AdvisoryItem, AdvisoryReceiver
+from rfsas_hw.fleet.advisory import AdvisoryItem, AdvisoryReceiver, check_advisory_urls
 from rfsas_hw.link.keys import TrustDir
 from rfsas_hw.link.transport import open_transports
 
@@ -68,7 +68,9 @@ def advisories(
     trust = TrustDir(trust_dir)
     if not any(trust.backend_key(card.id) for card in trust):
         raise ConfigError(f"{trust_dir}: no backend card with a signing key")
-    transport = open_transports(split_urls(listen), "recv")
+    urls = split_urls(listen)
+    check_advisory_urls(urls)
+    transport = open_transports(urls, "recv")
     rx = AdvisoryReceiver(trust, transport, vehicle_id=vehicle_id)
     stop = None if duration is None else time.monotonic() + duration
     try:

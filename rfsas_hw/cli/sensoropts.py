@@ -309,7 +309,18 @@ def failure(summary: RunSummary) -> str | None:
     if not summary.observations:
         if summary.frames:
             reasons = ", ".join(f"{k} {v:,}" for k, v in summary.skipped.most_common(3))
-            return f"0 bearings: none of {summary.frames:,} frames was usable ({reasons})"
+            first = f"; first: {summary.errors[0]}" if summary.errors else ""
+            return f"0 bearings: none of {summary.frames:,} frames was usable ({reasons}){first}"
+        if summary.errors:  # nothing read at all: a network unit not reached, say why
+            more = len(summary.errors) - 1
+            also = f" (and {more} more error(s))" if more else ""
+            return f"0 bearings: nothing was read: {summary.errors[0]}{also}"
+        repeats = int(summary.extra.get("repeats", 0) or 0)
+        if repeats:
+            return (
+                f"0 bearings: the input gave the same frame {repeats:,} time(s) and no new "
+                "one (its timestamps do not advance)"
+            )
         return "0 bearings: the input held no frames"
     if not summary.rejected:
         return f"0 bearings from {summary.observations:,} observations"

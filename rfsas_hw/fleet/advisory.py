@@ -52,7 +52,7 @@ from typing import Protocol
 import numpy as np
 from cryptography.hazmat.primitives.asymmetric import ec
 
-from rfsas_hw.errors import LinkError
+from rfsas_hw.errors import ConfigError, LinkError
 from rfsas_hw.fleet.advisory_limits import AdvisoryLimiter, AdvisoryLimits
 from rfsas_hw.geo import SiteOrigin
 from rfsas_hw.link.message import (
@@ -70,8 +70,9 @@ from rfsas_hw.link.message import (
 )
 from rfsas_hw.link.preauth import PreauthKeys, RateLimiter, sign_datagram, tag_ok
 from rfsas_hw.link.replay import ReplayGuard
+from rfsas_hw.link.sendcount import send_counters, send_problem
 from rfsas_hw.link.signing import Signer, verify
-from rfsas_hw.link.topics import Route, TopicRouter, advisory_topic, vehicle_topic
+from rfsas_hw.link.topics import ROOT, Route, TopicRouter, advisory_topic, vehicle_topic
 from rfsas_hw.link.transport import Transport
 from rfsas_hw.privacy.epochs import EpochSchedule
 from rfsas_hw.records import Assessment, Fix, emitter_hex
@@ -294,6 +295,29 @@ def decode_advisory(datagram: bytes, head: PeekedAdvisory | None = None) -> Advi
     )
 
 
+def check_advisory_urls(urls: Sequence[str]) -> None:
+    """Refuse a broker URL on which no advisory can arrive: without ``sub=`` or
+    ``advisories=`` a listener subscribes to the bearing topics only, and ``tiles=``
+    or ``nonces=`` alone name bearings and nonce envelopes. UDP URLs pass.
+
+    Raises:
+        ConfigError: such a URL (named, with what to add).
+        LinkError: a malformed broker URL.
+    """
+    from rfsas_hw.link.mqtt import parse_mqtt_url
+
+    not_advice = (f"{ROOT}/bearing/", f"{ROOT}/nonce/")
+    for url in urls:
+        if not url.startswith(("mqtt://", "mqtts://")):
+            continue
+        subs = parse_mqtt_url(url).subscriptions
+        if not any(not s.startswith(not_advice) for s in subs):
+            raise ConfigError(
+                f"{url!r}: subscribes to no advisory topic, so nothing would arrive; add "
+                "sub=rfsas/v1/vehicle/ID/advisory (this vehicle's) or advisories=TILES"
+            )
+
+
 class Publishing(Protocol):
     """A transport that publishes to a chosen topic (``MqttTransport``)."""
 
@@ -399,6 +423,22 @@ class AdvisorySink:
                 continue
             self.stats.messages += 1
             self.stats.assessments += len(chunk)
+
+    def _refused(self) -> int:
+        refused = getattr(self.transport, "refused", None)
+        return int(refused()) if callable(refused) else 0
+
+    def counters(self) -> dict[str, int]:
+        """Advisory messages ``sent``, ``failed``, ``refused`` by the broker, and
+        ``dropped.limited`` assessments (:func:`~rfsas_hw.link.sendcount.send_counters`)."""
+        st = self.stats
+        return send_counters(st.messages, st.errors, self._refused(), {"limited": st.limited})
+
+    def problem(self) -> str | None:
+        """Why no advisory got through, or None
+        (:func:`~rfsas_hw.link.sendcount.send_problem`)."""
+        st = self.stats
+        return send_problem("advisory messages", st.messages, st.errors, self._refused())
 
     def close(self) -> None:
         """Close the transport if this sink opened it; idempotent."""

@@ -23,6 +23,7 @@ from rfsas_hw.angles import wrap_deg_360
 from rfsas_hw.errors import LinkError
 from rfsas_hw.link.cue import Cue, CueKind, Phy, band_of, sign_cue
 from rfsas_hw.link.preauth import NonceSource, derive_key
+from rfsas_hw.link.sendcount import send_counters, send_problem
 from rfsas_hw.link.signing import Signer
 from rfsas_hw.link.transport import Transport
 from rfsas_hw.privacy.epochs import DEFAULT_EPOCH_S, NS_PER_S
@@ -156,6 +157,27 @@ class CuePublisher:
             return derive_key(self.preauth.nonce_for(epoch), self.signer.sender_id)
         except NonceUnavailableError:
             return None
+
+    @property
+    def name(self) -> str:
+        """``send cues URL`` (or the transport's class), for run summaries."""
+        endpoint = getattr(self.transport, "endpoint", None)
+        url = getattr(endpoint, "url", None)
+        return (
+            f"send cues {url()}" if callable(url) else f"send cues {type(self.transport).__name__}"
+        )
+
+    def counters(self) -> dict[str, int]:
+        """Cues ``sent``, ``failed``, ``refused`` by the broker, ``dropped.REASON``
+        (:func:`~rfsas_hw.link.sendcount.send_counters`)."""
+        st = self.stats
+        dropped = {k: v for k, v in st.skipped.items() if k != "send_error"}
+        return send_counters(st.cues, st.skipped["send_error"], self.transport.refused(), dropped)
+
+    def problem(self) -> str | None:
+        """Why no cue got through, or None (:func:`~rfsas_hw.link.sendcount.send_problem`)."""
+        st = self.stats
+        return send_problem("cues", st.cues, st.skipped["send_error"], self.transport.refused())
 
     def close(self) -> None:
         """Close the transport; idempotent."""

@@ -197,6 +197,10 @@ class FallbackSender(Transport):
         """
         raise LinkError("a fallback sender cannot receive; use FallbackReceiver")
 
+    def refused(self) -> int:
+        """What the far ends of both paths refused."""
+        return self.primary.refused() + self.secondary.refused()
+
     def close(self) -> None:
         """Close both paths; idempotent."""
         if not self._closed:

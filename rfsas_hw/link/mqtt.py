@@ -898,6 +898,10 @@ class MqttTransport(Transport):
             if sock is not None:
                 sock.close()
 
+    def refused(self) -> int:
+        """Publishes (and subscriptions) the broker refused."""
+        return self.stats.refused
+
     def close(self, flush_s: float = 2.0) -> None:
         """Wait up to ``flush_s`` seconds for QoS-1 publishes (retained nonce envelopes)
         to be acknowledged, then disconnect and stop the network thread; idempotent."""

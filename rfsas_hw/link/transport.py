@@ -144,6 +144,11 @@ class Transport(ABC):
             got = self.recv_from(0)
         return out
 
+    def refused(self) -> int:
+        """Datagrams sent without error that the far end then refused (a broker's
+        negative acknowledgement); 0 for carriers that cannot tell."""
+        return 0
+
     def fileno(self) -> int:
         """A descriptor that is readable while datagrams wait (for ``select``)."""
         raise LinkError(f"{type(self).__name__} cannot be waited on with select")
@@ -296,6 +301,10 @@ class FanoutTransport(Transport):
                 errors.append(err)
         if len(errors) == len(self.transports):
             raise LinkError(f"every transport failed: {errors[0]}") from errors[0]
+
+    def refused(self) -> int:
+        """What the far ends refused, over every transport."""
+        return sum(t.refused() for t in self.transports.values())
 
     def recv_from(self, timeout: float | None = None) -> tuple[bytes, str | None] | None:
         """Next datagram from any transport (taken in turn), or None after ``timeout`` s."""

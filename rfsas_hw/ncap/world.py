@@ -21,7 +21,7 @@ from types import ModuleType
 from typing import Any
 
 from rfsas_hw.bridges.bridge import Entity
-from rfsas_hw.bridges.sumo import SumoAdapter, load_sumo
+from rfsas_hw.bridges.sumo import SumoAdapter, load_sumo, start_sumo
 from rfsas_hw.bridges.vru_score import vru_class
 from rfsas_hw.errors import SimulationError
 from rfsas_hw.ncap.scenarios import LANE_WIDTH_M, VUT_LENGTH_M, VUT_WIDTH_M, Plan
@@ -94,10 +94,7 @@ class SumoWorld:
             cmd = ["sumo", "-n", str(net), "--step-length", f"{STEP_S}", "--seed", str(seed)]
             cmd += ["--collision.action", "warn", "--collision.check-junctions", "true"]
             cmd += ["--no-step-log", "true", "--no-warnings", "true"]
-            try:
-                self.sumo.start(cmd)
-            except Exception as err:  # libsumo raises its own types
-                raise SimulationError(f"SUMO did not start: {err}") from err
+            start_sumo(self.sumo, cmd)
         self._closed = False
         try:
             self._populate()

@@ -4,7 +4,9 @@ Served by aiohttp (the ``web`` extra) on its own thread and event loop, so the
 backend's loop stays as it is. Routes, all ``GET``:
 
 - ``/``: the page (hand-written HTML, JavaScript and SVG; nothing fetched from
-  the internet unless the site names a tile server);
+  the internet unless the site names a tile server), with the site and the
+  latest snapshot inside it (a JSON data block), so it is drawn before the
+  WebSocket delivers;
 - ``/static/{name}``: its script and style sheet;
 - ``/api/site``: the site (origin, map in local metres, declared sensors, tile URL);
 - ``/api/state``: the latest :meth:`~rfsas_hw.web.state.DashboardState.snapshot`;
@@ -27,6 +29,10 @@ Connections are admitted by :class:`~rfsas_hw.web.limits.ConnectionGate`: at
 most ``limits.max_connections`` open, and plain HTTP ones closed
 ``limits.request_timeout_s`` after they were accepted (idle or partial requests
 included).
+
+A malformed request (bad request line, header or length) is answered 400 by
+aiohttp and logged as one warning line naming the peer, not as a traceback on the
+operator's console (:class:`OneLineLog`).
 """
 
 from __future__ import annotations
@@ -52,7 +58,7 @@ log = logging.getLogger(__name__)
 STATIC_FILES = {"app.js": "text/javascript", "style.css": "text/css"}
 LOOPBACK_NAMES = {"localhost", "localhost.", "ip6-localhost"}
 
-__all__ = ["DashboardServer", "is_loopback", "parse_bind"]
+__all__ = ["DashboardServer", "OneLineLog", "first_state_block", "is_loopback", "parse_bind"]
 
 
 def is_loopback(host: str | None) -> bool:
@@ -85,6 +91,31 @@ def parse_bind(text: str) -> tuple[str, int]:
     if not 0 <= number <= 65535:
         raise ConfigError(f"--web {text!r}: expected [HOST:]PORT with a port in 0-65535")
     return host, number
+
+
+class OneLineLog(logging.LoggerAdapter):  # type: ignore[type-arg]
+    """The logger handed to aiohttp's request handler: what it reports as an exception
+    (a malformed request, a handler that failed) becomes one warning line with the
+    error's text, without a traceback."""
+
+    def exception(self, msg: object, *args: object, exc_info: Any = None, **kw: Any) -> None:
+        """Log ``msg % args`` and the error's text on one line, at warning level."""
+        err = exc_info if isinstance(exc_info, BaseException) else None
+        text = str(msg) % args if args else str(msg)
+        if err is not None:
+            detail = " ".join(str(err).split()) or type(err).__name__
+            text = f"{text}: {detail}"
+        self.logger.warning("dashboard: %s", text)
+
+
+def first_state_block(site: dict[str, Any], snapshot: dict[str, Any]) -> str:
+    """The page's first state: the site and a snapshot as a JSON data block (``<script
+    type="application/json">``, never executed, so the content security policy holds).
+    ``<``, ``>`` and ``&`` are escaped, so no value can close the element."""
+    text = json.dumps({"site": site, "state": snapshot}, allow_nan=False)
+    for raw, escaped in (("<", "\\u003c"), (">", "\\u003e"), ("&", "\\u0026")):
+        text = text.replace(raw, escaped)
+    return f'<script type="application/json" id="first-state">{text}</script>'
 
 
 def _host_of(header: str) -> str:
@@ -248,7 +279,7 @@ class DashboardServer:
         app.router.add_get("/api/site", self._site)
         app.router.add_get("/api/state", self._state)
         app.router.add_get("/ws", self._ws)
-        runner = web.AppRunner(app, access_log=None)
+        runner = web.AppRunner(app, access_log=None, logger=OneLineLog(log, {}))
         await runner.setup()
         self.gate = ConnectionGate(runner.server, self.limits)
         listener = await asyncio.get_running_loop().create_server(
@@ -292,7 +323,10 @@ class DashboardServer:
         return (resources.files("rfsas_hw.web") / "static" / name).read_bytes()
 
     async def _index(self, request: Any) -> Any:
-        return self._web.Response(body=self._asset("index.html"), content_type="text/html")
+        page = self._asset("index.html").decode()
+        block = first_state_block(self.site, self.state.snapshot())
+        page = page.replace("</head>", f"{block}\n</head>", 1)
+        return self._web.Response(text=page, content_type="text/html")
 
     async def _static(self, request: Any) -> Any:
         name = request.match_info["name"]

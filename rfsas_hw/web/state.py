@@ -10,6 +10,10 @@ sensor's link health. :meth:`DashboardState.snapshot` gives all of it as one
 JSON-ready mapping in local metres (with latitude/longitude beside fixes when
 the site has an origin).
 
+When every sensor's link is silent, the snapshot is ``stale``: its advisory is
+``none`` whatever the coasting tracks still give, so the page never shows a
+CAUTION or BRAKE (or a CLEAR) that no sensor backs any more.
+
 Nothing here ever holds a MAC address: emitters are the backend's keyed
 hashes, sensors their ids.
 """
@@ -231,7 +235,8 @@ class DashboardState:
                     }
                 )
             timeline = [[t, None if r is None else _num(r, 6), adv] for t, r, adv in self._timeline]
-            advisory = self._timeline[-1][2] if self._timeline else "none"
+            stale = bool(health) and all(row.get("state") == "silent" for row in health)
+            advisory = "none" if stale or not self._timeline else self._timeline[-1][2]
             version = self.version
         # built outside the lock: the backend's thread never waits for the page
         fix_entries = self._fix_entries(fixes)
@@ -239,6 +244,7 @@ class DashboardState:
             "version": version,
             "t_ns": now,
             "advisory": advisory,
+            "stale": stale,
             "sensors": sensors,
             "bearings": bearings,
             "fixes": fix_entries,

@@ -136,6 +136,36 @@ def test_backend_command_sends_fix_cues_the_vehicle_accepts(tmp_path: Path) -> N
     c = cues[0]
     assert c is not None and c.kind is CueKind.FIX and c.emitter == CLI_EMITTER
     assert c.channel == 11 and c.x_m == pytest.approx(TARGET[0], abs=0.01)
+    # the run's summary counts them
+    summary = " ".join(result.output.split())
+    assert f"cues.sent {len(got)}," in summary and "cues.failed 0," in summary
+
+
+def test_backend_command_counts_cues_it_could_not_send(tmp_path: Path) -> None:
+    """Every cue fails (a broadcast address the socket may not send to): the summary
+    counts them and the run ends with exit 1 saying none got through."""
+    backend_keys = KeyStore.create(tmp_path / "backend", "backend", "obu-1")
+    stores = {sid: KeyStore.create(tmp_path / sid, "sensor", sid) for sid in SENSORS}
+    for store in stores.values():
+        backend_keys.trust.enroll(store.card)
+    vehicle = tmp_path / "vehicle.json"
+    vehicle.write_bytes(VEHICLE_JSON)
+    url = f"udp://127.0.0.1:{free_port()}"
+    sender = threading.Thread(target=send_rounds, args=(url, stores, 0.2))
+    sender.start()
+    try:
+        result = CliRunner().invoke(
+            backend,
+            ["--listen", url, "--keys", str(tmp_path / "backend"), "--vehicle", str(vehicle),
+             "--send-cues", "udp://255.255.255.255:9", "--duration", "2.0", "--no-table"],
+        )  # fmt: skip
+    finally:
+        sender.join()
+    summary = " ".join(result.output.split())
+    assert result.exit_code == 1, result.output
+    failed = int(summary.split("cues.failed ")[1].split(",")[0])
+    assert failed > 0 and "cues.sent 0," in summary
+    assert f"none of {failed} cues got through ({failed} send errors" in summary
 
 
 def _late_rounds(url: str, stores: dict[str, KeyStore], age_s: float) -> None:

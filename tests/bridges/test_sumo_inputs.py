@@ -96,3 +96,20 @@ def test_fcd_samples_that_are_not_finite_are_refused(
     args = ["sumo", "fcd", str(fcd), "--units", str(scenario / "units.yaml"), "-o", str(out)]
     _expect_refusal(args, capsys, words)
     assert not out.exists()
+
+
+def test_a_net_sumo_refuses_ends_with_sumos_reason(
+    scenario: Path, capfd: pytest.CaptureFixture[str]
+) -> None:
+    """libsumo says only "Process Error"; SUMO's own reason ends the message instead."""
+    pytest.importorskip("libsumo", reason="needs the sumo extra")
+    net = scenario / "crossing.net.xml"
+    net.write_text(net.read_text().replace('from="A0" to="bottom0"', 'from="nowhere" to="bottom0"'))
+    # file-descriptor capture: libsumo writes to descriptor 2 itself
+    code, _, err = run(["sumo", "run", str(scenario / "crossing.sumocfg")], capfd)
+    assert code != 0 and "Traceback" not in err
+    last = err.strip().splitlines()[-1]
+    assert "SUMO did not start" in last and "Unknown from-node 'nowhere'" in last, err
+    assert "Process Error" not in last
+    # SUMO's own lines did not go to the console around it
+    assert not [line for line in err.splitlines() if line.startswith("Error:")], err

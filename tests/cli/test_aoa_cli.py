@@ -3,10 +3,14 @@
 from __future__ import annotations
 
 import json
+import socket
 import subprocess
 import sys
+import threading
 import time
+from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -132,3 +136,57 @@ def test_ublox_emulator_refuses_to_replace_a_file(
     code, _, err = run(["aoa", "emulate", "ublox", "--link", str(mine), "--duration", "0"], capsys)
     assert code == 2 and "not a pseudo-terminal link" in err
     assert mine.read_text() == "keep me"
+
+
+def _page_server(status: int, body: bytes) -> tuple[Any, threading.Thread, str]:
+    class Handler(BaseHTTPRequestHandler):
+        def do_GET(self) -> None:
+            self.send_response(status)
+            self.send_header("Content-Length", str(len(body)))
+            self.end_headers()
+            self.wfile.write(body)
+
+        def log_message(self, format: str, *args: object) -> None:
+            pass
+
+    httpd = ThreadingHTTPServer(("127.0.0.1", 0), Handler)
+    thread = threading.Thread(target=httpd.serve_forever, args=(0.05,), daemon=True)
+    thread.start()
+    return httpd, thread, f"http://127.0.0.1:{httpd.server_address[1]}/DOA_value.html"
+
+
+def test_kraken_failures_say_what_was_wrong(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Not all "the input held no frames": the unit not reached, an HTTP error, the
+    wrong page each end the run with what was wrong."""
+    with socket.socket() as s:  # a port nobody listens on
+        s.bind(("127.0.0.1", 0))
+        closed = s.getsockname()[1]
+    cases: list[tuple[int | None, bytes, str]] = [
+        (None, b"", "nothing was read: http://127.0.0.1:"),
+        (404, b"no such page", "nothing was read: http://127.0.0.1:"),
+        (200, b"<!DOCTYPE html><html>the web UI</html>", "the page is markup, not CSV"),
+    ]
+    expected_detail = ["refused", "404", "not_csv"]
+    for (status, body, words), detail in zip(cases, expected_detail, strict=True):
+        server = None
+        if status is None:
+            url = f"http://127.0.0.1:{closed}/DOA_value.html"
+        else:
+            server, thread, url = _page_server(status, body)
+        try:
+            code, _, err = run(
+                ["live", f"kraken:{url}#poll=0.05", "--duration", "0.5",
+                 "--out", str(tmp_path / f"k{status}.jsonl"), "--force"],
+                capsys,
+            )  # fmt: skip
+        finally:
+            if server is not None:
+                server.shutdown()
+                thread.join(5)
+                server.server_close()
+        last = " ".join(err.strip().splitlines()[-1].split())
+        assert code == 1, err
+        assert "held no frames" not in last, last
+        assert words in last and detail in last.lower(), last

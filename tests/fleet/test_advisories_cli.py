@@ -8,6 +8,7 @@ import sys
 import time
 from pathlib import Path
 
+import pytest
 from brokerhelp import Broker, Deployment
 from fleethelp import ORIGIN
 
@@ -58,3 +59,41 @@ def test_vehicle_command_prints_verified_advisories(
     assert items and all(i["advisory"] == "brake" and i["backend"] == "be-a" for i in items)
     assert items[0]["x_m"] == 12.0 and items[0]["emitter"] == "00000000000000aa"
     assert stats["verified"] == len(items) and stats["datagrams"] == len(items)
+
+
+def test_a_broker_url_with_no_advisory_subscription_is_refused(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Without sub= (or advisories=) the vehicle would subscribe to bearings and hear
+    no advisory, exiting 0: refused at start instead, before any connection."""
+    from rfsas_hw.cli.main import main
+    from rfsas_hw.fleet.advisory import check_advisory_urls
+    from rfsas_hw.link.keys import KeyStore
+
+    trust = tmp_path / "trust"
+    trust.mkdir()
+    backend = KeyStore.create(tmp_path / "be-a", "backend", "be-a")
+    (trust / "be-a.yaml").write_bytes((tmp_path / "be-a" / "identity.yaml").read_bytes())
+    for urls in (
+        ["mqtt://127.0.0.1:9"],
+        ["mqtt://127.0.0.1:9?tiles=1202"],
+        ["mqtt://127.0.0.1:9?nonces=car-7"],
+        ["udp://127.0.0.1:0", "mqtt://127.0.0.1:9"],
+    ):
+        listen = [a for url in urls for a in ("--listen", url)]
+        with pytest.raises(SystemExit) as exc:
+            main(["advisories", *listen, "--trust", str(trust), "--duration", "0.1"])
+        err = " ".join(capsys.readouterr().err.split())
+        assert exc.value.code == 2, (urls, err)
+        assert "subscribes to no advisory topic" in err
+        assert "sub=rfsas/v1/vehicle/ID/advisory" in err
+    # these can carry advisories (checked without connecting)
+    check_advisory_urls(
+        [
+            "mqtt://127.0.0.1:9?sub=rfsas/v1/vehicle/car-7/advisory",
+            "mqtt://127.0.0.1:9?advisories=1202",
+            "mqtt://127.0.0.1:9?sub=rfsas/v1/%23",
+            "udp://127.0.0.1:0",
+        ]
+    )
+    assert backend.id == "be-a"

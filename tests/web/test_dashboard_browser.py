@@ -181,7 +181,8 @@ def test_dashboard_live_in_a_browser(
         sys.executable, "-m", "rfsas_hw.cli.main", "backend", "--listen", listen,
         "--keys", str(tmp_path / "backend"), "--vehicle", vehicle, "--reaction", "0.5",
         "--config", str(config), "--origin", ORIGIN, "--web", f"127.0.0.1:{web_port}",
-        "--no-table", "--out", str(tmp_path / "run.jsonl"), "--force", "--duration", "60",
+        "--no-table", "--out", str(tmp_path / "run.jsonl"), "--duration", "60",
+        "--force",  # the restart below writes the run log again
     ]  # fmt: skip
 
     logs: list[Path] = []
@@ -277,3 +278,97 @@ def test_dashboard_live_in_a_browser(
             except subprocess.TimeoutExpired:
                 proc.kill()
                 proc.wait(5)
+
+
+PAGE_SCRIPT = """
+const q = (s) => Array.from(document.querySelectorAll(s));
+const fix = document.querySelector("#layer-fixes circle.fix");
+const box = fix ? fix.getBoundingClientRect() : null;
+const top = box ? document.elementFromPoint(box.x + box.width / 2, box.y + box.height / 2) : null;
+const label = document.querySelector("#map text.label");
+const map = document.getElementById("map");
+const vb = map.viewBox.baseVal, mb = map.getBoundingClientRect();
+const bar = document.getElementById("scalebar");
+return {
+  status: document.getElementById("status").dataset.status,
+  advisory: document.getElementById("advisory").dataset.advisory,
+  stale: document.getElementById("advisory").dataset.stale,
+  banner: document.getElementById("advisory").innerText,
+  fixes: q("#layer-fixes circle.fix").map((e) => e.dataset.emitter),
+  emitters: q("#emitters tbody tr td:first-child").map((e) => e.innerText),
+  on_top: top ? top.tagName + "." + top.getAttribute("class") : null,
+  label_box: label ? Object.values(label.getBoundingClientRect().toJSON()) : null,
+  fix_box: box ? Object.values(box.toJSON()) : null,
+  px_per_m: Math.min(mb.width / vb.width, mb.height / vb.height),
+  scale_m: +bar.dataset.metres, scale_px: +bar.dataset.px,
+  north: document.getElementById("north").innerText,
+  ticks: q("#timeline text.tick-label").map((e) => e.textContent),
+};
+"""
+
+
+@pytest.mark.extra("web")
+def test_the_page_draws_its_first_state_and_reads_as_a_map(browser: Any) -> None:
+    """Without the live feed (the page is opened without the token the WebSocket asks):
+    the served first state is drawn; a scale bar, a north arrow, a time axis; the fix
+    over a sensor's label; 16-hex emitter ids; no advisory once every link is silent."""
+    from rfsas_hw.backend.site import SiteConfig, SiteSensor
+    from rfsas_hw.records import Assessment, Fix, Pose
+    from rfsas_hw.web import site_payload
+    from rfsas_hw.web.server import DashboardServer
+    from rfsas_hw.web.state import DashboardState
+
+    ns = 1_000_000_000
+    now = [1_767_268_800 * ns]
+    emitter = "0123456789abcdef"
+    links = [{"sensor_id": "rsu-a", "state": "ok", "messages": 3, "lost": 0}]
+    site = SiteConfig(
+        sensors=(
+            SiteSensor("rsu-a", Pose(0.0, 0.0, 90.0), 60.0),
+            SiteSensor("rsu-b", Pose(60.0, 0.0, 270.0), 60.0),
+        )
+    )
+    state = DashboardState(site, clock=lambda: now[0], link_health=lambda: links)
+
+    def step(advisory: str) -> None:
+        t = now[0]
+        # where rsu-a's name is written: up and right of the sensor
+        fx = Fix(t, emitter, 3.0, 1.9, 0.04, 0.0, 0.04, True, "ok", "", ("rsu-a", "rsu-b"), 1, 1)
+        judged = Assessment(
+            t, emitter, 3.0, 1.9, 0.0, 0.0, 0.2, 0.2, 0.0, 0.1, ("rsu-a", "rsu-b"), True, "",
+            0.1, 1.0, 5.0, 10.0, 0.02, 0.02, advisory, (), False,
+        )  # fmt: skip
+        state.on_results([fx], [judged])
+        now[0] += ns // 10
+
+    for _ in range(300):  # 30 s of steps
+        step("caution")
+    server = DashboardServer(state, site_payload(site), "127.0.0.1", 0, token="s3cret")
+    server.start()
+    try:
+        browser.get(f"http://127.0.0.1:{server.port}/")
+        page = browser.execute_script(PAGE_SCRIPT)
+        assert page["status"] != "live"  # the WebSocket was refused: all came with the page
+        assert page["advisory"] == "caution" and page["stale"] == "no"
+        assert page["fixes"] == [emitter] and page["emitters"] == [emitter]
+        # the label is drawn where the fix is, and the fix is in front of it
+        lx, ly, lw, lh = page["label_box"][:4]
+        fx, fy, fw, fh = page["fix_box"][:4]
+        assert lx < fx + fw / 2 < lx + lw and ly < fy + fh / 2 < ly + lh, page
+        assert page["on_top"] == "circle.fix"
+        # a round scale bar length, drawn at the map's own metres per pixel
+        assert page["scale_m"] in {1, 2, 5, 10, 20, 50, 100}
+        assert page["scale_px"] == pytest.approx(page["scale_m"] * page["px_per_m"], abs=0.1)
+        assert 30 <= page["scale_px"] <= 100
+        assert "N" in page["north"]
+        # 30 s on the timeline: ticks every 10 s back from now
+        assert page["ticks"] == ["now", "−10 s", "−20 s"]
+
+        links[0] = {"sensor_id": "rsu-a", "state": "silent", "messages": 3, "lost": 0}
+        step("caution")
+        browser.refresh()
+        page = browser.execute_script(PAGE_SCRIPT)
+        assert page["stale"] == "yes" and page["advisory"] == "none"
+        assert "CAUTION" not in page["banner"] and "NO DATA" in page["banner"]
+    finally:
+        server.stop()

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import asyncio
 import json
+import logging
 import time
 import urllib.error
 import urllib.request
@@ -244,3 +245,63 @@ def test_parse_bind_refuses_bad_ports() -> None:
         with pytest.raises(ConfigError, match="--web"):
             parse_bind(bad)
     assert is_loopback("127.3.4.5") and is_loopback("localhost") and not is_loopback("10.0.0.1")
+
+
+@pytest.mark.extra("web")
+def test_the_page_comes_with_the_site_and_a_first_state(
+    served: tuple[DashboardServer, BackendService],
+) -> None:
+    server, service = served
+    feed(service)
+    status, body = get(f"http://127.0.0.1:{server.port}/?token=s3cret")
+    assert status == 200
+    page = body.decode()
+    start = page.index('<script type="application/json" id="first-state">')
+    block = page[start:].split(">", 1)[1].split("</script>", 1)[0]
+    first = json.loads(block)
+    # drawn at once, before the WebSocket delivers: the map and the latest step
+    assert first["site"]["sensors"][0]["id"] == "rsu-a"
+    assert first["site"]["map"]
+    assert first["state"]["version"] == 1 and first["state"]["fixes"]
+
+
+def test_the_first_state_block_cannot_be_closed_by_a_value() -> None:
+    from rfsas_hw.web.server import first_state_block
+
+    block = first_state_block({"name": "</script><script>alert(1)</script>&"}, {})
+    inner = block.split(">", 1)[1].rsplit("</script>", 1)[0]
+    assert "<" not in inner and ">" not in inner and "&" not in inner
+    assert json.loads(inner)["site"]["name"] == "</script><script>alert(1)</script>&"
+
+
+@pytest.mark.extra("web")
+def test_a_malformed_request_is_one_log_line_not_a_traceback(
+    served: tuple[DashboardServer, BackendService], caplog: pytest.LogCaptureFixture
+) -> None:
+    import socket
+
+    server, _ = served
+    bad = (
+        b"GET / HTTP/1.1\r\nHost: 127.0.0.1\r\nContent-Length: twelve\r\n\r\n",
+        b"GET / HTTP/1.1\r\nHost: 127.0.0.1\r\nBad\x01Header: x\r\n\r\n",
+    )
+    with caplog.at_level(logging.DEBUG):
+        for request in bad:
+            with socket.create_connection(("127.0.0.1", server.port), timeout=5) as sock:
+                sock.sendall(request)
+                reply = sock.recv(4096)
+                assert reply.split(b" ", 2)[1] == b"400"
+        deadline = time.monotonic() + 5
+        while time.monotonic() < deadline and len(_warnings(caplog)) < len(bad):
+            time.sleep(0.05)
+    warnings = _warnings(caplog)
+    assert len(warnings) == len(bad)
+    for record in warnings:
+        assert record.exc_info is None or record.exc_info == (None, None, None)
+        line = record.getMessage()
+        assert "\n" not in line and "127.0.0.1" in line and "400" in line
+    assert not [r for r in caplog.records if r.exc_info and r.levelno >= logging.WARNING]
+
+
+def _warnings(caplog: pytest.LogCaptureFixture) -> list[logging.LogRecord]:
+    return [r for r in caplog.records if r.levelno >= logging.WARNING]

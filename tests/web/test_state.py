@@ -84,3 +84,23 @@ def test_state_keeps_what_the_page_draws() -> None:
     assert snap["bearings"] == [] and snap["fixes"] == []
     assert [t["emitter"] for t in snap["tracks"]] == ["e2"]
     assert snap["advisory"] == "clear"
+
+
+def test_no_advisory_once_every_link_is_silent() -> None:
+    links = [{"sensor_id": "rsu-a", "state": "ok"}, {"sensor_id": "rsu-b", "state": "ok"}]
+    state = DashboardState(SiteConfig(), clock=lambda: T0, link_health=lambda: links)
+    state.on_results([fix("e1", T0)], [judged("e1", T0, "caution", 0.01)])
+    assert state.snapshot()["advisory"] == "caution" and not state.snapshot()["stale"]
+    # one link left: the tracks it feeds still count
+    links[0] = {"sensor_id": "rsu-a", "state": "silent"}
+    state.on_results([], [judged("e1", T0, "caution", 0.01)])
+    assert state.snapshot()["advisory"] == "caution"
+    # every link silent: the coasting track's CAUTION is not backed by any sensor
+    links[1] = {"sensor_id": "rsu-b", "state": "silent"}
+    state.on_results([], [judged("e1", T0, "caution", 0.01)])
+    snap = state.snapshot()
+    assert snap["advisory"] == "none" and snap["stale"]
+    # a link is back: so is the advisory
+    links[1] = {"sensor_id": "rsu-b", "state": "ok"}
+    state.on_results([], [judged("e1", T0, "brake", 0.2)])
+    assert state.snapshot()["advisory"] == "brake" and not state.snapshot()["stale"]

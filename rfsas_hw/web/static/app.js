@@ -96,13 +96,14 @@ function wedge(x, y, heading, fov, r) {
 
 function draw(snap) {
   const size = view ? view.w / 60 : 2;
-  const sensors = clear("layer-sensors"), fov = clear("layer-fov");
+  const sensors = clear("layer-sensors"), fov = clear("layer-fov"), labels = clear("layer-labels");
   for (const s of snap.sensors) {
     if (s.x_m == null) continue;
     el("path", { d: wedge(s.x_m, s.y_m, s.heading_deg, s.fov_deg, RAY_M / 3), class: "fov", "data-id": s.id }, fov);
     const [x, y] = [px(s.x_m), py(s.y_m)];
     el("path", { d: `M${x},${y - size} L${x + size * 0.8},${y + size * 0.6} L${x - size * 0.8},${y + size * 0.6} Z`, class: s.heard ? "sensor" : "sensor sensor-silent", "data-id": s.id }, sensors);
-    el("text", { x: x + size, y: y - size, class: "label", "font-size": size * 1.1 }, sensors).textContent = s.id;
+    // labels sit in a layer under the fixes: a fix is never hidden by a sensor's name
+    el("text", { x: x + size, y: y - size, class: "label", "font-size": size * 1.1, "data-id": s.id }, labels).textContent = s.id;
   }
   const rays = clear("layer-bearings");
   for (const b of snap.bearings) {
@@ -135,11 +136,37 @@ function draw(snap) {
     info.textContent = "no vehicle state";
   }
   const adv = document.getElementById("advisory");
-  adv.textContent = snap.advisory.toUpperCase();
-  adv.className = `adv-${snap.advisory}`;
+  // every link silent: no advisory is backed by a sensor any more, say so instead
+  adv.textContent = snap.stale ? "NO DATA: links silent" : snap.advisory.toUpperCase();
+  adv.className = snap.stale ? "adv-stale" : `adv-${snap.advisory}`;
   adv.dataset.advisory = snap.advisory;
+  adv.dataset.stale = snap.stale ? "yes" : "no";
+  drawScale();
   drawTimeline(snap.timeline);
   drawTables(snap);
+}
+
+// a scale bar of a round length about 100 px long (the map keeps its aspect: "meet")
+function drawScale() {
+  const svg = document.getElementById("map"), bar = document.getElementById("scalebar");
+  const box = svg.getBoundingClientRect();
+  if (!view || !box.width || !box.height) return;
+  const pxPerM = Math.min(box.width / view.w, box.height / view.h);
+  const want = 100 / pxPerM, p = 10 ** Math.floor(Math.log10(want));
+  const metres = [1, 2, 5, 10].map((k) => k * p).filter((m) => m <= want).pop();
+  const len = metres * pxPerM;
+  while (bar.firstChild) bar.removeChild(bar.firstChild);
+  bar.setAttribute("width", len + 10);
+  el("path", { d: `M5,14 V20 H${5 + len} V14`, class: "scale-line" }, bar);
+  el("text", { x: 5 + len / 2, y: 11, class: "scale-text" }, bar).textContent = metres >= 1000 ? `${metres / 1000} km` : `${metres} m`;
+  bar.dataset.metres = metres;
+  bar.dataset.px = len.toFixed(1);
+}
+
+// a round step (1, 2 or 5 × 10^k) that puts about `count` ticks over `span`
+function niceStep(span, count) {
+  const raw = span / count, p = 10 ** Math.floor(Math.log10(raw));
+  return [1, 2, 5, 10].map((k) => k * p).find((s) => s >= raw);
 }
 
 function drawTimeline(points) {
@@ -157,6 +184,14 @@ function drawTimeline(points) {
   const line = points.filter((p) => p[1] != null).map((p) => `${x(p[0])},${y(p[1])}`);
   if (line.length) el("polyline", { points: line.join(" "), fill: "none", stroke: "#c62828", "stroke-width": 1.2 }, g);
   el("text", { x: 2, y: 10, "font-size": 8, fill: "#555" }, g).textContent = "risk (log, 1e-4…1)";
+  // time axis: seconds before the latest step, at round steps
+  const span = (t1 - t0) / 1e9, step = niceStep(Math.max(span, 1), 4);
+  for (let ago = 0; ago <= span + 1e-9; ago += step) {
+    const tx = x(t1 - ago * 1e9);
+    el("line", { x1: tx, x2: tx, y1: 110, y2: 113, stroke: "#555", "stroke-width": 0.6, class: "tick" }, g);
+    const label = ago === 0 ? "now" : `−${+ago.toFixed(3)} s`;
+    el("text", { x: tx, y: 121, "font-size": 7, fill: "#555", "text-anchor": ago === 0 ? "end" : tx < 15 ? "start" : "middle", class: "tick-label" }, g).textContent = label;
+  }
 }
 
 function cell(row, text, cls) {
@@ -172,7 +207,7 @@ function drawTables(snap) {
   const advisory = Object.fromEntries(snap.tracks.map((t) => [t.emitter, t.advisory]));
   for (const f of snap.fixes) {
     const row = document.createElement("tr");
-    cell(row, f.emitter.slice(0, 8));
+    cell(row, f.emitter); // the 16 hex digits every other output shows
     cell(row, f.lat_deg != null ? `${f.lat_deg.toFixed(6)}, ${f.lon_deg.toFixed(6)}` : `${f.x_m}, ${f.y_m} m`);
     cell(row, f.ellipse ? (f.ellipse.semi_major_m / f.ellipse.n_sigma).toFixed(1) : "–");
     cell(row, advisory[f.emitter] || f.status);
@@ -216,6 +251,17 @@ function connect() {
   };
 }
 
+// the page arrives with the site and the latest snapshot in it: draw them at once
+function drawFirstState() {
+  const block = document.getElementById("first-state");
+  if (!block) return;
+  const first = JSON.parse(block.textContent);
+  site = first.site;
+  document.getElementById("sigma").textContent = site.ellipse_sigma;
+  drawSite();
+  draw(first.state);
+}
+
 async function start() {
   try {
     await loadSite();
@@ -227,4 +273,6 @@ async function start() {
   }
 }
 
+drawFirstState();
+window.addEventListener("resize", drawScale);
 start();

@@ -128,6 +128,11 @@ class BackendCuer:
             if fix is None:
                 self.stats.skipped["no_fix"] += 1
                 continue
+            if now >= fix.t_ns + self.valid_ns:
+                # the newest trusted fix is older than a cue's validity: a cue would
+                # arrive already expired (a late step, or fixes no longer trusted)
+                self.stats.skipped["stale_fix"] += 1
+                continue
             channel = self._channel.get(emitter)
             if channel is None or not _wifi(channel):
                 self.stats.skipped["no_channel"] += 1

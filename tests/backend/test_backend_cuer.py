@@ -86,6 +86,22 @@ def test_an_emitter_at_risk_gets_a_fix_cue_the_vehicle_accepts() -> None:
     assert len(link.sent) == 1 and cuer.stats.skipped["rate"] >= 1
 
 
+def test_a_fix_older_than_a_cues_validity_is_not_cued() -> None:
+    """A step that comes late (a loaded backend) must not send a cue that is already
+    expired: the vehicle would refuse it as ``expired``."""
+    signer = Signer("backend-1", ec.derive_private_key(0x4242, ec.SECP256R1()))
+    link = Capture()
+    late_ns = NOW_NS + 2_500_000_000  # the fix is 2.55 s old; cues are valid 2 s
+    cuer = BackendCuer(signer, link, clock=lambda: late_ns, valid_s=2.0)
+    backend = BackendService(sinks=[cuer], clock=lambda: NOW_NS)
+    for sensor, xy in (("rsu-a", (-20.0, 10.0)), ("rsu-b", (20.0, 10.0))):
+        backend.on_bearings(bearing_to(sensor, xy, (1.0, 0.0)), Pose(xy[0], xy[1], 180.0))
+    backend.set_vehicle(VehicleState(x_m=1.75, y_m=-40.0, heading_deg=0.0, speed_mps=15.0))
+    assessments = backend.step(NOW_NS)
+    assert assessments and assessments[0].advisory in ("brake", "caution")
+    assert link.sent == [] and cuer.stats.skipped["stale_fix"] == 1
+
+
 def test_an_emitter_judged_clear_is_not_cued() -> None:
     signer = Signer("backend-1", ec.derive_private_key(0x4242, ec.SECP256R1()))
     link = Capture()

@@ -32,7 +32,10 @@ Named backend profiles (:data:`BACKEND_PROFILES`): ``urban-intersection`` (the
 default: units 7–30 m from the threats, so a fix's error ellipse may reach 30 %
 of the shortest range before it is called ill-conditioned; a reaction delay of
 0.3 s so that a controller that acts one 0.1 s step late still stops; brake
-once contact is within twice the stopping distance) and ``backend-defaults``
+once contact is within twice the stopping distance, but only on a track of at
+least 5 fixes whose threat is in the vehicle's path or moving into it by more
+than 2 sigmas of its speed, see :class:`~rfsas_hw.backend.risk.AdvisoryThresholds`)
+and ``backend-defaults``
 (the backend's own defaults, tuned for longer ranges).
 """
 
@@ -189,7 +192,12 @@ def _urban() -> BackendConfig:
     return BackendConfig(
         association=AssociationConfig(window_s=0.5),
         triangulation=TriangulationOptions(max_range_fraction=0.3),
-        encounter=EncounterConfig(reaction_s=0.3, thresholds=AdvisoryThresholds(stop_margin=2.0)),
+        encounter=EncounterConfig(
+            reaction_s=0.3,
+            thresholds=AdvisoryThresholds(
+                stop_margin=2.0, brake_min_fixes=5, brake_needs_path=True, brake_path_sigmas=2.0
+            ),
+        ),
         step_s=0.1,
     )
 

@@ -9,6 +9,15 @@ Gaussian integral. The impact speed assumes the vehicle brakes now (after the
 reaction delay) and that the threat sits where it will be at ``t*``: the
 distance to contact is the along-track gap between the vehicle's front and the
 near side of the threat's box.
+
+A brake can be held back to caution by the thresholds
+(:class:`~rfsas_hw.backend.risk.AdvisoryThresholds`): a track with too few
+fixes since it (re)started, or — with ``brake_needs_path`` — a threat neither
+in the vehicle's path (lateral offset ``d`` of its centre from the path's
+centre line within ``h``, the sum of the two boxes' half-widths, the threat's
+larger side for its box) nor moving into it with evidence: with ``w`` its
+speed towards the centre line and ``σ_w`` that speed's one-sigma (from the
+velocity covariance), ``w − k·σ_w > 0`` and ``|d| − h ≤ (w − k·σ_w)·t*``.
 """
 
 from __future__ import annotations
@@ -115,6 +124,7 @@ def assess_encounter(
     fix_ok: bool = True,
     fix_reason: str = "",
     link_alarm: bool = False,
+    track_fixes: int | None = None,
 ) -> Encounter:
     """Judge one threat against the vehicle: :func:`assess_encounters` of one row.
 
@@ -126,6 +136,7 @@ def assess_encounter(
         fix_ok: whether the threat's latest fix was trustworthy.
         fix_reason: why not.
         link_alarm: whether the link's latency watch is alarmed.
+        track_fixes: fixes the threat's track took since it (re)started (None: enough).
 
     Raises:
         BackendError: a state or covariance of the wrong shape or not finite.
@@ -142,6 +153,7 @@ def assess_encounter(
         fix_ok=[fix_ok],
         fix_reason=[fix_reason],
         link_alarm=link_alarm,
+        track_fixes=None if track_fixes is None else [track_fixes],
     )[0]
 
 
@@ -154,6 +166,7 @@ def assess_encounters(
     fix_ok: Sequence[bool] | None = None,
     fix_reason: Sequence[str] | None = None,
     link_alarm: bool = False,
+    track_fixes: Sequence[int] | None = None,
 ) -> list[Encounter]:
     """Judge ``B`` threats against the vehicle at once, one array operation per stage.
 
@@ -165,6 +178,8 @@ def assess_encounters(
         fix_ok: per threat, whether its latest fix was trustworthy (default: all).
         fix_reason: per threat, why not (default: empty).
         link_alarm: whether the link's latency watch is alarmed.
+        track_fixes: per threat, fixes its track took since it (re)started
+            (default: enough for any brake).
 
     Raises:
         BackendError: states or covariances of the wrong shape or not finite
@@ -181,8 +196,11 @@ def assess_encounters(
     B = len(x)
     oks = [True] * B if fix_ok is None else [bool(v) for v in fix_ok]
     whys = [""] * B if fix_reason is None else list(fix_reason)
-    if len(oks) != B or len(whys) != B:
-        raise BackendError(f"fix_ok and fix_reason must have one entry per threat ({B})")
+    fixes = None if track_fixes is None else [int(n) for n in track_fixes]
+    if len(oks) != B or len(whys) != B or (fixes is not None and len(fixes) != B):
+        raise BackendError(
+            f"fix_ok, fix_reason and track_fixes must have one entry per threat ({B})"
+        )
     if B == 0:
         return []
     finite = np.isfinite(x).all(axis=1) & np.isfinite(P).all(axis=(1, 2))
@@ -228,6 +246,7 @@ def assess_encounters(
     )
     p_f = fatality_risk(v_imp)
     risk = p_coll * p_f
+    held = _brake_held(vehicle, x, P, t_star, cfg, fixes)
     out = []
     for i, (pc, rk, ct, t_i, v_i, pf_i) in enumerate(
         zip(
@@ -248,6 +267,7 @@ def assess_encounters(
             fix_ok=oks[i],
             fix_reason=whys[i],
             link_alarm=link_alarm,
+            brake_held=held[i],
             thresholds=cfg.thresholds,
         )
         out.append(
@@ -264,3 +284,39 @@ def assess_encounters(
             )
         )
     return out
+
+
+def _brake_held(
+    vehicle: VehicleState,
+    x: Array,
+    P: Array,
+    t_star: Array,
+    cfg: EncounterConfig,
+    fixes: list[int] | None,
+) -> list[str]:
+    """Per threat, why a brake is not supported (empty: it is); see the module docstring."""
+    th = cfg.thresholds
+    held = [""] * len(x)
+    if fixes is not None and th.brake_min_fixes > 1:
+        for i, n in enumerate(fixes):
+            if n < th.brake_min_fixes:
+                held[i] = f"track has {n} fix(es) since it started, < {th.brake_min_fixes}"
+    if not th.brake_needs_path:
+        return held
+    u = vehicle.direction
+    normal = np.array([-u[1], u[0]])
+    d = (x[:, :2] - vehicle.position) @ normal
+    side = np.where(d >= 0, 1.0, -1.0)
+    w = -(x[:, 2:] @ normal) * side
+    sigma_w = np.sqrt(np.maximum(np.einsum("i,bij,j->b", normal, P[:, 2:, 2:], normal), 0.0))
+    gap = np.abs(d) - (vehicle.width_m / 2 + max(cfg.threat_size) / 2)
+    w_low = w - th.brake_path_sigmas * sigma_w
+    in_path = gap <= 0
+    entering = (w_low > 0) & (gap <= w_low * np.maximum(t_star, 0.0))
+    for i in np.flatnonzero(~(in_path | entering)).tolist():
+        why = (
+            f"{gap[i]:.1f} m beside the path, moving towards it at {w[i]:.2f} ± "
+            f"{sigma_w[i]:.2f} m/s (needs {th.brake_path_sigmas:g} sigma to reach it)"
+        )
+        held[i] = f"{held[i]}; {why}" if held[i] else why
+    return held

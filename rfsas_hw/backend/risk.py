@@ -164,9 +164,20 @@ class AdvisoryThresholds:
         stop_margin: factor on the stopping distance for ``brake_p_collision``.
         caution_on_link_alarm: a latency alarm on the link means at least caution.
         caution_on_bad_fix: an emitter heard but not located means at least caution.
+        brake_min_fixes: fewest fixes a track must have taken since it (re)started
+            before it may cause a brake; a younger track (one just restarted by a
+            fix outside its gate) gives at most caution. 1: any track.
+        brake_needs_path: brake only for a threat already in the vehicle's lane
+            (its centre within the two half-widths of the vehicle's path) or
+            moving into it with evidence: its speed towards the path less
+            ``brake_path_sigmas`` of its one-sigma still reaches the path by closest
+            approach. Without that evidence at most caution. False: no such test.
+        brake_path_sigmas: how many sigmas of the speed towards the path must be
+            left over for ``brake_needs_path``.
 
     Raises:
-        BackendError: thresholds out of order or outside [0, 1].
+        BackendError: thresholds out of order or outside [0, 1], fewer than one
+            fix, or a negative number of sigmas.
     """
 
     brake_risk: float = 0.01
@@ -176,6 +187,9 @@ class AdvisoryThresholds:
     stop_margin: float = 1.5
     caution_on_link_alarm: bool = True
     caution_on_bad_fix: bool = True
+    brake_min_fixes: int = 1
+    brake_needs_path: bool = False
+    brake_path_sigmas: float = 2.0
 
     def __post_init__(self) -> None:
         for name in ("brake_risk", "caution_risk", "brake_p_collision", "caution_p_collision"):
@@ -188,6 +202,10 @@ class AdvisoryThresholds:
             raise BackendError("caution_p_collision must not exceed brake_p_collision")
         if not self.stop_margin >= 1:
             raise BackendError(f"stop_margin must be ≥ 1, got {self.stop_margin}")
+        if not self.brake_min_fixes >= 1:
+            raise BackendError(f"brake_min_fixes must be ≥ 1, got {self.brake_min_fixes}")
+        if not (self.brake_path_sigmas >= 0 and math.isfinite(self.brake_path_sigmas)):
+            raise BackendError(f"brake_path_sigmas must be ≥ 0, got {self.brake_path_sigmas}")
 
 
 DEFAULT_THRESHOLDS = AdvisoryThresholds()
@@ -202,6 +220,7 @@ def advise(
     fix_ok: bool = True,
     fix_reason: str = "",
     link_alarm: bool = False,
+    brake_held: str = "",
     thresholds: AdvisoryThresholds = DEFAULT_THRESHOLDS,
 ) -> tuple[Advisory, tuple[str, ...]]:
     """The advisory for one threat and every reason that led to it.
@@ -214,6 +233,9 @@ def advise(
         fix_ok: whether the threat's position is trustworthy.
         fix_reason: why it is not (shown in the reasons).
         link_alarm: whether the link's latency watch is alarmed.
+        brake_held: why a brake is not supported by the track (a young track, no
+            evidence of a path into the lane; see :class:`AdvisoryThresholds`);
+            non-empty turns a brake into caution with this reason.
         thresholds: the decision thresholds.
 
     Returns:
@@ -238,6 +260,8 @@ def advise(
         caution.append("link latency alarm")
     if not fix_ok and t.caution_on_bad_fix:
         caution.append(f"emitter not located: {fix_reason}".rstrip(": "))
+    if brake and brake_held:
+        return Advisory.CAUTION, (f"brake held: {brake_held}", *brake, *caution)
     if brake:
         return Advisory.BRAKE, tuple(brake + caution)
     if caution:

@@ -460,10 +460,11 @@ class BackendService:
             states[tracked], covs[tracked] = predict_tracks([t for _, t in live], now, accel)
         encounters: dict[int, Encounter] = {}
         if vehicle is not None and tracked:
+            updates = [t.updates for _, t in live]
             encounters = dict(
                 zip(
                     tracked,
-                    self._encounters(vehicle, states, covs, fixes, tracked, alarm),
+                    self._encounters(vehicle, states, covs, fixes, tracked, alarm, updates),
                     strict=True,
                 )
             )
@@ -542,8 +543,10 @@ class BackendService:
         fixes: list[tuple[int, Fix]],
         rows: list[int],
         alarm: bool,
+        updates: list[int],
     ) -> list[Encounter]:
-        """The encounter of each tracked emitter (``rows``) with the vehicle."""
+        """The encounter of each tracked emitter (``rows``, whose tracks took ``updates``
+        fixes since they started) with the vehicle."""
         cfg = self.config.encounter
         return assess_encounters(
             vehicle,
@@ -553,6 +556,7 @@ class BackendService:
             fix_ok=[fixes[i][1].ok for i in rows],
             fix_reason=[fixes[i][1].reason for i in rows],
             link_alarm=alarm,
+            track_fixes=updates,
         )
 
     def run(

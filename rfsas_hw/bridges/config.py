@@ -32,7 +32,13 @@ Named backend profiles (:data:`BACKEND_PROFILES`): ``urban-intersection`` (the
 default: units 7–30 m from the threats, so a fix's error ellipse may reach 30 %
 of the shortest range before it is called ill-conditioned; a reaction delay of
 0.3 s so that a controller that acts one 0.1 s step late still stops; brake
-once contact is within twice the stopping distance) and ``backend-defaults``
+once contact is within twice the stopping distance, but only on a track of at
+least 5 fixes since it (re)started), ``urban-intersection-path`` (the same, and a
+brake only for a threat in the vehicle's path or moving into it by more than
+2 sigma of its speed, see :class:`~rfsas_hw.backend.risk.AdvisoryThresholds`:
+for units that see the threat at 10 Hz from its first steps, as in the Euro NCAP
+matrix; too strict for threats that appear late and are seen only a few times)
+and ``backend-defaults``
 (the backend's own defaults, tuned for longer ranges).
 """
 
@@ -189,13 +195,23 @@ def _urban() -> BackendConfig:
     return BackendConfig(
         association=AssociationConfig(window_s=0.5),
         triangulation=TriangulationOptions(max_range_fraction=0.3),
-        encounter=EncounterConfig(reaction_s=0.3, thresholds=AdvisoryThresholds(stop_margin=2.0)),
+        encounter=EncounterConfig(
+            reaction_s=0.3,
+            thresholds=AdvisoryThresholds(stop_margin=2.0, brake_min_fixes=5),
+        ),
         step_s=0.1,
     )
 
 
+def _urban_path() -> BackendConfig:
+    base = _urban()
+    th = replace(base.encounter.thresholds, brake_needs_path=True, brake_path_sigmas=2.0)
+    return replace(base, encounter=replace(base.encounter, thresholds=th))
+
+
 BACKEND_PROFILES: dict[str, BackendConfig] = {
     "urban-intersection": _urban(),
+    "urban-intersection-path": _urban_path(),
     "backend-defaults": BackendConfig(),
 }
 """Named backend settings (see the module docstring)."""

@@ -8,7 +8,8 @@ so that it sees behind the parked vehicles from the other side of the road.
 Devices: every target carries the same model, ``phone-active`` (a phone in
 use) or ``phone-idle`` (probe bursts every 5 s); see
 :data:`~rfsas_hw.bridges.config.DEVICE_MODELS`. Parked vehicles attenuate
-the radio by their ``loss_db`` (:mod:`rfsas_hw.ncap.scenarios`).
+the radio by their ``loss_db`` (:mod:`rfsas_hw.ncap.scenarios`). The backend
+uses the ``urban-intersection-path`` profile (:mod:`rfsas_hw.bridges.config`).
 """
 
 from __future__ import annotations
@@ -48,6 +49,7 @@ def bridge_config(
     return BridgeConfig(
         units=units,
         seed=seed,
+        backend_profile="urban-intersection-path",
         ego_unit=EgoUnitSpec(id="vut-unit"),
         buildings=parked,
         buildings_from_simulator=False,

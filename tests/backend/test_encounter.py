@@ -81,3 +81,36 @@ def test_bad_fix_and_link_alarm_raise_caution() -> None:
         EncounterConfig(threat_kind="horse")
     with pytest.raises(BackendError, match="finite"):
         assess_encounter(VehicleState(0, 0, 0, 1), np.zeros(3), np.eye(4))
+
+
+def test_brake_held_for_a_young_track_or_a_threat_with_no_evidence_of_entering_the_path() -> None:
+    from rfsas_hw.backend.risk import AdvisoryThresholds
+
+    strict = EncounterConfig(
+        thresholds=AdvisoryThresholds(brake_min_fixes=5, brake_needs_path=True)
+    )
+    car = VehicleState(-20.0, 0.0, 90.0, 15.0)
+    # in the lane, 17.5 m ahead: brake, unless its track has just (re)started
+    assert assess_encounter(car, *still(0.0, 0.0), strict, track_fixes=5).advisory is Advisory.BRAKE
+    young = assess_encounter(car, *still(0.0, 0.0), strict, track_fixes=2)
+    assert young.advisory is Advisory.CAUTION
+    assert young.reasons[0].startswith("brake held: track has 2 fix(es)")
+    assert assess_encounter(car, *still(0.0, 0.0), track_fixes=1).advisory is Advisory.BRAKE
+    # 2.5 m right of the lane centre (1.35 m beside the path: 2.5 − 0.9 − 0.25), drifting at
+    # 1 ± 0.7 m/s towards it: P(collision) is high enough to brake, the evidence of entering
+    # is not (1 − 2·0.7 < 0)
+    cov = np.diag([0.25, 0.25, 0.49, 0.49])
+    drift = np.array([0.0, -2.5, 0.0, 1.0])
+    loose = assess_encounter(car, drift, cov)
+    assert loose.advisory is Advisory.BRAKE
+    held = assess_encounter(car, drift, cov, strict, track_fixes=20)
+    assert held.advisory is Advisory.CAUTION
+    assert "1.4 m beside the path" in held.reasons[0]
+    # the same place at 3 ± 0.2 m/s towards the path: it enters before closest approach
+    sure = np.diag([0.25, 0.25, 0.04, 0.04])
+    fast = assess_encounter(car, np.array([0.0, -2.5, 0.0, 3.0]), sure, strict, track_fixes=20)
+    assert fast.advisory is Advisory.BRAKE
+    with pytest.raises(BackendError, match="brake_min_fixes"):
+        AdvisoryThresholds(brake_min_fixes=0)
+    with pytest.raises(BackendError, match="brake_path_sigmas"):
+        AdvisoryThresholds(brake_path_sigmas=-1.0)

@@ -131,12 +131,24 @@ def test_los_cued_by_rfsas_brakes_only_on_its_own_sight() -> None:
     pytest.importorskip("libsumo")
     from rfsas_hw.ncap.runner import RunSpec, run_one
 
-    kerb = run_one(RunSpec(Cell("TN-KERB", 30.0, 0.5), "los+cue", "car+rsu", "phone-active", 0))
-    assert kerb.first_rf_brake_s is not None  # RF-SAS advised BRAKE for the kerb walker...
-    assert kerb.first_brake_s is None and not kerb.nuisance  # ...which this controller ignores
+    along = run_one(RunSpec(Cell("TN-ALONG", 30.0, 0.5), "los+cue", "car+rsu", "phone-active", 0))
+    assert along.first_rf_brake_s is not None  # RF-SAS advised BRAKE for the walker...
+    assert along.first_brake_s is None and not along.nuisance  # ...which this controller ignores
     child = run_one(RunSpec(Cell("CPNCO", 50.0, 0.5), "los+cue", "car+rsu", "phone-active", 0))
     alone = run_one(RunSpec(Cell("CPNCO", 50.0, 0.5), "los"))
     assert child.cued_steps > 0 and child.first_los_confirm_s is not None
     assert alone.first_los_confirm_s is not None
     assert child.first_los_confirm_s < alone.first_los_confirm_s - 0.3  # confirmed sooner
     assert child.impact_speed_kmh < alone.impact_speed_kmh
+
+
+def test_rfsas_does_not_brake_for_a_walker_standing_at_the_kerb() -> None:
+    """TN-KERB at 30 km/h, seed 0: RF-SAS (roadside unit, active phone) braked at 3.3 s
+    on a track whose velocity pointed into the lane (P(collision) 0.27) for a walker
+    who stops 0.5 m short of it; a brake now needs evidence of a path into the lane."""
+    pytest.importorskip("libsumo")
+    from rfsas_hw.ncap.runner import RunSpec, run_one
+
+    kerb = run_one(RunSpec(Cell("TN-KERB", 30.0, 0.5), "rfsas", "car+rsu", "phone-active", 0))
+    assert kerb.first_rf_brake_s is None and not kerb.nuisance
+    assert kerb.min_gap_m > 0 and not kerb.contact

@@ -46,7 +46,7 @@ $(MD_STAMP): pyproject.toml
 	test -x $(MD_PY) || $(PYTHON) -m venv $(MD_VENV)
 	$(MD_PY) -m pip install --quiet --upgrade pip
 	$(MD_PY) -m pip install --quiet $(TORCH_PIN)
-	$(MD_PY) -m pip install --quiet -e '.[metadrive]' pytest stable-baselines3
+	$(MD_PY) -m pip install --quiet -e '.[metadrive]' pytest pytest-timeout stable-baselines3
 	$(MD_PY) -c 'from rfsas_hw.bridges.metadrive import write_stub_assets; write_stub_assets()'
 	touch $@
 

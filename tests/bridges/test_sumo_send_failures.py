@@ -16,7 +16,7 @@ from clihelp import REPO, run
 from rfsas_hw.cli.exitcodes import FAILED
 from rfsas_hw.link.keys import KeyStore
 
-pytest.importorskip("libsumo")
+pytest.importorskip("libsumo", reason="needs the sumo extra (pip install .[sumo])")
 
 
 def test_every_send_failing_is_a_failed_run(

@@ -88,7 +88,7 @@ def _crossing(tmp_path: Path, vclass: str, speed: float) -> Path:
 def test_a_cyclist_and_a_moped_collision_are_reported(
     tmp_path: Path, vclass: str, speed: float
 ) -> None:
-    pytest.importorskip("libsumo")
+    pytest.importorskip("libsumo", reason="needs the sumo extra (pip install .[sumo])")
     from rfsas_hw.bridges.sumo_run import RunSummary, load_run_file, run_seed
 
     cfg, run = load_run_file(EXAMPLE / "units.yaml")
@@ -103,7 +103,7 @@ def test_a_cyclist_and_a_moped_collision_are_reported(
 
 
 def test_a_rider_that_passes_ahead_is_a_gap_not_a_collision(tmp_path: Path) -> None:
-    pytest.importorskip("libsumo")
+    pytest.importorskip("libsumo", reason="needs the sumo extra (pip install .[sumo])")
     from rfsas_hw.bridges.sumo_run import load_run_file, run_seed
 
     cfg, run = load_run_file(EXAMPLE / "units.yaml")

@@ -9,7 +9,7 @@ import pytest
 from rfsas_hw.cli.sensoropts import failure
 from rfsas_hw.runner import RunSummary
 
-pytest.importorskip("csiread")
+pytest.importorskip("csiread", reason="needs the csi extra (pip install .[csi])")
 REPO = Path(__file__).resolve().parents[2]
 DATA = REPO / "tests" / "data" / "csi"
 CAL = REPO / "calibration" / "example_cal.yaml"

@@ -60,7 +60,7 @@ def test_bad_lines_are_skipped_and_counted(
     tmp_path: Path, capsys: pytest.CaptureFixture[str], fmt: str
 ) -> None:
     if fmt == "mcap":
-        pytest.importorskip("mcap")
+        pytest.importorskip("mcap", reason="needs the ros2 extra (pip install .[ros2])")
     site = {"record": "site", "origin": {"lat_deg": 52.2, "lon_deg": 0.12, "height_m": 0.0}}
     log = tmp_path / "run.jsonl"
     good = [json.dumps(site), json.dumps(FIX), json.dumps(BEARING)]
@@ -83,7 +83,7 @@ def test_a_log_with_nothing_to_export_fails_clearly(
     steps.write_text('{"record": "step", "t_s": 0.1}\n{"record": "seed", "seed": 0}\n')
     for fmt in ("kml", "mcap"):
         if fmt == "mcap":
-            pytest.importorskip("mcap")
+            pytest.importorskip("mcap", reason="needs the ros2 extra (pip install .[ros2])")
         out = tmp_path / f"x.{fmt}"
         args = ["export", str(steps), "--to", fmt, "-o", str(out), "--origin", "52.2,0.12"]
         code, _, err = run(args, capsys)

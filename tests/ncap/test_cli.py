@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 from click.testing import CliRunner
 
-pytest.importorskip("libsumo")
+pytest.importorskip("libsumo", reason="needs the sumo extra (pip install .[sumo])")
 
 from rfsas_hw.bridges.bridge import device_mac
 from rfsas_hw.cli.main import _load_commands, cli

@@ -106,7 +106,7 @@ def test_a_cued_target_is_confirmed_sooner() -> None:
 
 
 def test_los_aeb_avoids_a_visible_adult_but_not_a_hidden_child_at_speed() -> None:
-    pytest.importorskip("libsumo")
+    pytest.importorskip("libsumo", reason="needs the sumo extra (pip install .[sumo])")
     from rfsas_hw.ncap.runner import RunSpec, run_one
 
     open_road = run_one(RunSpec(Cell("CPNA", 40.0, 0.25), "los"))
@@ -118,7 +118,7 @@ def test_los_aeb_avoids_a_visible_adult_but_not_a_hidden_child_at_speed() -> Non
 
 
 def test_rfsas_with_a_roadside_unit_brakes_for_the_hidden_child() -> None:
-    pytest.importorskip("libsumo")
+    pytest.importorskip("libsumo", reason="needs the sumo extra (pip install .[sumo])")
     from rfsas_hw.ncap.runner import RunSpec, run_one
 
     r = run_one(RunSpec(Cell("CPNCO", 30.0, 0.5), "rfsas", "car+rsu", "phone-active", 1))
@@ -128,7 +128,7 @@ def test_rfsas_with_a_roadside_unit_brakes_for_the_hidden_child() -> None:
 
 
 def test_los_cued_by_rfsas_brakes_only_on_its_own_sight() -> None:
-    pytest.importorskip("libsumo")
+    pytest.importorskip("libsumo", reason="needs the sumo extra (pip install .[sumo])")
     from rfsas_hw.ncap.runner import RunSpec, run_one
 
     along = run_one(RunSpec(Cell("TN-ALONG", 30.0, 0.5), "los+cue", "car+rsu", "phone-active", 0))
@@ -146,7 +146,7 @@ def test_rfsas_does_not_brake_for_a_walker_standing_at_the_kerb() -> None:
     """TN-KERB at 30 km/h, seed 0: RF-SAS (roadside unit, active phone) braked at 3.3 s
     on a track whose velocity pointed into the lane (P(collision) 0.27) for a walker
     who stops 0.5 m short of it; a brake now needs evidence of a path into the lane."""
-    pytest.importorskip("libsumo")
+    pytest.importorskip("libsumo", reason="needs the sumo extra (pip install .[sumo])")
     from rfsas_hw.ncap.runner import RunSpec, run_one
 
     kerb = run_one(RunSpec(Cell("TN-KERB", 30.0, 0.5), "rfsas", "car+rsu", "phone-active", 0))

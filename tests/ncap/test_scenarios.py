@@ -48,7 +48,7 @@ CASES = [c for name in SCENARIOS for c in _planned(name)]
 
 @pytest.mark.parametrize("cell", CASES, ids=[c.key for c in CASES])
 def test_no_braking_hits_the_planned_location_at_the_planned_speed(cell: Cell) -> None:
-    pytest.importorskip("libsumo")
+    pytest.importorskip("libsumo", reason="needs the sumo extra (pip install .[sumo])")
     from rfsas_hw.ncap.runner import RunSpec, run_one
 
     r = run_one(RunSpec(cell, "none"))
@@ -64,7 +64,7 @@ def test_no_braking_hits_the_planned_location_at_the_planned_speed(cell: Cell) -
 
 @pytest.mark.parametrize("name", list(TRUE_NEGATIVES))
 def test_true_negatives_never_touch_the_car(name: str) -> None:
-    pytest.importorskip("libsumo")
+    pytest.importorskip("libsumo", reason="needs the sumo extra (pip install .[sumo])")
     from rfsas_hw.ncap.runner import RunSpec, run_one
 
     r = run_one(RunSpec(Cell(name, 50.0, 0.5), "none"))

@@ -22,7 +22,7 @@ def test_configurations_expand_rfsas_over_deployments_and_devices() -> None:
 
 @pytest.mark.slow
 def test_one_and_two_workers_give_the_same_results() -> None:
-    pytest.importorskip("libsumo")
+    pytest.importorskip("libsumo", reason="needs the sumo extra (pip install .[sumo])")
     pytest.importorskip("distributed")
     cells = [Cell("CPNCO", 40.0, 0.5), Cell("TN-KERB", 30.0, 0.5)]
     conf = configs(["los", "rfsas+los"], ["car+rsu"], ["phone-active"])

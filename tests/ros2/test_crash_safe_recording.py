@@ -16,8 +16,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "cli"))
 
 from clihelp import run, write_calibration, write_capture
 
-pytest.importorskip("mcap")
-pytest.importorskip("rosbags")
+pytest.importorskip("mcap", reason="needs the ros2 extra (pip install .[ros2])")
+pytest.importorskip("rosbags", reason="needs the ros2 extra (pip install .[ros2])")
 
 MESSAGES = 40
 

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-pytest.importorskip("csiread")
+pytest.importorskip("csiread", reason="needs the csi extra (pip install .[csi])")
 REPO = Path(__file__).resolve().parents[2]
 DATA = REPO / "tests" / "data" / "csi" / "ath_csi_1.dat"
 

@@ -7,7 +7,7 @@ import time
 
 import pytest
 
-pytest.importorskip("aiohttp")
+pytest.importorskip("aiohttp", reason="needs the web extra (pip install .[web])")
 
 from rfsas_hw.backend.site import site_from_mapping
 from rfsas_hw.errors import ConfigError

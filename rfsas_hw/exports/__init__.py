@@ -57,12 +57,7 @@ def export_run(
         raise ExportError(f"unknown export format {fmt!r}; one of {', '.join(WRITERS)}")
     suffix, writer = WRITERS[fmt]
     run = read_run(run_path)
-    where = origin or run.origin
-    if where is None:
-        raise ExportError(
-            f"{run_path}: the log has no site origin; give --origin LAT,LON[,HEIGHT] "
-            "(or run the backend with a site origin)"
-        )
+    where = run.origin_or(origin)
     scene = build_scene(run, where, flagged=flagged)
     target = Path(out) if out is not None else Path(run_path).with_suffix(suffix)
     return writer(scene, target), scene, run

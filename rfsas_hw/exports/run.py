@@ -88,6 +88,21 @@ class RunLog:
     """File name, for messages."""
     origin: SiteOrigin | None = None
     """The site origin the log carries (None: the log has no ``site`` line)."""
+
+    def origin_or(self, origin: SiteOrigin | None) -> SiteOrigin:
+        """``origin`` when given, else the log's own site origin.
+
+        Raises:
+            ExportError: neither is there.
+        """
+        where = origin or self.origin
+        if where is None:
+            raise ExportError(
+                f"{self.source}: the log has no site origin; give --origin LAT,LON[,HEIGHT] "
+                "(or run the backend with a site origin)"
+            )
+        return where
+
     bearings: list[BearingLine] = field(default_factory=list)
     fixes: list[Fix] = field(default_factory=list)
     assessments: list[Assessment] = field(default_factory=list)

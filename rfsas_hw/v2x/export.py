@@ -66,12 +66,7 @@ def export_cpm_pcap(
         MissingDependencyError: ``asn1tools`` is not installed (the ``v2x`` extra).
     """
     run = read_run(run_path)
-    where = origin or run.origin
-    if where is None:
-        raise ExportError(
-            f"{run_path}: the log has no site origin; give --origin LAT,LON[,HEIGHT] "
-            "(or run the backend with a site origin)"
-        )
+    where = run.origin_or(origin)
     steps: dict[int, list[Assessment]] = defaultdict(list)
     for a in run.assessments:
         steps[a.t_ns].append(a)

@@ -12,9 +12,9 @@ located events for the map), so a run of any length fits.
   ``ttc_s`` seconds: the car is a capsule (its centre line, shortened by half
   its width at both ends, widened by half its width), the VRU a disc of half
   its length; the time to collision is found on a grid of ``ttc_step_s``.
-  Candidate pairs come from a k-d tree of the VRUs queried with each car's reach
-  (both speeds times ``ttc_s`` plus the sizes), so the cost follows the pairs
-  that are near, not cars × VRUs. A pair's conflict is one encounter while it
+  Candidate pairs come from k-d trees of the cars and of the VRUs, within each
+  car's reach (both speeds times ``ttc_s`` plus the sizes), so the cost follows
+  the pairs that are near, not cars × VRUs. A pair's conflict is one encounter while it
   lasts; it counts again after ``encounter_gap_s`` without conflict.
 
   *Collisions*: a pair whose boxes overlap, tested with the bridges' oriented
@@ -22,7 +22,8 @@ located events for the map), so a run of any length fits.
   centres are near enough to touch; one collision per pair.
 
   *Coverage per crossing*: a VRU *reaches a kerb* when it comes within
-  ``kerb_radius_m`` of either end of a crossing (from outside that radius). The
+  ``kerb_radius_m`` of either end of a crossing (from outside that radius; where
+  kerbs of two crossings are that close, the nearest one counts). The
   arrival is *covered* when the backend already had a trustworthy fix of it: a
   fix attributed to that VRU no older than ``fix_age_s`` with one-sigma error
   at most ``trust_sigma_m``; the fix error there is the distance from that fix
@@ -446,19 +447,21 @@ class CityScorer:
         empty = np.zeros(0, np.intp)
         if tree is None or not len(vehicles):
             return empty, empty, np.zeros(0)
-        vru_speed = float(np.max(np.hypot(vru.vx_mps, vru.vy_mps), initial=0.0))
         radius = np.maximum(vru.length_m, vru.width_m) / 2
-        vru_size = float(np.max(radius, initial=0.0))
+        vru_speed = float(np.max(np.hypot(vru.vx_mps, vru.vy_mps), initial=0.0))
         speed = np.hypot(veh.vx_mps[vehicles], veh.vy_mps[vehicles])
-        reach = (speed + vru_speed) * horizon_s + veh.length_m[vehicles] / 2 + vru_size
-        hits = tree.query_ball_point(
-            np.column_stack([veh.x_m[vehicles], veh.y_m[vehicles]]), reach, return_sorted=False
+        reach = (
+            (speed + vru_speed) * horizon_s
+            + veh.length_m[vehicles] / 2
+            + float(np.max(radius, initial=0.0))
         )
-        counts = np.fromiter((len(h) for h in hits), dtype=np.intp, count=len(hits))
-        if not counts.sum():
+        cars = cKDTree(np.column_stack([veh.x_m[vehicles], veh.y_m[vehicles]]))
+        near = cars.sparse_distance_matrix(tree, float(np.max(reach)), output_type="ndarray")
+        keep = near["v"] <= reach[near["i"]]
+        if not keep.any():
             return empty, empty, np.zeros(0)
-        vi = np.repeat(vehicles, counts)
-        ui = np.fromiter((u for h in hits for u in h), dtype=np.intp, count=int(counts.sum()))
+        vi = vehicles[near["i"][keep]]
+        ui = near["j"][keep].astype(np.intp)
         t = np.arange(0.0, horizon_s + 1e-9, self.cfg.ttc_step_s)
         a = np.radians(veh.heading_deg[vi])
         ux, uy = np.sin(a), np.cos(a)
@@ -536,15 +539,13 @@ class CityScorer:
             self._at_kerb.clear()
             return
         xy = np.column_stack([vrus.x_m, vrus.y_m])
-        near = self._kerb_tree.query_ball_point(xy, self.cfg.kerb_radius_m, return_sorted=False)
+        dist, kerb = self._kerb_tree.query(xy, k=1, distance_upper_bound=self.cfg.kerb_radius_m)
         now: set[tuple[str, int]] = set()
-        for j in np.flatnonzero(np.fromiter((bool(h) for h in near), bool, len(near))).tolist():
-            vid = str(vrus.ids[j])
-            for kerb in near[j]:
-                key = (vid, kerb // 2)
-                now.add(key)
-                if key not in self._at_kerb:
-                    self._arrive(t_s, vid, kerb // 2, float(xy[j, 0]), float(xy[j, 1]))
+        for j in np.flatnonzero(np.isfinite(dist)).tolist():
+            key = (str(vrus.ids[j]), int(kerb[j]) // 2)
+            now.add(key)
+            if key not in self._at_kerb:
+                self._arrive(t_s, key[0], key[1], float(xy[j, 0]), float(xy[j, 1]))
         self._at_kerb = now
 
     def _arrive(self, t_s: float, vid: str, crossing: int, x: float, y: float) -> None:

@@ -32,7 +32,7 @@ from __future__ import annotations
 import math
 import os
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -311,7 +311,8 @@ def read_net(path: str | Path, origin: SiteOrigin | None = None) -> NetInfo:
         )
     else:
         site = origin or DEFAULT_ORIGIN
-    info = NetInfo(
+    # the frame first (no geometry yet): its transform converts the geometry below
+    frame = NetInfo(
         path=p,
         origin=site,
         georeferenced=georef,
@@ -324,7 +325,7 @@ def read_net(path: str | Path, origin: SiteOrigin | None = None) -> NetInfo:
         crossings=(),
         roads=(),
     )
-    corners = info.points_to_frame([(x0, y0), (x1, y0), (x1, y1), (x0, y1)])
+    corners = frame.points_to_frame([(x0, y0), (x1, y0), (x1, y1), (x0, y1)])
     xs, ys = [c[0] for c in corners], [c[1] for c in corners]
     tls_of: dict[str, set[str]] = {}
     for tl in net.getTrafficLights():
@@ -336,7 +337,7 @@ def read_net(path: str | Path, origin: SiteOrigin | None = None) -> NetInfo:
         if node.getType() == "internal":
             continue
         cx, cy = node.getCoord()[:2]
-        (jx, jy), *_ = info.points_to_frame([(cx, cy)])
+        (jx, jy), *_ = frame.points_to_frame([(cx, cy)])
         signalised = tls_of.get(node.getID(), set())
         if node.getType().startswith("traffic_light") and not signalised:
             signalised = {node.getID()}
@@ -345,7 +346,7 @@ def read_net(path: str | Path, origin: SiteOrigin | None = None) -> NetInfo:
                 id=node.getID(),
                 x_m=jx,
                 y_m=jy,
-                shape=info.points_to_frame(node.getShape() or []),
+                shape=frame.points_to_frame(node.getShape() or []),
                 tls=tuple(sorted(signalised)),
             )
         )
@@ -355,7 +356,7 @@ def read_net(path: str | Path, origin: SiteOrigin | None = None) -> NetInfo:
         function = edge.getFunction()
         if function == "crossing":
             lane = edge.getLanes()[0]
-            shape = info.points_to_frame(lane.getShape())
+            shape = frame.points_to_frame(lane.getShape())
             node = edge.getFromNode() or edge.getToNode()
             jid = node.getID() if node is not None else edge.getID().lstrip(":").rsplit("_", 1)[0]
             crossings.append(
@@ -374,19 +375,13 @@ def read_net(path: str | Path, origin: SiteOrigin | None = None) -> NetInfo:
                 roads.append(
                     Road(
                         edge=edge.getID(),
-                        shape=info.points_to_frame(lane.getShape()),
+                        shape=frame.points_to_frame(lane.getShape()),
                         width_m=float(lane.getWidth()),
                         pedestrian_only=set(allowed) == {"pedestrian"},
                     )
                 )
-    return NetInfo(
-        path=p,
-        origin=site,
-        georeferenced=georef,
-        net_centre=centre,
-        rotation_deg=rotation,
-        scale=scale,
-        frame_residual_m=residual,
+    return replace(
+        frame,
         bounds_m=(min(xs), min(ys), max(xs), max(ys)),
         junctions=tuple(junctions),
         crossings=tuple(sorted(crossings, key=lambda c: c.id)),

@@ -54,7 +54,7 @@ from __future__ import annotations
 import json
 import math
 from collections.abc import Sequence
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -679,10 +679,16 @@ class CityScorer:
             if cov.arrivals == 0:
                 continue
             err_total += hist
-            cov.share = cov.covered / cov.arrivals_with_phone if cov.arrivals_with_phone else None
-            cov.error_p50_m = _hist_quantile(hist, ERROR_BIN_M, 0.5)
-            cov.error_mean_m = s / cov.covered if cov.covered else None
-            crossings.append(cov)
+            crossings.append(
+                replace(
+                    cov,
+                    share=cov.covered / cov.arrivals_with_phone
+                    if cov.arrivals_with_phone
+                    else None,
+                    error_p50_m=_hist_quantile(hist, ERROR_BIN_M, 0.5),
+                    error_mean_m=s / cov.covered if cov.covered else None,
+                )
+            )
         with_phone = sum(c.arrivals_with_phone for c in crossings)
         covered = sum(c.covered for c in crossings)
         rate = (lambda n: n / duration) if duration > 0 else (lambda n: 0.0)

@@ -7,10 +7,9 @@ from pathlib import Path
 
 import pytest
 
-pytest.importorskip("sumo", reason="needs the city extra: pip install 'rfsas-hw[city]'")
-pytest.importorskip("sumolib", reason="needs the city extra: pip install 'rfsas-hw[city]'")
-
 from rfsas_hw.city.net import sumo_binary, sumo_env
+
+CITY = "needs the city extra: pip install 'rfsas-hw[city]'"
 
 
 def make_grid(path: Path, number: int = 3, length_m: float = 120.0) -> Path:
@@ -37,4 +36,6 @@ def make_grid(path: Path, number: int = 3, length_m: float = 120.0) -> Path:
 @pytest.fixture(scope="session")
 def grid_net(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A 3 × 3 grid of signalised junctions 120 m apart, with sidewalks and crossings."""
+    pytest.importorskip("sumo", reason=CITY)
+    pytest.importorskip("sumolib", reason=CITY)
     return make_grid(tmp_path_factory.mktemp("grid") / "grid3.net.xml")

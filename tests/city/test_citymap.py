@@ -7,6 +7,9 @@ from pathlib import Path
 
 import pytest
 
+pytest.importorskip("sumo", reason="needs the city extra: pip install 'rfsas-hw[city]'")
+pytest.importorskip("sumolib", reason="needs the city extra: pip install 'rfsas-hw[city]'")
+
 from rfsas_hw.city.citymap import write_map
 from rfsas_hw.city.net import read_net
 from rfsas_hw.city.placement import place_units

@@ -8,6 +8,9 @@ from pathlib import Path
 
 import pytest
 
+pytest.importorskip("sumo", reason="needs the city extra: pip install 'rfsas-hw[city]'")
+pytest.importorskip("sumolib", reason="needs the city extra: pip install 'rfsas-hw[city]'")
+
 from rfsas_hw.city.demand import DemandConfig, generate, read_vru_table
 from rfsas_hw.city.net import sumo_binary, sumo_env
 from rfsas_hw.errors import ConfigError

@@ -8,6 +8,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+pytest.importorskip("sumo", reason="needs the city extra: pip install 'rfsas-hw[city]'")
+pytest.importorskip("sumolib", reason="needs the city extra: pip install 'rfsas-hw[city]'")
+
 from rfsas_hw.city.net import DEFAULT_ORIGIN, district_net, read_net, sumo_env
 from rfsas_hw.errors import ConfigError
 from rfsas_hw.geo import SiteOrigin

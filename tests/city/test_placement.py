@@ -7,6 +7,9 @@ from pathlib import Path
 
 import pytest
 
+pytest.importorskip("sumo", reason="needs the city extra: pip install 'rfsas-hw[city]'")
+pytest.importorskip("sumolib", reason="needs the city extra: pip install 'rfsas-hw[city]'")
+
 from rfsas_hw.city.net import NetInfo, read_net
 from rfsas_hw.city.placement import (
     BuildingOptions,

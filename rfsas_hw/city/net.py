@@ -281,7 +281,8 @@ def read_net(path: str | Path, origin: SiteOrigin | None = None) -> NetInfo:
             :data:`DEFAULT_ORIGIN`); ignored for a geo-referenced net.
 
     Raises:
-        MissingDependencyError: eclipse-sumo or sumolib is not installed.
+        MissingDependencyError: eclipse-sumo or sumolib is not installed, or pyproj for a
+            geo-referenced net.
         ConfigError: the file is missing, has a DTD, or is not a SUMO net.
     """
     p = Path(path)
@@ -300,6 +301,12 @@ def read_net(path: str | Path, origin: SiteOrigin | None = None) -> NetInfo:
     rotation, scale, residual = 0.0, 1.0, 0.0
     georef = bool(net.hasGeoProj())
     if georef:
+        try:
+            import pyproj  # noqa: F401  (sumolib projects with it)
+        except ImportError as err:
+            raise MissingDependencyError(
+                f"{p} is geo-referenced and pyproj is not installed; install it with: {INSTALL}"
+            ) from err
         lon, lat = net.convertXY2LonLat(*centre)
         site = SiteOrigin(float(lat), float(lon))
         gx, gy = np.meshgrid(np.linspace(x0, x1, FIT_GRID), np.linspace(y0, y1, FIT_GRID))

@@ -42,7 +42,7 @@ def on_lanes(roads: list[Road], n: int, rng: np.random.Generator) -> np.ndarray:
 def run(info: NetInfo, cars: int, vrus: int, steps: int, seed: int = 1) -> np.ndarray:
     """Per-step wall times of the scorer, milliseconds."""
     rng = np.random.default_rng(seed)
-    car_lanes = [r for r in info.roads if not r.pedestrian_only and len(r.shape) > 1]
+    car_lanes = [r for r in info.roads if r.cars and len(r.shape) > 1]
     walks = [r for r in info.roads if r.pedestrian_only and len(r.shape) > 1]
     v, u = on_lanes(car_lanes, cars, rng), on_lanes(walks, vrus, rng)
     bikes = vrus // 5

@@ -187,6 +187,8 @@ class Road:
     """Lane width, metres."""
     pedestrian_only: bool
     """Whether only pedestrians may use it (a sidewalk or footpath)."""
+    cars: bool
+    """Whether passenger cars may use it."""
 
 
 @dataclass(frozen=True)
@@ -385,6 +387,7 @@ def read_net(path: str | Path, origin: SiteOrigin | None = None) -> NetInfo:
                         shape=frame.points_to_frame(lane.getShape()),
                         width_m=float(lane.getWidth()),
                         pedestrian_only=set(allowed) == {"pedestrian"},
+                        cars="passenger" in allowed,
                     )
                 )
     return replace(

@@ -2,7 +2,7 @@
 
     python bench/bench_city_scoring.py [--steps 300]
 
-Cars stand on random points of the net's vehicle lanes and VRUs (a fifth of
+Cars stand on random points of the net's car lanes and VRUs (a fifth of
 them cyclists) on its sidewalks, all heading along their lane at city speeds
 (cars 0–14 m/s, pedestrians 0.8–1.5 m/s, cyclists 3–6 m/s), and move at
 constant velocity for ``--steps`` steps of 0.1 s. Every step is scored by

@@ -106,7 +106,9 @@ class Actors:
     ids: Sequence[str]
     """Simulator ids."""
     classes: Sequence[str]
-    """``vehicle`` for a car; ``pedestrian`` or ``bicycle`` for a VRU."""
+    """The VRU class of a VRU (``pedestrian``, ``bicycle``, ``moped``, …), by which
+    conflicts and collisions are counted; any label for a car (``vehicle``, SUMO's
+    vehicle class)."""
     x_m: FloatArray
     """Metres east of the origin."""
     y_m: FloatArray
@@ -174,7 +176,7 @@ class Actors:
 
     def entity(self, i: int) -> Entity:
         """Entry ``i`` as a bridge entity (for the box geometry)."""
-        kind: EntityKind = "vehicle" if self.classes[i] == "vehicle" else "pedestrian"
+        kind: EntityKind = "pedestrian" if self.classes[i] == "pedestrian" else "vehicle"
         return Entity(
             str(self.ids[i]),
             kind,

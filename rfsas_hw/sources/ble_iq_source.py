@@ -1,4 +1,6 @@
-"""``bleiq:FILE?elements=N[&pattern=…]``: observations from BLE direction-finding IQ reports.
+"""``bleiq:FILE?elements=N[&pattern=…]``: observations from BLE direction-finding IQ reports,
+and the step from decoded reports to observations that every BLE IQ source shares
+(:class:`IqReportSource`; the Zephyr console and Silicon Labs MQTT readers use it too).
 
 The file is a btsnoop capture (``btmon -w``, an Android HCI log) or a raw H4
 (UART) byte stream of HCI packets. Every Connectionless or Connection IQ

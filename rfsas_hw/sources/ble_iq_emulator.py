@@ -45,8 +45,11 @@ def iq_reports(
     kind: Kind = "connectionless",
     handle: int = 1,
     rssi_dbm: float = -60.0,
+    element_gain: npt.ArrayLike | None = None,
 ) -> list[IqReport]:
-    """One report per angle in ``theta_deg`` (degrees clockwise from boresight).
+    """One report per angle in ``theta_deg`` (degrees clockwise from boresight);
+    ``element_gain`` (complex, one per antenna) is what each receive chain adds
+    (its phase and gain errors; default none).
 
     Raises:
         ValueError: a pattern naming an antenna the array does not have.
@@ -63,6 +66,8 @@ def iq_reports(
     )
     noise_sigma = amplitude / math.sqrt(10.0 ** (snr_db / 10.0))
     steer = geometry.steering(theta, freq)  # (n, N)
+    if element_gain is not None:
+        steer = steer * np.broadcast_to(np.asarray(element_gain, np.complex128), (geometry.n,))
     out = []
     for i in range(len(theta)):
         phase0 = rng.uniform(0.0, 2.0 * math.pi)

@@ -207,20 +207,26 @@ class FovGuard:
         channel: npt.ArrayLike | None,
         keys: npt.ArrayLike,
         t_ns: npt.ArrayLike,
+        levels_dbm: Array | None = None,
     ) -> DfResult:
         """``result`` with the bearings weak against their emitter's reference refused,
         and those that disagree with the emitter's bearing on another channel moments
         earlier (:mod:`rfsas_hw.df.fovchannels`).
 
         ``keys`` identifies the emitter of each frame, ``t_ns`` its time (ns).
+        ``levels_dbm`` are the frames' :func:`boresight_levels` when the caller has
+        them already (they depend on the reading pair and its bearing only); None:
+        computed here.
         """
-        levels = boresight_levels(cal, result, rssi1_dbm, rssi2_dbm, channel)
+        if levels_dbm is None:
+            levels_dbm = boresight_levels(cal, result, rssi1_dbm, rssi2_dbm, channel)
         key_rows, t_rows = np.asarray(keys).tolist(), np.asarray(t_ns).tolist()
-        smooth, refs = self._walk(key_rows, t_rows, levels.tolist())
+        smooth, refs = self._walk(key_rows, t_rows, np.asarray(levels_dbm).tolist())
         refused = weak_against(np.array(smooth), np.array(refs), self.margin_db)
+        some = bool(refused.any())
         if channel is not None:
             angle = result.angle_deg.tolist()
-            if refused.any():  # refused first: neither judged nor remembered
+            if some:  # the weak ones are refused first: neither judged nor remembered
                 for i in np.flatnonzero(refused).tolist():
                     angle[i] = math.nan
             mixed = self.channels.walk(
@@ -228,7 +234,9 @@ class FovGuard:
             )
             if True in mixed:
                 refused |= np.array(mixed, dtype=bool)
+                some = True
+        if not some:  # the usual case: nothing refused
+            return result
         out = refuse(result, refused)
-        if out is not result:
-            self.refused += int(np.count_nonzero(out.flags != result.flags))
+        self.refused += int(np.count_nonzero(out.flags != result.flags))
         return out

@@ -51,29 +51,29 @@ def boresight_levels(
     """Boresight-equivalent level of each bearing, dBm; NaN where there is no bearing.
 
     The level curve is the table's for the frame's channel (0 dB for tables
-    without one; see :meth:`CalibrationTable.level_at`).
+    without one; see :meth:`CalibrationTable.level_at`). A batch on one
+    channel, the usual case, costs one lookup and no gathers.
     """
-    n = len(result.angle_deg)
-    angle = result.angle_deg.astype(np.float64)
-    has = np.isfinite(angle)
-    out = np.full(n, np.nan)
-    if not has.any():
-        return out
-    level = np.zeros(n)
-    ch = None if channel is None else np.asarray(channel, dtype=np.int64)
-    if ch is None or ch.min() == ch.max():  # the usual case: one table for the batch
-        groups: list[tuple[int | None, npt.NDArray[np.bool_]]] = [
-            (None if ch is None else int(ch[0]), has)
-        ]
+    angle = result.angle_deg
+    n = len(angle)
+    ch = None if channel is None else np.asarray(channel)
+    if ch is None or n < 2 or ch.min() == ch.max():  # the usual case: one table for the batch
+        table = cal.table_for(None if ch is None or not n else int(ch[0]))
+        # a NaN angle (no bearing) gives a NaN level, hence a NaN result
+        level = table.level_at(angle) if table is not None else _no_level(angle)
     else:
-        groups = [(int(c), has & (ch == c)) for c in np.unique(ch).tolist()]
-    for c, mask in groups:
-        table = cal.table_for(c)
-        if table is not None:
-            level[mask] = table.level_at(angle[mask])
-    r1 = np.asarray(rssi1_dbm, dtype=np.float64)
-    r2 = np.asarray(rssi2_dbm, dtype=np.float64)
-    out[has] = boresight_equivalent_dbm(r1[has], r2[has], level[has])
+        level = _no_level(angle)
+        for c in np.unique(ch).tolist():
+            table = cal.table_for(int(c))
+            if table is not None:
+                mask = ch == c
+                level[mask] = table.level_at(angle[mask])
+    return boresight_equivalent_dbm(rssi1_dbm, rssi2_dbm, level)
+
+
+def _no_level(angle_deg: Array) -> Array:
+    """0 dB where there is a bearing, NaN where there is none (no table for the frame)."""
+    out: Array = np.where(np.isnan(angle_deg), np.nan, 0.0)
     return out
 
 
@@ -158,6 +158,15 @@ class FovGuard:
         decaying. NaN for a frame without a level; the reference is +inf while
         the emitter is in its warm-up.
         """
+        smooth, refs = self._walk(
+            np.asarray(keys).tolist(), np.asarray(t_ns).tolist(), np.asarray(levels_dbm).tolist()
+        )
+        return np.array(smooth, np.float64), np.array(refs, np.float64)
+
+    def _walk(
+        self, keys: list[int], t_ns: list[int], levels_dbm: list[float]
+    ) -> tuple[list[float], list[float]]:
+        """:meth:`track` on the columns as lists."""
         refs = self._ref
         decay = self.decay_db_per_s * 1e-9
         tau = self.smooth_ns
@@ -165,10 +174,7 @@ class FovGuard:
         nan, inf = math.nan, math.inf
         smooth: list[float] = []
         out: list[float] = []
-        rows = zip(
-            np.asarray(keys).tolist(), np.asarray(t_ns).tolist(), levels_dbm.tolist(), strict=True
-        )
-        for key, t, level in rows:
+        for key, t, level in zip(keys, t_ns, levels_dbm, strict=True):
             if level != level:  # NaN: no bearing, nothing learned
                 smooth.append(nan)
                 out.append(nan)
@@ -190,7 +196,7 @@ class FovGuard:
             out.append(ref if t - first >= warmup else inf)
         while len(refs) > self.max_emitters:
             del refs[next(iter(refs))]
-        return np.array(smooth, np.float64), np.array(out, np.float64)
+        return smooth, out
 
     def apply(
         self,
@@ -201,18 +207,36 @@ class FovGuard:
         channel: npt.ArrayLike | None,
         keys: npt.ArrayLike,
         t_ns: npt.ArrayLike,
+        levels_dbm: Array | None = None,
     ) -> DfResult:
         """``result`` with the bearings weak against their emitter's reference refused,
         and those that disagree with the emitter's bearing on another channel moments
         earlier (:mod:`rfsas_hw.df.fovchannels`).
 
         ``keys`` identifies the emitter of each frame, ``t_ns`` its time (ns).
+        ``levels_dbm`` are the frames' :func:`boresight_levels` when the caller has
+        them already (they depend on the reading pair and its bearing only); None:
+        computed here.
         """
-        levels = boresight_levels(cal, result, rssi1_dbm, rssi2_dbm, channel)
-        smooth, refs = self.track(keys, t_ns, levels)
-        out = refuse_weak(result, smooth, refs, self.margin_db)
+        if levels_dbm is None:
+            levels_dbm = boresight_levels(cal, result, rssi1_dbm, rssi2_dbm, channel)
+        key_rows, t_rows = np.asarray(keys).tolist(), np.asarray(t_ns).tolist()
+        smooth, refs = self._walk(key_rows, t_rows, np.asarray(levels_dbm).tolist())
+        refused = weak_against(np.array(smooth), np.array(refs), self.margin_db)
+        some = bool(refused.any())
         if channel is not None:
-            mixed = self.channels.inconsistent(keys, t_ns, channel, out.angle_deg, out.sigma_deg)
-            out = refuse(out, mixed)
+            angle = result.angle_deg.tolist()
+            if some:  # the weak ones are refused first: neither judged nor remembered
+                for i in np.flatnonzero(refused).tolist():
+                    angle[i] = math.nan
+            mixed = self.channels.walk(
+                key_rows, t_rows, np.asarray(channel).tolist(), angle, result.sigma_deg.tolist()
+            )
+            if True in mixed:
+                refused |= np.array(mixed, dtype=bool)
+                some = True
+        if not some:  # the usual case: nothing refused
+            return result
+        out = refuse(result, refused)
         self.refused += int(np.count_nonzero(out.flags != result.flags))
         return out

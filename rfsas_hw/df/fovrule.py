@@ -70,7 +70,7 @@ def near_edge(
 
 
 def boresight_equivalent_dbm(
-    rssi1_dbm: Array, rssi2_dbm: Array, level_at_bearing_db: Array
+    rssi1_dbm: npt.ArrayLike, rssi2_dbm: npt.ArrayLike, level_at_bearing_db: npt.ArrayLike
 ) -> Array:
     """The stronger reading less the calibrated level curve at the bearing, dBm.
 

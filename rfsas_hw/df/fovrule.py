@@ -29,9 +29,17 @@ and the error can be 100° or more. Three rules keep such bearings out:
    with the same emitter's bearing on another channel moments earlier is
    refused; outside the FoV the folds differ from channel to channel.
 
-What the rules cannot see: an emitter that never shows its front (static
-behind a fixed sensor) has no brighter reference; mount a two-antenna sensor
-with its back to a wall, or use an array that resolves the full circle.
+4. **Motion rule** (fixed mounts, opt-in: ``FovGuard(prove_motion_deg=…)``):
+   an emitter that never shows its front (static behind a fixed sensor) has
+   no brighter reference, and behind the antennas its bearing stays put
+   however it moves. Its bearings count only once its averaged bearing has
+   swept a few degrees beyond what noise gives: a static emitter, in front
+   or behind, never counts.
+
+What the rules cannot see: an emitter beside or behind a fixed sensor that
+moves but never passes in front (its folded bearing sweeps too); mount a
+two-antenna sensor with its back to a wall, or use an array that resolves
+the full circle.
 """
 
 from __future__ import annotations

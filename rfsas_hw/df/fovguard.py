@@ -222,21 +222,19 @@ class FovGuard:
             levels_dbm = boresight_levels(cal, result, rssi1_dbm, rssi2_dbm, channel)
         key_rows, t_rows = np.asarray(keys).tolist(), np.asarray(t_ns).tolist()
         smooth, refs = self._walk(key_rows, t_rows, np.asarray(levels_dbm).tolist())
-        refused = weak_against(np.array(smooth), np.array(refs), self.margin_db)
-        some = bool(refused.any())
+        margin = self.margin_db
+        refused = [weak_against(s, r, margin) for s, r in zip(smooth, refs, strict=True)]
         if channel is not None:
             angle = result.angle_deg.tolist()
-            if some:  # the weak ones are refused first: neither judged nor remembered
-                for i in np.flatnonzero(refused).tolist():
-                    angle[i] = math.nan
+            if True in refused:  # the weak ones are refused first: neither judged nor remembered
+                angle = [math.nan if w else a for a, w in zip(angle, refused, strict=True)]
             mixed = self.channels.walk(
                 key_rows, t_rows, np.asarray(channel).tolist(), angle, result.sigma_deg.tolist()
             )
             if True in mixed:
-                refused |= np.array(mixed, dtype=bool)
-                some = True
-        if not some:  # the usual case: nothing refused
+                refused = [w or m for w, m in zip(refused, mixed, strict=True)]
+        if True not in refused:  # the usual case: nothing refused
             return result
-        out = refuse(result, refused)
+        out = refuse(result, np.array(refused, dtype=bool))
         self.refused += int(np.count_nonzero(out.flags != result.flags))
         return out

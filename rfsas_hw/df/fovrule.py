@@ -36,7 +36,7 @@ with its back to a wall, or use an array that resolves the full circle.
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, overload
 
 import numpy as np
 import numpy.typing as npt
@@ -82,13 +82,19 @@ def boresight_equivalent_dbm(
     return out
 
 
+@overload
+def weak_against(level_dbm: float, reference_dbm: float, margin_db: float = ...) -> bool: ...
+@overload
 def weak_against(
-    level_dbm: Array, reference_dbm: Array, margin_db: float = LEVEL_MARGIN_DB
-) -> npt.NDArray[np.bool_]:
+    level_dbm: Array, reference_dbm: Array, margin_db: float = ...
+) -> npt.NDArray[np.bool_]: ...
+def weak_against(
+    level_dbm: float | Array, reference_dbm: float | Array, margin_db: float = LEVEL_MARGIN_DB
+) -> bool | npt.NDArray[np.bool_]:
     """True where a boresight-equivalent level is more than ``margin_db`` below its reference.
 
-    NaN levels or references give False (quietly: numpy does not warn on comparisons
-    with NaN).
+    Floats (one frame) or arrays (many) alike. NaN levels or references give
+    False (quietly: numpy does not warn on comparisons with NaN).
     """
-    out: npt.NDArray[np.bool_] = np.asarray(level_dbm) < (np.asarray(reference_dbm) - margin_db)
+    out: bool | npt.NDArray[np.bool_] = level_dbm < reference_dbm - margin_db
     return out

@@ -217,6 +217,7 @@ class FovGuard:
         t_ns: npt.ArrayLike,
         levels_dbm: Array,
         angle_deg: npt.ArrayLike | None = None,
+        sigma_deg: npt.ArrayLike | None = None,
     ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
         """Follow each emitter through the frames in order: its smoothed level and the
         reference that level is judged against, per frame (dBm).
@@ -225,9 +226,9 @@ class FovGuard:
         levels with time constant ``smooth_s`` (a single fading dip is not a turn
         away from the antennas); the reference is the brightest smoothed level,
         decaying. NaN for a frame without a level; the reference is +inf while
-        the emitter is in its warm-up, and while its bearings (``angle_deg``, the
-        frames' bearings; None: not judged) have not swept ``prove_motion_deg``
-        (see the class).
+        the emitter is in its warm-up, and while its bearings (``angle_deg`` with
+        their ``sigma_deg``, the frames' bearings and σ; None: not judged) have not
+        swept ``prove_motion_deg`` (see the class).
         """
         zeros = [0.0] * len(np.asarray(keys))
         smooth, refs = self._walk(
@@ -235,6 +236,7 @@ class FovGuard:
             np.asarray(t_ns).tolist(),
             np.asarray(levels_dbm).tolist(),
             zeros if angle_deg is None else np.asarray(angle_deg, np.float64).tolist(),
+            zeros if sigma_deg is None else np.asarray(sigma_deg, np.float64).tolist(),
             judge_motion=angle_deg is not None,
         )
         return np.array(smooth, np.float64), np.array(refs, np.float64)
@@ -258,7 +260,7 @@ class FovGuard:
         nan, inf = math.nan, math.inf
         smooth: list[float] = []
         out: list[float] = []
-        sigmas = angles_deg if sigmas_deg is None else sigmas_deg
+        sigmas = [0.0] * len(angles_deg) if sigmas_deg is None else sigmas_deg
         for key, t, level, angle, sigma in zip(
             keys, t_ns, levels_dbm, angles_deg, sigmas, strict=True
         ):
@@ -338,21 +340,19 @@ class FovGuard:
             result.angle_deg.tolist(),
             result.sigma_deg.tolist(),
         )
-        refused = weak_against(np.array(smooth), np.array(refs), self.margin_db)
-        some = bool(refused.any())
+        margin = self.margin_db
+        refused = [weak_against(s, r, margin) for s, r in zip(smooth, refs, strict=True)]
         if channel is not None:
             angle = result.angle_deg.tolist()
-            if some:  # the weak ones are refused first: neither judged nor remembered
-                for i in np.flatnonzero(refused).tolist():
-                    angle[i] = math.nan
+            if True in refused:  # the weak ones are refused first: neither judged nor remembered
+                angle = [math.nan if w else a for a, w in zip(angle, refused, strict=True)]
             mixed = self.channels.walk(
                 key_rows, t_rows, np.asarray(channel).tolist(), angle, result.sigma_deg.tolist()
             )
             if True in mixed:
-                refused |= np.array(mixed, dtype=bool)
-                some = True
-        if not some:  # the usual case: nothing refused
+                refused = [w or m for w, m in zip(refused, mixed, strict=True)]
+        if True not in refused:  # the usual case: nothing refused
             return result
-        out = refuse(result, refused)
+        out = refuse(result, np.array(refused, dtype=bool))
         self.refused += int(np.count_nonzero(out.flags != result.flags))
         return out

@@ -44,7 +44,7 @@ the full circle.
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, overload
 
 import numpy as np
 import numpy.typing as npt
@@ -67,13 +67,13 @@ def near_edge(
 ) -> npt.NDArray[np.bool_]:
     """True where ``angle ± k·σ`` (degrees) reaches past an end of ``fov_deg``.
 
-    NaN angles or σ give False (they are flagged for their own reason).
+    NaN angles or σ give False (they are flagged for their own reason; numpy's
+    comparisons with NaN are quiet, so no error state is needed).
     """
     angle = np.asarray(angle_deg)
     reach = np.asarray(sigma_deg) * np.float32(k)
     lo, hi = fov_deg
-    with np.errstate(invalid="ignore"):
-        out: npt.NDArray[np.bool_] = ((angle - reach) < lo) | ((angle + reach) > hi)
+    out: npt.NDArray[np.bool_] = ((angle - reach) < lo) | ((angle + reach) > hi)
     return out
 
 
@@ -85,19 +85,24 @@ def boresight_equivalent_dbm(
     For an emitter inside the FoV this is (up to reading noise) what it would
     give at boresight; for one outside it is lower by the pattern's drop.
     """
-    r1 = np.asarray(rssi1_dbm, dtype=np.float64)
-    r2 = np.asarray(rssi2_dbm, dtype=np.float64)
-    out: Array = np.fmax(r1, r2) - np.asarray(level_at_bearing_db, dtype=np.float64)
+    # the stronger reading is one of the two exactly, in whatever dtype they come
+    out: Array = np.fmax(rssi1_dbm, rssi2_dbm) - np.asarray(level_at_bearing_db, np.float64)
     return out
 
 
+@overload
+def weak_against(level_dbm: float, reference_dbm: float, margin_db: float = ...) -> bool: ...
+@overload
 def weak_against(
-    level_dbm: Array, reference_dbm: Array, margin_db: float = LEVEL_MARGIN_DB
-) -> npt.NDArray[np.bool_]:
+    level_dbm: Array, reference_dbm: Array, margin_db: float = ...
+) -> npt.NDArray[np.bool_]: ...
+def weak_against(
+    level_dbm: float | Array, reference_dbm: float | Array, margin_db: float = LEVEL_MARGIN_DB
+) -> bool | npt.NDArray[np.bool_]:
     """True where a boresight-equivalent level is more than ``margin_db`` below its reference.
 
-    NaN levels or references give False.
+    Floats (one frame) or arrays (many) alike. NaN levels or references give
+    False (quietly: numpy does not warn on comparisons with NaN).
     """
-    with np.errstate(invalid="ignore"):
-        out: npt.NDArray[np.bool_] = np.asarray(level_dbm) < (np.asarray(reference_dbm) - margin_db)
+    out: bool | npt.NDArray[np.bool_] = level_dbm < reference_dbm - margin_db
     return out

@@ -46,6 +46,14 @@ def test_near_edge_and_weak_rules() -> None:
     assert weak.tolist() == [False, True, False]
 
 
+def test_weak_rule_judges_one_frame_as_it_judges_an_array() -> None:
+    levels = np.array([-60.0, -67.0, np.nan, -50.0])
+    refs = np.array([-60.0, -60.0, -60.0, np.inf])  # +inf: an emitter in its warm-up
+    whole = weak_against(levels, refs, 6.0)
+    one_by_one = [weak_against(float(x), float(r), 6.0) for x, r in zip(levels, refs, strict=True)]
+    assert whole.tolist() == one_by_one == [False, True, False, True]
+
+
 def test_level_curve_is_fitted_and_round_trips(cal, tmp_path) -> None:  # type: ignore[no-untyped-def]
     table = cal.tables[0]
     assert table.level_db is not None

@@ -22,17 +22,20 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 
 from rfsas_hw.angles import relative_to_compass
 from rfsas_hw.df.arraycsi import array_df_result
 from rfsas_hw.df.calibration import Calibration
 from rfsas_hw.df.estimate import DfFlag, DfResult, estimate
-from rfsas_hw.df.fovguard import FovGuard
+from rfsas_hw.df.fovguard import FovGuard, boresight_levels
 from rfsas_hw.df.hybrid import phase_df_result
 from rfsas_hw.privacy.hashing import MacHasher, NonceExpiredError, NonceUnavailableError
 from rfsas_hw.records import BearingBatch, ObservationBatch, Pose
 
 log = logging.getLogger(__name__)
+
+Array = npt.NDArray[np.floating[Any]]
 
 DEFAULT_HOLD_MAX = 200_000
 """Frames a pipeline holds at most while it waits for a nonce (about 10 MB)."""
@@ -90,10 +93,13 @@ class _DfMemo:
     its batch in one way: with one channel in the batch, ``db`` mode gives σ in
     float64, with several the columns are float32 — so whether the batch had
     one channel is part of the key, and each row keeps its columns' dtypes.
-    Pairs with a NaN are never kept. Pipelines of one calibration (the units of
-    one build) share a memo: :func:`_df_memo`. A result computed in another
-    batch may differ from this batch's own in the last bit (numpy's SIMD and
-    scalar loops); it is the same estimate.
+    A pair's boresight-equivalent level (:func:`boresight_levels`, what the
+    field-of-view guard judges) is a function of the pair and its bearing
+    alone, so it is kept with the result. Pairs with a NaN are never kept.
+    Pipelines of one calibration (the units of one build) share a memo:
+    :func:`_df_memo`. A result computed in another batch may differ from this
+    batch's own in the last bit (numpy's SIMD and scalar loops); it is the same
+    estimate.
     """
 
     def __init__(self, calibration: Calibration, min_snr_db: float | None) -> None:
@@ -101,12 +107,20 @@ class _DfMemo:
         self.min_snr_db = min_snr_db
         self.channel_free = len(calibration.tables) == 1 and calibration.tables[0].channel is None
         """One table for every channel: the channel never matters."""
-        self.rows: dict[tuple[float, float, int, bool], tuple[float, float, float, int, Any]] = {}
+        self.rows: dict[
+            tuple[float, float, int, bool], tuple[float, float, float, int, Any, float]
+        ] = {}
+        """Per key: angle, σ, SNR, flags, the columns' dtypes and the boresight level."""
         self._dtypes: dict[tuple[Any, ...], tuple[Any, ...]] = {}
         """One tuple object per combination of column dtypes (compared by identity)."""
 
     def estimate(self, batch: ObservationBatch) -> DfResult:
         """:func:`estimate` of the batch's first two chains."""
+        return self.estimate_with_levels(batch)[0]
+
+    def estimate_with_levels(self, batch: ObservationBatch) -> tuple[DfResult, Array]:
+        """:meth:`estimate` and the frames' boresight-equivalent levels, dBm
+        (:func:`boresight_levels` of that result; NaN without a bearing)."""
         rssi = batch.rssi_dbm
         channels = batch.channel.tolist()
         one = self.channel_free or min(channels) == max(channels)
@@ -114,9 +128,11 @@ class _DfMemo:
         rows = self.rows
         got = [rows.get(k) for k in keys]
         if any(g is None for g in got) or any(g[4] is not got[0][4] for g in got):  # type: ignore[index]
+            cal = self.calibration
             result = estimate(
-                self.calibration, rssi[:, 0], rssi[:, 1], batch.channel, min_snr_db=self.min_snr_db
+                cal, rssi[:, 0], rssi[:, 1], batch.channel, min_snr_db=self.min_snr_db
             )
+            levels = boresight_levels(cal, result, rssi[:, 0], rssi[:, 1], batch.channel)
             if len(rows) + len(keys) > DF_MEMO_MAX:
                 rows.clear()
             dtypes = (
@@ -126,24 +142,26 @@ class _DfMemo:
                 result.flags.dtype,
             )
             dtypes = self._dtypes.setdefault(dtypes, dtypes)
-            for k, a, s, q, f in zip(
+            for k, a, s, q, f, e in zip(
                 keys,
                 result.angle_deg.tolist(),
                 result.sigma_deg.tolist(),
                 result.snr_db.tolist(),
                 result.flags.tolist(),
+                levels.tolist(),
                 strict=True,
             ):
                 if k[0] == k[0] and k[1] == k[1]:  # NaN never matches a key
-                    rows[k] = (a, s, q, f, dtypes)
-            return result
+                    rows[k] = (a, s, q, f, dtypes, e)
+            return result, levels
         dtypes = got[0][4]  # type: ignore[index]
-        return DfResult(
+        result = DfResult(
             np.array([g[0] for g in got], dtypes[0]),  # type: ignore[index]
             np.array([g[1] for g in got], dtypes[1]),  # type: ignore[index]
             np.array([g[2] for g in got], dtypes[2]),  # type: ignore[index]
             np.array([g[3] for g in got], dtypes[3]),  # type: ignore[index]
         )
+        return result, np.array([g[5] for g in got], np.float64)  # type: ignore[index]
 
 
 _MEMOS: dict[tuple[int, float | None], _DfMemo] = {}
@@ -214,13 +232,15 @@ class SensorPipeline:
         self.alarm_reason = ""
         self._memo: _DfMemo | None = None
 
-    def _estimate(self, batch: ObservationBatch) -> DfResult:
-        """DF of the batch's first two chains (a few frames through the memo)."""
+    def _estimate(self, batch: ObservationBatch) -> tuple[DfResult, Array | None]:
+        """DF of the batch's first two chains (a few frames through the memo), and the
+        frames' boresight-equivalent levels when the memo has them (else None)."""
         rssi = batch.rssi_dbm
         if len(batch) > DF_MEMO_ROWS:
-            return estimate(
+            result = estimate(
                 self.calibration, rssi[:, 0], rssi[:, 1], batch.channel, min_snr_db=self.min_snr_db
             )
+            return result, None
         memo = self._memo
         if (
             memo is None
@@ -228,15 +248,23 @@ class SensorPipeline:
             or memo.min_snr_db != self.min_snr_db
         ):
             memo = self._memo = _df_memo(self.calibration, self.min_snr_db)
-        return memo.estimate(batch)
+        return memo.estimate_with_levels(batch)
 
-    def _guard(self, batch: ObservationBatch, result: DfResult) -> DfResult:
-        """The level rule in time (:class:`FovGuard`) on the amplitude or phase bearings."""
-        if self.fov_guard is None:
-            return result
+    def _guard(
+        self, batch: ObservationBatch, result: DfResult, levels_dbm: Array | None = None
+    ) -> DfResult:
+        """The level rule in time (:class:`FovGuard`) on the amplitude or phase bearings;
+        ``levels_dbm``: the bearings' boresight-equivalent levels if known."""
         rssi = batch.rssi_dbm
         return self.fov_guard.apply(
-            self.calibration, result, rssi[:, 0], rssi[:, 1], batch.channel, batch.mac, batch.t_ns
+            self.calibration,
+            result,
+            rssi[:, 0],
+            rssi[:, 1],
+            batch.channel,
+            batch.mac,
+            batch.t_ns,
+            levels_dbm,
         )
 
     def process(self, batch: ObservationBatch) -> BearingBatch:
@@ -251,16 +279,17 @@ class SensorPipeline:
             if n:
                 self.stats.rejected["missing_chain"] += n
             return released if released is not None else BearingBatch.empty(self.sensor_id)
-        result = self._estimate(batch)
+        result, levels = self._estimate(batch)
         if self.calibration.phase is not None and batch.csi is not None:
-            # a CSI receiver with a phase calibration: interferometer bearings
+            # a CSI receiver with a phase calibration: interferometer bearings (their
+            # levels are the phase bearings', computed by the guard)
             result = self._guard(batch, phase_df_result(self.calibration, batch, result))
         elif self.calibration.array is not None and batch.csi is not None:
             # an array with a CSI receiver: every antenna in one fit, over its own field
             # of view (the amplitude pair's level curve says nothing about it)
             result = array_df_result(self.calibration, batch, result)
         else:
-            result = self._guard(batch, result)
+            result = self._guard(batch, result, levels)
         n_bad = int(np.count_nonzero(result.flags))
         if n_bad:
             for flag in DfFlag:

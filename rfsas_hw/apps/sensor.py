@@ -28,6 +28,7 @@ from typing import Any
 import rfsas_hw.sources
 from rfsas_hw.apps.ros2 import Ros2Options, sensor_scene
 from rfsas_hw.df import load_calibration
+from rfsas_hw.df.fovguard import FovGuard
 from rfsas_hw.errors import ConfigError
 from rfsas_hw.fleet.certname import check_certificate_names
 from rfsas_hw.link.cue_publisher import CuePublisher
@@ -66,6 +67,10 @@ class SensorAppConfig:
     """Sensor position (metres east, north) and boresight (compass degrees)."""
     min_snr_db: float | None = None
     """Reject frames whose stronger antenna is below this SNR, dB."""
+    prove_motion_deg: float = 0.0
+    """Fixed mount: an emitter's bearings count once its bearing has swept this far,
+    degrees (static emitters never count; 0: at once). See
+    :class:`~rfsas_hw.df.fovguard.FovGuard`."""
     epoch_s: float = DEFAULT_EPOCH_S
     """Nonce epoch length of the deployment, seconds."""
     nonce_secret: Path | None = None
@@ -124,6 +129,7 @@ def build_pipeline(
     nonces: NonceProvider | None = None,
     nonce_secret: Path | None = None,
     epoch_s: float = DEFAULT_EPOCH_S,
+    prove_motion_deg: float = 0.0,
 ) -> SensorPipeline:
     """The pipeline hashing with ``nonces`` (the deployment's epoch nonces), with
     nonces derived from the secret in ``nonce_secret``, or by default with a
@@ -141,7 +147,10 @@ def build_pipeline(
     if nonce_secret is not None:
         nonces = DerivedNonces.from_file(nonce_secret)
     hasher = MacHasher(nonces if nonces is not None else FixedNonce(os.urandom(32)), epoch_s)
-    return SensorPipeline(calibration, hasher, sensor_id, pose, min_snr_db=min_snr_db)
+    guard = FovGuard(prove_motion_deg=prove_motion_deg)
+    return SensorPipeline(
+        calibration, hasher, sensor_id, pose, min_snr_db=min_snr_db, fov_guard=guard
+    )
 
 
 def deployment_nonces(pipeline: SensorPipeline | None) -> NonceProvider | None:
@@ -313,6 +322,7 @@ class SensorApp:
             inbox,
             nonce_secret=cfg.nonce_secret,
             epoch_s=cfg.epoch_s,
+            prove_motion_deg=cfg.prove_motion_deg,
         )
         if inbox is not None:
             pipeline.end_wait_s = 10.0  # a short input may end before the first envelope

@@ -11,6 +11,7 @@ import click
 from rich.console import Console
 from rich.table import Table
 
+from rfsas_hw.cli.calibrate_array import ARRAY_KEYS, array_options, run_array
 from rfsas_hw.cli.calibrate_phase import phase_options, run_phase
 from rfsas_hw.cli.exitcodes import WorkFailed
 from rfsas_hw.cli.options import json_option, out_option
@@ -208,6 +209,7 @@ def check_record(report: CheckReport, cal_path: Path, samples_path: Path) -> dic
 @click.option("--force", is_flag=True, help="Replace an existing -o/--plot file (never an input).")
 @json_option("--check: print the report as one JSON object.")
 @phase_options
+@array_options
 def calibrate(
     inputs: tuple[Path, ...],
     output: Path | None,
@@ -232,9 +234,21 @@ def calibrate(
     rfsas calibrate samples.csv -o cal.yaml --plot cal.png
     rfsas calibrate --check cal.yaml heldback.csv [-o cal-with-floor.yaml]
     rfsas calibrate cal.yaml --phase csi:tt.csi --angles log.csv --baseline 0.06 -o out.yaml
+    rfsas calibrate cal.yaml --array bleiq:tt.btsnoop?elements=8 --geometry uca:8,0.07 \
+        --angles log.csv -o out.yaml
     """
     console = Console(stderr=as_json)
-    sources: list[str | Path] = [*inputs, *[p for p in (capture, angles_path) if p is not None]]
+    array = {key: phase.pop(key) for key in ARRAY_KEYS}
+    recordings = [
+        spec.partition(":")[2].partition("?")[0]
+        for spec in (phase["phase_capture"], array["array_capture"])
+        if spec is not None
+    ]
+    sources: list[str | Path] = [
+        *inputs,
+        *[p for p in (capture, angles_path) if p is not None],
+        *[r for r in recordings if r],
+    ]
     for path in (output, plot_path):
         if path is not None:
             check_output(path, sources, force=force)
@@ -242,6 +256,14 @@ def calibrate(
         raise click.UsageError("-o and --plot name the same file")
     if as_json and not check:
         raise click.UsageError("--json goes with --check")
+    if phase["phase_capture"] is not None and array["array_capture"] is not None:
+        raise click.UsageError("--phase and --array are separate runs")
+    if array["array_capture"] is not None:
+        run_array(
+            console, inputs, output, angles_path, emitter, phase["known_position"],
+            phase["phase_pose"], **array,
+        )  # fmt: skip
+        return
     if phase["phase_capture"] is not None:
         run_phase(console, inputs, output, angles_path, emitter, single_table, **phase)
         return

@@ -53,14 +53,14 @@ def phase_options(func: F) -> F:
         click.option(
             "--known-position",
             "known_position",
-            help="--phase: the reference transmitter stands at X_M,Y_M (local frame).",
+            help="--phase/--array: the reference transmitter stands at X_M,Y_M (local frame).",
         ),
         click.option(
             "--pose",
             "phase_pose",
             default="0,0,0",
             show_default=True,
-            help="--phase with --known-position: sensor X_M,Y_M,HEADING_DEG (compass).",
+            help="--phase/--array with --known-position: sensor X_M,Y_M,HEADING_DEG (compass).",
         ),
         click.option(
             "--phase-fov",

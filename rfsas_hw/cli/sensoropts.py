@@ -125,6 +125,16 @@ def sensor_options(func: F) -> F:
             help="Reject frames whose stronger antenna is below this SNR, dB.",
         ),
         click.option(
+            "--prove-motion",
+            "prove_motion_deg",
+            type=click.FloatRange(min=0.0, max=90.0),
+            default=0.0,
+            metavar="DEG",
+            help="Fixed mount: an emitter's bearings count once its bearing has swept this "
+            "far (3 is a good value); a static emitter, behind or in front, never counts. "
+            "0: off.",
+        ),
+        click.option(
             "--errors",
             type=click.Choice(["skip", "raise"]),
             default="skip",
@@ -162,6 +172,7 @@ def sensor_config(
     min_snr_db: float | None,
     nonce_secret: Path | None,
     send: str | None,
+    prove_motion_deg: float = 0.0,
     keys_dir: Path | None,
     ros2: dict[str, Any],
     **specific: Any,
@@ -181,6 +192,7 @@ def sensor_config(
         sensor_id=sensor_id,
         pose=parse_pose(pose, origin),
         min_snr_db=min_snr_db,
+        prove_motion_deg=prove_motion_deg,
         epoch_s=epoch_s,
         nonce_secret=nonce_secret,
         keys_dir=keys_dir,

@@ -107,9 +107,11 @@ class CalibrationTable:
 
     def level_at(self, angle_deg: Array) -> Array:
         """The stronger chain's reading at the given angles relative to boresight, dB
-        (0 where the table has no level curve)."""
+        (0 where the table has no level curve); NaN for a NaN angle (no bearing)."""
         if self.level_db is None:
-            return np.zeros_like(np.asarray(angle_deg, dtype=np.float64))
+            angle = np.asarray(angle_deg, dtype=np.float64)
+            flat: Array = np.where(np.isnan(angle), np.nan, 0.0)
+            return flat
         out: Array = np.interp(angle_deg, self.grid_deg, self.level_db)
         return out
 

@@ -67,18 +67,33 @@ class ChannelConsistency:
     ) -> npt.NDArray[np.bool_]:
         """True for each bearing (in order) that disagrees with its emitter's latest one
         on another channel within the window; every bearing is remembered."""
-        last = self._last
-        window, k, allow = self.window_ns, self.k_sigma, self.allowance_deg
-        out: list[bool] = []
-        rows = zip(
+        out = self.walk(
             np.asarray(keys).tolist(),
             np.asarray(t_ns).tolist(),
             np.asarray(channel).tolist(),
-            np.asarray(angle_deg, np.float64).tolist(),
-            np.asarray(sigma_deg, np.float64).tolist(),
-            strict=True,
+            np.asarray(angle_deg).tolist(),
+            np.asarray(sigma_deg).tolist(),
         )
-        for key, t, ch, angle, sigma in rows:
+        return np.array(out, dtype=bool)
+
+    def walk(
+        self,
+        keys: list[int],
+        t_ns: list[int],
+        channel: list[int],
+        angle_deg: list[float],
+        sigma_deg: list[float],
+    ) -> list[bool]:
+        """:meth:`inconsistent` on the columns as lists (a caller that holds them so
+        saves the conversions). NaN angles (no bearing) give False and are not kept.
+
+        Raises:
+            ValueError: the lists differ in length.
+        """
+        last = self._last
+        window, k, allow = self.window_ns, self.k_sigma, self.allowance_deg
+        out: list[bool] = []
+        for key, t, ch, angle, sigma in zip(keys, t_ns, channel, angle_deg, sigma_deg, strict=True):
             if angle != angle:  # NaN: no bearing
                 out.append(False)
                 continue
@@ -95,4 +110,4 @@ class ChannelConsistency:
             out.append(bad)
         while len(last) > self.max_emitters:
             del last[next(iter(last))]
-        return np.array(out, dtype=bool)
+        return out

@@ -4,9 +4,11 @@
 :func:`refuse_weak` refuses the bearings too weak against a reference, and
 :class:`FovGuard` keeps that reference per emitter in time: the brightest
 boresight-equivalent level of the emitter, decaying by ``decay_db_per_s``
-so that an emitter walking away is not refused for its path loss. It is
-keyed by whatever identifies an emitter inside the sensor process (the raw
-MAC); its state never leaves the process.
+so that an emitter walking away is not refused for its path loss; on a
+fixed mount it can also require each emitter to prove by its bearing's
+sweep that it has been in front (``prove_motion_deg``). It is keyed by
+whatever identifies an emitter inside the sensor process (the raw MAC); its
+state never leaves the process.
 """
 
 from __future__ import annotations
@@ -40,6 +42,54 @@ to ride out a fading dip of a frame or two, short against a turn of the sensor."
 MAX_EMITTERS = 65_536
 """Emitters a guard remembers at most (the least recently heard are forgotten)."""
 
+PROVE_MOTION_DEG = 3.0
+"""For a fixed mount: how far an emitter's smoothed bearing must have moved before its
+bearings count, degrees (at least; :data:`PROVE_SPREADS` times the spread noise alone
+gives that average, when that is more).
+
+Behind a fixed two-antenna sensor both chains sit on the back-lobe floor: the
+ratio, and the bearing, stay put (near boresight) however the emitter moves
+there, and an emitter that never moves has no brighter front level to be
+judged by. An emitter whose bearing has swept this far has crossed the main
+lobes, so it has shown its front. A static emitter never does: in front or
+behind, a two-antenna pair cannot tell, so its bearings are refused. The
+price: a passing emitter's bearings count only once it has swept this far
+(in the bundled crossing, half of the phone's bearings at ``rsu-nw``), so
+the rule is off unless asked for (``FovGuard(prove_motion_deg=…)``).
+"""
+
+MOTION_SMOOTH_S = 1.0
+"""Time constant of the bearing average whose sweep proves motion, seconds: the
+noise of single bearings (a few σ) must not look like a sweep."""
+
+PROVE_WINDOW_S = 60.0
+"""An emitter heard for longer than this without proving motion must sweep
+:data:`LATE_SWEEPS` times farther: the more chances noise gets, the likelier it once
+looks like a sweep (a static emitter stays refused, one that starts to walk, a
+parked car driving off, proves itself within a few tens of degrees)."""
+
+LATE_SWEEPS = 5.0
+"""How many times ``prove_motion_deg`` a sweep must be after :data:`PROVE_WINDOW_S`."""
+
+SETTLE_S = 1.0
+"""How long after an emitter is first heard its bearing average settles before a
+sweep counts, seconds (the first bearing the average starts from is one noisy frame)."""
+
+PROVE_SPREADS = 8.0
+"""The sweep that proves motion is at least this many times the spread of the bearing
+average that noise alone gives.
+
+An exponential average with weight ``w`` per frame of bearings that scatter by
+``s`` about it wanders with a spread of ``s·√(w / (2 − w))`` (``w ≈ dt/τ``: a third
+of ``s`` at 5 frames/s, two thirds at one frame a second); over an hour its range
+stays within about eight such spreads. ``s`` is the emitter's reported σ,
+averaged (as σ², over ten time constants) with the weight per frame; both
+averages are divided by their total weight so that they hold from the first
+frames on. An emitter whose frames come sparse and scattered (beside the
+antennas, at the field of view's edge) can still wander past this over many
+minutes; :data:`PROVE_WINDOW_S` bounds those chances.
+"""
+
 
 def boresight_levels(
     cal: Calibration,
@@ -51,29 +101,29 @@ def boresight_levels(
     """Boresight-equivalent level of each bearing, dBm; NaN where there is no bearing.
 
     The level curve is the table's for the frame's channel (0 dB for tables
-    without one; see :meth:`CalibrationTable.level_at`).
+    without one; see :meth:`CalibrationTable.level_at`). A batch on one
+    channel, the usual case, costs one lookup and no gathers.
     """
-    n = len(result.angle_deg)
-    angle = result.angle_deg.astype(np.float64)
-    has = np.isfinite(angle)
-    out = np.full(n, np.nan)
-    if not has.any():
-        return out
-    level = np.zeros(n)
-    ch = None if channel is None else np.asarray(channel, dtype=np.int64)
-    if ch is None or ch.min() == ch.max():  # the usual case: one table for the batch
-        groups: list[tuple[int | None, npt.NDArray[np.bool_]]] = [
-            (None if ch is None else int(ch[0]), has)
-        ]
+    angle = result.angle_deg
+    n = len(angle)
+    ch = None if channel is None else np.asarray(channel)
+    if ch is None or n < 2 or ch.min() == ch.max():  # the usual case: one table for the batch
+        table = cal.table_for(None if ch is None or not n else int(ch[0]))
+        # a NaN angle (no bearing) gives a NaN level, hence a NaN result
+        level = table.level_at(angle) if table is not None else _no_level(angle)
     else:
-        groups = [(int(c), has & (ch == c)) for c in np.unique(ch).tolist()]
-    for c, mask in groups:
-        table = cal.table_for(c)
-        if table is not None:
-            level[mask] = table.level_at(angle[mask])
-    r1 = np.asarray(rssi1_dbm, dtype=np.float64)
-    r2 = np.asarray(rssi2_dbm, dtype=np.float64)
-    out[has] = boresight_equivalent_dbm(r1[has], r2[has], level[has])
+        level = _no_level(angle)
+        for c in np.unique(ch).tolist():
+            table = cal.table_for(int(c))
+            if table is not None:
+                mask = ch == c
+                level[mask] = table.level_at(angle[mask])
+    return boresight_equivalent_dbm(rssi1_dbm, rssi2_dbm, level)
+
+
+def _no_level(angle_deg: Array) -> Array:
+    """0 dB where there is a bearing, NaN where there is none (no table for the frame)."""
+    out: Array = np.where(np.isnan(angle_deg), np.nan, 0.0)
     return out
 
 
@@ -109,6 +159,13 @@ class FovGuard:
             fixed mount, where waiting teaches nothing.
         smooth_s: time constant of the level average an emitter is judged by, seconds.
         channels: the across-channel check (None: one with the default settings).
+        prove_motion_deg: bearings of an emitter count once its bearing, averaged over
+            :data:`MOTION_SMOOTH_S`, has swept this far and :data:`PROVE_SPREADS` times
+            the spread noise gives that average, and it has been heard for three such
+            times (degrees; 0, the default: at once). An emitter that stands still
+            before a fixed sensor then never counts (:data:`PROVE_MOTION_DEG` is the
+            value for a fixed mount); a turning sensor proves every emitter in its
+            first turn.
     """
 
     def __init__(
@@ -119,6 +176,7 @@ class FovGuard:
         warmup_s: float = 0.0,
         smooth_s: float = SMOOTH_S,
         channels: ChannelConsistency | None = None,
+        prove_motion_deg: float = 0.0,
     ) -> None:
         if not (
             margin_db > 0
@@ -126,20 +184,27 @@ class FovGuard:
             and max_emitters >= 1
             and warmup_s >= 0
             and smooth_s >= 0
+            and prove_motion_deg >= 0
         ):
             raise ValueError(
-                "margin_db > 0, decay_db_per_s ≥ 0, max_emitters ≥ 1, warmup_s ≥ 0 and "
-                "smooth_s ≥ 0 needed"
+                "margin_db > 0, decay_db_per_s ≥ 0, max_emitters ≥ 1, warmup_s ≥ 0, "
+                "smooth_s ≥ 0 and prove_motion_deg ≥ 0 needed"
             )
+        self.prove_motion_deg = float(prove_motion_deg)
         self.warmup_ns = int(warmup_s * 1e9)
         self.margin_db = float(margin_db)
         self.decay_db_per_s = float(decay_db_per_s)
         self.max_emitters = int(max_emitters)
         self.smooth_ns = smooth_s * 1e9
         self.channels = ChannelConsistency() if channels is None else channels
-        self._ref: dict[int, tuple[float, float, int, int]] = {}
+        self._ref: dict[
+            int, tuple[float, float, int, int, float, float, float, float, float, float]
+        ] = {}
         """Per emitter: smoothed and reference level (dBm), when it was last updated and
-        when first heard (ns)."""
+        when first heard (ns), its averaged bearing, the least and most that average
+        has been (degrees, unwrapped), its average σ² (degrees²; -1 once proven), the
+        average weight per frame, and the total weight of those two averages (they
+        are divided by it)."""
         self.refused = 0
         """Bearings refused so far."""
 
@@ -147,7 +212,12 @@ class FovGuard:
         return len(self._ref)
 
     def track(
-        self, keys: npt.ArrayLike, t_ns: npt.ArrayLike, levels_dbm: Array
+        self,
+        keys: npt.ArrayLike,
+        t_ns: npt.ArrayLike,
+        levels_dbm: Array,
+        angle_deg: npt.ArrayLike | None = None,
+        sigma_deg: npt.ArrayLike | None = None,
     ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
         """Follow each emitter through the frames in order: its smoothed level and the
         reference that level is judged against, per frame (dBm).
@@ -156,19 +226,44 @@ class FovGuard:
         levels with time constant ``smooth_s`` (a single fading dip is not a turn
         away from the antennas); the reference is the brightest smoothed level,
         decaying. NaN for a frame without a level; the reference is +inf while
-        the emitter is in its warm-up.
+        the emitter is in its warm-up, and while its bearings (``angle_deg`` with
+        their ``sigma_deg``, the frames' bearings and σ; None: not judged) have not
+        swept ``prove_motion_deg`` (see the class).
         """
+        zeros = [0.0] * len(np.asarray(keys))
+        smooth, refs = self._walk(
+            np.asarray(keys).tolist(),
+            np.asarray(t_ns).tolist(),
+            np.asarray(levels_dbm).tolist(),
+            zeros if angle_deg is None else np.asarray(angle_deg, np.float64).tolist(),
+            zeros if sigma_deg is None else np.asarray(sigma_deg, np.float64).tolist(),
+            judge_motion=angle_deg is not None,
+        )
+        return np.array(smooth, np.float64), np.array(refs, np.float64)
+
+    def _walk(
+        self,
+        keys: list[int],
+        t_ns: list[int],
+        levels_dbm: list[float],
+        angles_deg: list[float],
+        sigmas_deg: list[float] | None = None,
+        judge_motion: bool = True,
+    ) -> tuple[list[float], list[float]]:
+        """:meth:`track` on the columns as lists."""
         refs = self._ref
         decay = self.decay_db_per_s * 1e-9
         tau = self.smooth_ns
+        tau_b = MOTION_SMOOTH_S * 1e9
         warmup = self.warmup_ns
+        sweep = self.prove_motion_deg if judge_motion else 0.0
         nan, inf = math.nan, math.inf
         smooth: list[float] = []
         out: list[float] = []
-        rows = zip(
-            np.asarray(keys).tolist(), np.asarray(t_ns).tolist(), levels_dbm.tolist(), strict=True
-        )
-        for key, t, level in rows:
+        sigmas = [0.0] * len(angles_deg) if sigmas_deg is None else sigmas_deg
+        for key, t, level, angle, sigma in zip(
+            keys, t_ns, levels_dbm, angles_deg, sigmas, strict=True
+        ):
             if level != level:  # NaN: no bearing, nothing learned
                 smooth.append(nan)
                 out.append(nan)
@@ -177,20 +272,43 @@ class FovGuard:
             if got is None:
                 s = ref = level
                 first = t
+                b = lo = hi = angle
+                var = 0.0 if sweep > 0 else -1.0
+                wbar = norm = 0.0
             else:
-                old_s, old_ref, t_old, first = got
+                old_s, old_ref, t_old, first, b, lo, hi, var, wbar, norm = got
                 dt = t - t_old if t > t_old else 0
                 keep = math.exp(-dt / tau) if tau > 0 else 0.0
                 s = keep * old_s + (1.0 - keep) * level
                 ref = old_ref - decay * dt
                 if s > ref:
                     ref = s
-            refs[key] = (s, ref, t, first)
+                if var >= 0.0:  # not proven yet: follow the bearing's average and sweep
+                    w = 1.0 - math.exp(-dt / tau_b)
+                    step = (angle - b + 180.0) % 360.0 - 180.0  # the short way round
+                    # the scatter and the weight per frame over ten time constants: steadier
+                    # than the average itself (frames may come in bursts and gaps)
+                    slow = 1.0 - math.exp(-dt / (10.0 * tau_b))
+                    var += slow * (sigma * sigma - var)
+                    wbar += slow * (w - wbar)
+                    norm += slow * (1.0 - norm)  # the averages' total weight, to unbias them
+                    b += w * step
+                    if t - first < SETTLE_S * 1e9:
+                        # the average and the scatter settle first: the sweep counts after
+                        lo = hi = b
+                    else:
+                        lo, hi = min(lo, b), max(hi, b)
+                    wn = wbar / norm if norm > 0.0 else 1.0
+                    noise = PROVE_SPREADS * math.sqrt(var / max(norm, 1e-12) * wn / (2.0 - wn))
+                    late = t - first > PROVE_WINDOW_S * 1e9
+                    if hi - lo >= max(LATE_SWEEPS * sweep if late else sweep, noise):
+                        var = -1.0
+            refs[key] = (s, ref, t, first, b, lo, hi, var, wbar, norm)
             smooth.append(s)
-            out.append(ref if t - first >= warmup else inf)
+            out.append(ref if t - first >= warmup and var < 0.0 else inf)
         while len(refs) > self.max_emitters:
             del refs[next(iter(refs))]
-        return np.array(smooth, np.float64), np.array(out, np.float64)
+        return smooth, out
 
     def apply(
         self,
@@ -201,18 +319,40 @@ class FovGuard:
         channel: npt.ArrayLike | None,
         keys: npt.ArrayLike,
         t_ns: npt.ArrayLike,
+        levels_dbm: Array | None = None,
     ) -> DfResult:
         """``result`` with the bearings weak against their emitter's reference refused,
         and those that disagree with the emitter's bearing on another channel moments
         earlier (:mod:`rfsas_hw.df.fovchannels`).
 
         ``keys`` identifies the emitter of each frame, ``t_ns`` its time (ns).
+        ``levels_dbm`` are the frames' :func:`boresight_levels` when the caller has
+        them already (they depend on the reading pair and its bearing only); None:
+        computed here.
         """
-        levels = boresight_levels(cal, result, rssi1_dbm, rssi2_dbm, channel)
-        smooth, refs = self.track(keys, t_ns, levels)
-        out = refuse_weak(result, smooth, refs, self.margin_db)
+        if levels_dbm is None:
+            levels_dbm = boresight_levels(cal, result, rssi1_dbm, rssi2_dbm, channel)
+        key_rows, t_rows = np.asarray(keys).tolist(), np.asarray(t_ns).tolist()
+        smooth, refs = self._walk(
+            key_rows,
+            t_rows,
+            np.asarray(levels_dbm).tolist(),
+            result.angle_deg.tolist(),
+            result.sigma_deg.tolist(),
+        )
+        margin = self.margin_db
+        refused = [weak_against(s, r, margin) for s, r in zip(smooth, refs, strict=True)]
         if channel is not None:
-            mixed = self.channels.inconsistent(keys, t_ns, channel, out.angle_deg, out.sigma_deg)
-            out = refuse(out, mixed)
+            angle = result.angle_deg.tolist()
+            if True in refused:  # the weak ones are refused first: neither judged nor remembered
+                angle = [math.nan if w else a for a, w in zip(angle, refused, strict=True)]
+            mixed = self.channels.walk(
+                key_rows, t_rows, np.asarray(channel).tolist(), angle, result.sigma_deg.tolist()
+            )
+            if True in mixed:
+                refused = [w or m for w, m in zip(refused, mixed, strict=True)]
+        if True not in refused:  # the usual case: nothing refused
+            return result
+        out = refuse(result, np.array(refused, dtype=bool))
         self.refused += int(np.count_nonzero(out.flags != result.flags))
         return out

@@ -29,14 +29,22 @@ and the error can be 100° or more. Three rules keep such bearings out:
    with the same emitter's bearing on another channel moments earlier is
    refused; outside the FoV the folds differ from channel to channel.
 
-What the rules cannot see: an emitter that never shows its front (static
-behind a fixed sensor) has no brighter reference; mount a two-antenna sensor
-with its back to a wall, or use an array that resolves the full circle.
+4. **Motion rule** (fixed mounts, opt-in: ``FovGuard(prove_motion_deg=…)``):
+   an emitter that never shows its front (static behind a fixed sensor) has
+   no brighter reference, and behind the antennas its bearing stays put
+   however it moves. Its bearings count only once its averaged bearing has
+   swept a few degrees beyond what noise gives: a static emitter, in front
+   or behind, never counts.
+
+What the rules cannot see: an emitter beside or behind a fixed sensor that
+moves but never passes in front (its folded bearing sweeps too); mount a
+two-antenna sensor with its back to a wall, or use an array that resolves
+the full circle.
 """
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, overload
 
 import numpy as np
 import numpy.typing as npt
@@ -59,37 +67,42 @@ def near_edge(
 ) -> npt.NDArray[np.bool_]:
     """True where ``angle ± k·σ`` (degrees) reaches past an end of ``fov_deg``.
 
-    NaN angles or σ give False (they are flagged for their own reason).
+    NaN angles or σ give False (they are flagged for their own reason; numpy's
+    comparisons with NaN are quiet, so no error state is needed).
     """
     angle = np.asarray(angle_deg)
     reach = np.asarray(sigma_deg) * np.float32(k)
     lo, hi = fov_deg
-    with np.errstate(invalid="ignore"):
-        out: npt.NDArray[np.bool_] = ((angle - reach) < lo) | ((angle + reach) > hi)
+    out: npt.NDArray[np.bool_] = ((angle - reach) < lo) | ((angle + reach) > hi)
     return out
 
 
 def boresight_equivalent_dbm(
-    rssi1_dbm: Array, rssi2_dbm: Array, level_at_bearing_db: Array
+    rssi1_dbm: npt.ArrayLike, rssi2_dbm: npt.ArrayLike, level_at_bearing_db: npt.ArrayLike
 ) -> Array:
     """The stronger reading less the calibrated level curve at the bearing, dBm.
 
     For an emitter inside the FoV this is (up to reading noise) what it would
     give at boresight; for one outside it is lower by the pattern's drop.
     """
-    r1 = np.asarray(rssi1_dbm, dtype=np.float64)
-    r2 = np.asarray(rssi2_dbm, dtype=np.float64)
-    out: Array = np.fmax(r1, r2) - np.asarray(level_at_bearing_db, dtype=np.float64)
+    # the stronger reading is one of the two exactly, in whatever dtype they come
+    out: Array = np.fmax(rssi1_dbm, rssi2_dbm) - np.asarray(level_at_bearing_db, np.float64)
     return out
 
 
+@overload
+def weak_against(level_dbm: float, reference_dbm: float, margin_db: float = ...) -> bool: ...
+@overload
 def weak_against(
-    level_dbm: Array, reference_dbm: Array, margin_db: float = LEVEL_MARGIN_DB
-) -> npt.NDArray[np.bool_]:
+    level_dbm: Array, reference_dbm: Array, margin_db: float = ...
+) -> npt.NDArray[np.bool_]: ...
+def weak_against(
+    level_dbm: float | Array, reference_dbm: float | Array, margin_db: float = LEVEL_MARGIN_DB
+) -> bool | npt.NDArray[np.bool_]:
     """True where a boresight-equivalent level is more than ``margin_db`` below its reference.
 
-    NaN levels or references give False.
+    Floats (one frame) or arrays (many) alike. NaN levels or references give
+    False (quietly: numpy does not warn on comparisons with NaN).
     """
-    with np.errstate(invalid="ignore"):
-        out: npt.NDArray[np.bool_] = np.asarray(level_dbm) < (np.asarray(reference_dbm) - margin_db)
+    out: bool | npt.NDArray[np.bool_] = level_dbm < reference_dbm - margin_db
     return out

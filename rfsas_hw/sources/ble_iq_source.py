@@ -1,4 +1,6 @@
-"""``bleiq:FILE?elements=N[&pattern=…]``: observations from BLE direction-finding IQ reports.
+"""``bleiq:FILE?elements=N[&pattern=…]``: observations from BLE direction-finding IQ reports,
+and the step from decoded reports to observations that every BLE IQ source shares
+(:class:`IqReportSource`; the Zephyr console and Silicon Labs MQTT readers use it too).
 
 The file is a btsnoop capture (``btmon -w``, an Android HCI log) or a raw H4
 (UART) byte stream of HCI packets. Every Connectionless or Connection IQ
@@ -23,7 +25,8 @@ Bad reports (truncated, inconsistent, no samples, a carrier offset beyond
 from __future__ import annotations
 
 import math
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 from urllib.parse import parse_qs
@@ -47,8 +50,130 @@ from rfsas_hw.sources.ble_iq import (
 )
 
 
-class BleIqSource(Source[ObservationBatch]):
-    """IQ reports of an antenna array's BLE receiver, from a file.
+@dataclass(frozen=True, slots=True)
+class IqRow:
+    """One decoded IQ report with what the observation needs besides it."""
+
+    t_ns: int
+    """Capture time, UTC ns (0 when the input has none)."""
+    key: int
+    """Emitter key: the transmitter's address when the input gives it, else a handle."""
+    freq_mhz: float
+    """Carrier frequency the samples were taken on, MHz."""
+    report: IqReport
+    where: str
+    """Where the report came from, for messages (file and line, byte, topic)."""
+
+
+def parse_query(
+    scheme: str, arg: str, options: dict[str, Any], keys: Mapping[str, str]
+) -> tuple[str, dict[str, Any]]:
+    """Split ``WHAT?key=value&…`` into ``WHAT`` and ``options`` with the query's keys
+    filled in (``keys`` maps a query key to its argument name; ``pattern`` takes
+    comma-separated whole numbers, every other key one whole number). Keywords the
+    caller passed win.
+
+    Raises:
+        SourceError: an unknown key, a value that is not whole numbers, or no
+            ``elements``.
+    """
+    what, _, query = arg.partition("?")
+    for key, values in parse_qs(query, keep_blank_values=True).items():
+        value = values[-1]
+        if key not in keys:
+            raise SourceError(f"{scheme}:{arg}: unknown option {key!r} ({', '.join(sorted(keys))})")
+        try:
+            parsed: Any = [int(v) for v in value.split(",")] if key == "pattern" else int(value)
+        except ValueError as err:
+            raise SourceError(
+                f"{scheme}:{arg}: {key} must be whole numbers, got {value!r}"
+            ) from err
+        options.setdefault(keys[key], parsed)
+    if "elements" not in options:
+        raise SourceError(f"{scheme}:{arg}: give the array's antenna count: ?elements=N")
+    return what, options
+
+
+class IqReportSource(Source[ObservationBatch]):
+    """Base of the BLE IQ report sources: from decoded reports to array observations.
+
+    Every report becomes one observation: its samples with the carrier offset
+    of the reference period removed (:func:`~rfsas_hw.sources.ble_iq.remove_cfo`),
+    arranged by the antenna switching pattern into snapshots of the array (each
+    full pass through the pattern one snapshot; passes with an invalid sample
+    left out), carried as CSI of shape (antennas, passes, 1); its RSSI for every
+    antenna; its channel and carrier frequency; its emitter key (hashed by the
+    pipeline like a MAC). Unusable reports (no samples, a carrier offset beyond
+    ±150 kHz, no complete pass) are counted and skipped, or raised under the
+    ``raise`` policy.
+
+    Args:
+        name: what the messages call the input.
+        elements: antennas of the array (2…64).
+        pattern: antenna switching pattern (ids 0…elements−1); default 0, 1, …, N−1.
+        errors, filter: see :class:`~rfsas_hw.sources.base.Source`.
+
+    Raises:
+        SourceError: a bad element count or pattern.
+    """
+
+    def __init__(
+        self, name: str, *, elements: int, pattern: list[int] | None = None, **base: Any
+    ) -> None:
+        if not 2 <= elements <= 64:
+            raise SourceError(f"{name}: elements {elements}: 2…64 expected")
+        self.pattern = list(range(elements)) if pattern is None else list(pattern)
+        if not self.pattern or min(self.pattern) < 0 or max(self.pattern) >= elements:
+            raise SourceError(f"{name}: pattern {self.pattern} must name antennas 0…{elements - 1}")
+        self.elements = elements
+        super().__init__(**base)
+
+    def _snapshots(self, report: IqReport, where: str) -> np.ndarray | None:
+        """Snapshots (passes, N) of one report, or None (counted) when it is unusable."""
+        if report.packet_status == NO_SAMPLES_STATUS or not len(report.iq):
+            self._bad("no_samples", CaptureFormatError(f"{where}: the report carries no samples"))
+            return None
+        iq, cfo = remove_cfo(report, self.pattern)
+        if not math.isfinite(cfo) or abs(cfo) > MAX_CFO_HZ * 1.1:
+            self._bad(
+                "bad_cfo",
+                CaptureFormatError(
+                    f"{where}: carrier offset {cfo:.0f} Hz not measurable within ±150 kHz"
+                ),
+            )
+            return None
+        snaps = element_snapshots(iq, self.pattern, self.elements)
+        complete = snaps[np.all(np.isfinite(snaps), axis=1)]
+        if not len(complete):
+            self._bad(
+                "no_complete_pass",
+                CaptureFormatError(f"{where}: no pass through the pattern without a bad sample"),
+            )
+            return None
+        return complete
+
+    def _batch(self, rows: Sequence[IqRow]) -> ObservationBatch:
+        """The observations of ``rows`` (the usable ones), every row with as many
+        passes as the one with the fewest."""
+        kept = [
+            (row, s) for row in rows if (s := self._snapshots(row.report, row.where)) is not None
+        ]
+        if not kept:
+            return ObservationBatch.empty(self.elements)
+        passes = min(len(s) for _, s in kept)
+        h = np.stack([s[:passes].T for _, s in kept])[:, :, :, None]  # (n, N, passes, 1)
+        return ObservationBatch(
+            t_ns=np.array([r.t_ns for r, _ in kept], np.int64),
+            mac=np.array([r.key for r, _ in kept], np.uint64),
+            freq_mhz=np.array([round(r.freq_mhz) for r, _ in kept], np.int32),
+            channel=np.array([r.report.channel_index for r, _ in kept], np.int16),
+            rssi_dbm=np.repeat(np.array([[r.report.rssi_dbm] for r, _ in kept]), self.elements, 1),
+            csi=CsiBlock(h.astype(np.complex64), np.zeros(1, np.int16)),
+        )
+
+
+class BleIqSource(IqReportSource):
+    """IQ reports of an antenna array's BLE receiver, from a btsnoop or H4 file.
 
     Args:
         path: btsnoop or raw H4 file.
@@ -77,19 +202,11 @@ class BleIqSource(Source[ObservationBatch]):
         p = Path(path)
         if not p.is_file():
             raise SourceError(f"bleiq:{path}: no such file")
-        if not 2 <= elements <= 64:
-            raise SourceError(f"bleiq:{path}: elements {elements}: 2…64 expected")
-        self.pattern = list(range(elements)) if pattern is None else list(pattern)
-        if not self.pattern or min(self.pattern) < 0 or max(self.pattern) >= elements:
-            raise SourceError(
-                f"bleiq:{path}: pattern {self.pattern} must name antennas 0…{elements - 1}"
-            )
         if sample_bits not in (8, 16):
             raise SourceError(f"bleiq:{path}: sample_bits {sample_bits}: 8 or 16 expected")
+        super().__init__(f"bleiq:{path}", elements=elements, pattern=pattern, **base)
         self.path = path
-        self.elements = elements
         self.sample_bits = sample_bits
-        super().__init__(**base)
         self._rows: list[tuple[int, IqReport]] = []
         self._done = False
         try:
@@ -126,54 +243,12 @@ class BleIqSource(Source[ObservationBatch]):
         Raises:
             SourceError: a missing or malformed option, or an unknown one.
         """
-        path, _, query = arg.partition("?")
-        for key, values in parse_qs(query, keep_blank_values=True).items():
-            value = values[-1]
-            try:
-                if key == "elements":
-                    options.setdefault("elements", int(value))
-                elif key == "pattern":
-                    options.setdefault("pattern", [int(v) for v in value.split(",")])
-                elif key == "bits":
-                    options.setdefault("sample_bits", int(value))
-                else:
-                    raise SourceError(
-                        f"bleiq:{arg}: unknown option {key!r} (elements, pattern, bits)"
-                    )
-            except ValueError as err:
-                raise SourceError(
-                    f"bleiq:{arg}: {key} must be whole numbers, got {value!r}"
-                ) from err
-        if "elements" not in options:
-            raise SourceError(f"bleiq:{arg}: give the array's antenna count: ?elements=N")
+        keys = {"elements": "elements", "pattern": "pattern", "bits": "sample_bits"}
+        path, options = parse_query(cls.scheme, arg, options, keys)
         return cls(path, **options)
 
     def __repr__(self) -> str:
         return f"BleIqSource({self.path!r})"
-
-    def _observation(self, report: IqReport, where: str) -> np.ndarray | None:
-        """Snapshots (passes, N) of one report, or None (counted) when it is unusable."""
-        if report.packet_status == NO_SAMPLES_STATUS or not len(report.iq):
-            self._bad("no_samples", CaptureFormatError(f"{where}: the report carries no samples"))
-            return None
-        iq, cfo = remove_cfo(report, self.pattern)
-        if not math.isfinite(cfo) or abs(cfo) > MAX_CFO_HZ * 1.1:
-            self._bad(
-                "bad_cfo",
-                CaptureFormatError(
-                    f"{where}: carrier offset {cfo:.0f} Hz not measurable within ±150 kHz"
-                ),
-            )
-            return None
-        snaps = element_snapshots(iq, self.pattern, self.elements)
-        complete = snaps[np.all(np.isfinite(snaps), axis=1)]
-        if not len(complete):
-            self._bad(
-                "no_complete_pass",
-                CaptureFormatError(f"{where}: no pass through the pattern without a bad sample"),
-            )
-            return None
-        return complete
 
     def _read_raw(self, timeout: float | None) -> ObservationBatch | None:
         if self._done:
@@ -181,20 +256,11 @@ class BleIqSource(Source[ObservationBatch]):
             return None
         self._done = True
         self._end()
-        kept: list[tuple[int, IqReport, np.ndarray]] = []
-        for i, (t_ns, report) in enumerate(self._rows):
-            snaps = self._observation(report, f"{self.path}: report {i + 1}")
-            if snaps is not None:
-                kept.append((t_ns, report, snaps))
-        if not kept:
-            return ObservationBatch.empty(self.elements)
-        passes = min(len(s) for _, _, s in kept)
-        h = np.stack([s[:passes].T for _, _, s in kept])[:, :, :, None]  # (n, N, passes, 1)
-        return ObservationBatch(
-            t_ns=np.array([t for t, _, _ in kept], np.int64),
-            mac=np.array([r.handle for _, r, _ in kept], np.uint64),
-            freq_mhz=np.array([ble_channel_mhz(r.channel_index) for _, r, _ in kept], np.int32),
-            channel=np.array([r.channel_index for _, r, _ in kept], np.int16),
-            rssi_dbm=np.repeat(np.array([[r.rssi_dbm] for _, r, _ in kept]), self.elements, 1),
-            csi=CsiBlock(h.astype(np.complex64), np.zeros(1, np.int16)),
+        return self._batch(
+            [
+                IqRow(
+                    t, r.handle, ble_channel_mhz(r.channel_index), r, f"{self.path}: report {i + 1}"
+                )
+                for i, (t, r) in enumerate(self._rows)
+            ]
         )

@@ -24,7 +24,9 @@ import numpy.typing as npt
 from rfsas_hw.angles import math_rad_to_compass, wrap_deg_180
 from rfsas_hw.errors import CalibrationError
 from rfsas_hw.records import ObservationBatch, Pose, mac_to_int
+from rfsas_hw.sources.base import Source
 from rfsas_hw.sources.csi import CsiSource
+from rfsas_hw.sources.registry import open_source, schemes
 from rfsas_hw.sources.turntable import angles_at, read_angle_log
 
 
@@ -67,7 +69,9 @@ def phase_frames(
     """The reference transmitter's frames with CSI and the true angle of each.
 
     Args:
-        capture: CSI file (``csi:`` query options allowed after ``?``).
+        capture: CSI file (``csi:`` query options allowed after ``?``), or the spec
+            of another source whose observations carry CSI (``bleiq:…``,
+            ``bleiq+zephyr:…``: an array's IQ snapshots).
         emitter: MAC of the reference transmitter; None takes every frame (for
             formats that record no address, e.g. Intel 5300 and Atheros).
         angles_path: turntable angle log; or
@@ -83,9 +87,15 @@ def phase_frames(
     """
     if (angles_path is None) == (known_deg is None):
         raise CalibrationError("give a turntable angle log or a known transmitter angle (one)")
-    arg = str(capture).removeprefix("csi:")
-    path = arg.partition("?")[0]
-    src = CsiSource.from_spec(arg, **({"freq_mhz": freq_mhz} if freq_mhz else {}))
+    scheme, sep, rest = str(capture).partition(":")
+    src: Source[ObservationBatch]
+    if sep and scheme != "csi" and scheme in schemes():
+        path = rest.partition("?")[0]
+        src = open_source(str(capture))
+    else:
+        arg = str(capture).removeprefix("csi:")
+        path = arg.partition("?")[0]
+        src = CsiSource.from_spec(arg, **({"freq_mhz": freq_mhz} if freq_mhz else {}))
     try:
         batches = list(src)
     finally:

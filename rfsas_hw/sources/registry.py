@@ -23,6 +23,8 @@ _LAZY: dict[str, str] = {
     "kraken": "rfsas_hw.sources.kraken:KrakenSource",
     "csi": "rfsas_hw.sources.csi:CsiSource",
     "bleiq": "rfsas_hw.sources.ble_iq_source:BleIqSource",
+    "bleiq+zephyr": "rfsas_hw.sources.ble_iq_zephyr_source:BleIqZephyrSource",
+    "bleiq+mqtt": "rfsas_hw.sources.ble_iq_mqtt:BleIqMqttSource",
 }
 _LOADED: dict[str, type[Source[Any]]] = {}
 

@@ -8,6 +8,7 @@ import pytest
 from rfsas_hw import pipeline
 from rfsas_hw.df import fit_calibration
 from rfsas_hw.df.estimate import estimate
+from rfsas_hw.df.fovguard import FovGuard, boresight_levels
 from rfsas_hw.df.lut import UniformLut
 from rfsas_hw.pipeline import DF_MEMO_ROWS, SensorPipeline, _DfMemo
 from rfsas_hw.privacy.hashing import FixedNonce, MacHasher
@@ -85,6 +86,47 @@ def test_df_memo_gives_what_estimate_gives(mode: str) -> None:
                 np.testing.assert_allclose(a, b, rtol=1e-6, atol=1e-6, err_msg=name)
         assert hits > 300  # the memo did answer whole batches
         assert not any(k[0] != k[0] or k[1] != k[1] for k in memo.rows)  # no NaN kept
+
+
+def test_df_memo_levels_are_the_guards_levels() -> None:
+    # the memo keeps each pair's boresight-equivalent level; a batch it answers gets
+    # the levels the guard would compute from the result, and the guard fed them
+    # refuses what it refuses computing them itself
+    sweeps = [
+        turntable_sweep(np.arange(-90.0, 90.5, 1.0), 30, -50.0, GaussianBeamPair(), RX, 7 + c, c)
+        for c in (1, 6)
+    ]
+    merged = TurntableSamples(
+        *(np.concatenate([getattr(w, f) for w in sweeps]) for f in TurntableSamples.__annotations__)
+    )
+    cal = fit_calibration(merged, "linear")
+    memo = _DfMemo(cal, None)
+    fed, own = FovGuard(), FovGuard()
+    rng = np.random.default_rng(4)
+    hits = refused = 0
+    for k in range(1500):
+        n = int(rng.integers(1, DF_MEMO_ROWS + 1))
+        channels = (1, 6, 11) if rng.random() < 0.3 else (6,)
+        lo, hi = (-95.0, -15.0) if rng.random() < 0.3 else (-60.0, -45.0)
+        batch = _quantised_batch(rng, n, channels, lo, hi)
+        batch = ObservationBatch(
+            t_ns=batch.t_ns + k * 50_000_000,
+            mac=np.full(n, 0x0200000000A1 + k % 3, np.uint64),
+            freq_mhz=batch.freq_mhz,
+            channel=batch.channel,
+            rssi_dbm=batch.rssi_dbm,
+        )
+        before = len(memo.rows)
+        result, levels = memo.estimate_with_levels(batch)
+        hits += len(memo.rows) == before
+        r1, r2 = batch.rssi_dbm[:, 0], batch.rssi_dbm[:, 1]
+        want = boresight_levels(cal, result, r1, r2, batch.channel)
+        np.testing.assert_allclose(levels, want, rtol=0.0, atol=1e-4)  # NaN where no bearing
+        a = fed.apply(cal, result, r1, r2, batch.channel, batch.mac, batch.t_ns, levels)
+        b = own.apply(cal, result, r1, r2, batch.channel, batch.mac, batch.t_ns)
+        np.testing.assert_array_equal(a.flags, b.flags)
+        refused += int(np.count_nonzero(a.flags != result.flags))
+    assert hits > 200 and refused > 0 and fed.refused == own.refused == refused
 
 
 def test_pipelines_share_a_memo_per_calibration_and_give_the_same_bearings(

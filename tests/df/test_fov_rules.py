@@ -9,7 +9,7 @@ from rfsas_hw.df import estimate, fit_calibration, load_calibration, save_calibr
 from rfsas_hw.df.calfile import calibration_from_mapping, calibration_to_mapping
 from rfsas_hw.df.check import CONFIDENT_WRONG_MAX, check_calibration, constant_guess_rms_deg
 from rfsas_hw.df.estimate import DfFlag
-from rfsas_hw.df.fovguard import FovGuard, boresight_levels
+from rfsas_hw.df.fovguard import PROVE_MOTION_DEG, FovGuard, boresight_levels
 from rfsas_hw.df.fovrule import near_edge, weak_against
 from rfsas_hw.rf import GaussianBeamPair, ReceiverModel, turntable_sweep
 from rfsas_hw.rf.propagation import free_space_path_loss_db
@@ -44,6 +44,14 @@ def test_near_edge_and_weak_rules() -> None:
     assert got.tolist() == [False, True, True, True, False]
     weak = weak_against(np.array([-60.0, -67.0, np.nan]), np.array([-60.0, -60.0, -60.0]), 6.0)
     assert weak.tolist() == [False, True, False]
+
+
+def test_weak_rule_judges_one_frame_as_it_judges_an_array() -> None:
+    levels = np.array([-60.0, -67.0, np.nan, -50.0])
+    refs = np.array([-60.0, -60.0, -60.0, np.inf])  # +inf: an emitter in its warm-up
+    whole = weak_against(levels, refs, 6.0)
+    one_by_one = [weak_against(float(x), float(r), 6.0) for x, r in zip(levels, refs, strict=True)]
+    assert whole.tolist() == one_by_one == [False, True, False, True]
 
 
 def test_level_curve_is_fitted_and_round_trips(cal, tmp_path) -> None:  # type: ignore[no-untyped-def]
@@ -281,3 +289,93 @@ def test_an_emitter_beside_the_antennas_disagrees_across_channels() -> None:  # 
     assert run(10.0) > 0.97  # inside: the two channels agree
     # beside: channel 1 folds 65° onto about 27°, channel 6 onto about 6°
     assert run(65.0) < 0.2
+
+
+def _fixed_sensor(seed: int, duration_s: float = 120.0):  # type: ignore[no-untyped-def]
+    """Frames of 12 static emitters all around a fixed two-antenna sensor and 12 walkers
+    that start in front of it and walk out of its field of view (beside or behind it),
+    5 frames/s each."""
+    rng = np.random.default_rng(seed)
+    rate, n_static, n_walk = 5.0, 12, 12
+    t = np.arange(0.0, duration_s, 1.0 / rate)
+    az = np.linspace(-180.0, 180.0, n_static, endpoint=False) + rng.uniform(0.0, 20.0, n_static)
+    dist = rng.uniform(4.0, 30.0, n_static)
+    xy_static = np.stack([dist * np.sin(np.radians(az)), dist * np.cos(np.radians(az))], 1)
+    # walkers: straight lines at 1.4 m/s from a point in front (within ±15°, 8-25 m
+    # away), in any direction, for 30 s from a random start
+    mid = rng.uniform(8.0, 25.0, n_walk)[:, None] * np.stack(
+        [np.sin(a := np.radians(rng.uniform(-15, 15, n_walk))), np.cos(a)], 1
+    )
+    heading = np.radians(rng.uniform(0.0, 360.0, n_walk))
+    v = 1.4 * np.stack([np.sin(heading), np.cos(heading)], 1)
+    t_mid = rng.uniform(0.0, duration_s - 30.0, n_walk)
+    rows_t, rows_e, xy = [], [], []
+    for e in range(n_static):
+        rows_t.append(t)
+        rows_e.append(np.full(len(t), e))
+        xy.append(np.repeat(xy_static[e][None, :], len(t), 0))
+    for w in range(n_walk):
+        keep = (t >= t_mid[w]) & (t < t_mid[w] + 30.0)
+        rows_t.append(t[keep])
+        rows_e.append(np.full(int(keep.sum()), n_static + w))
+        xy.append(mid[w] + (t[keep] - t_mid[w])[:, None] * v[w])
+    tt, em, pos = np.concatenate(rows_t), np.concatenate(rows_e), np.concatenate(xy)
+    order = np.argsort(tt, kind="stable")
+    tt, em, pos = tt[order], em[order], pos[order]
+    true = np.degrees(np.arctan2(pos[:, 0], pos[:, 1]))  # the sensor faces +y
+    peak = 15.0 - free_space_path_loss_db(np.hypot(pos[:, 0], pos[:, 1]), 2437.0)
+    r = rssi_pairs(true, peak, ANT, RX, rng)
+    return true, r, em, (tt * 1e9).astype(np.int64), n_static
+
+
+@pytest.mark.parametrize("seed", [11, 12])
+def test_static_emitters_all_around_a_fixed_sensor_need_to_prove_their_front(cal, seed) -> None:  # type: ignore[no-untyped-def]
+    true, r, em, t_ns, n_static = _fixed_sensor(seed)
+    ch = np.full(len(true), CHANNEL)
+
+    def run(guard):  # type: ignore[no-untyped-def]
+        res = guard.apply(cal, estimate(cal, r[:, 0], r[:, 1], ch), r[:, 0], r[:, 1], ch, em, t_ns)
+        v = res.valid
+        return res, _confident_wrong_share(res.angle_deg[v], res.sigma_deg[v], true[v])
+
+    # the level rule alone: a static emitter behind or beside has no brighter front level
+    _, without = run(FovGuard())
+    assert without > 0.15, without
+    res, share = run(FovGuard(prove_motion_deg=PROVE_MOTION_DEG))
+    assert share <= CONFIDENT_WRONG_MAX, share
+    # static emitters never prove they are in front: none of their bearings count
+    assert not res.valid[em < n_static].any()
+    # the price: walkers in the field of view count once they have swept a few degrees
+    walkers_front = (em >= n_static) & (np.abs(true) <= 20.0)
+    assert np.mean(res.valid[walkers_front]) > 0.3, np.mean(res.valid[walkers_front])
+
+
+def test_the_corner_ap_behind_rsu_nw_in_the_bundled_crossing() -> None:
+    from pathlib import Path
+
+    from rfsas_hw.twin.scenario import load_scenario
+    from rfsas_hw.twin.world import World
+
+    examples = Path(__file__).resolve().parents[2] / "examples"
+    scenario = load_scenario(examples / "crossing.yaml")
+    names = [e.id for e in scenario.spec.emitters]
+    rec = World(scenario).receptions("rsu-nw")
+    obs = rec.observations()
+    rsu = load_calibration(examples / "calibration" / "rsu-nw.yaml")
+    r = obs.rssi_dbm
+    true = rec.true_relative_deg[rec.heard.any(axis=1)]
+    ap = rec.emitter[rec.heard.any(axis=1)] == names.index("corner-ap")
+
+    def run(guard):  # type: ignore[no-untyped-def]
+        res = estimate(rsu, r[:, 0], r[:, 1], obs.channel)
+        res = guard.apply(rsu, res, r[:, 0], r[:, 1], obs.channel, obs.mac, obs.t_ns)
+        wrong = res.valid & (np.abs(_wrap(res.angle_deg - true)) > 3.0 * res.sigma_deg)
+        return res, wrong
+
+    res, wrong = run(FovGuard())
+    assert np.all(np.abs(true[ap]) > 170.0)  # the AP stands behind the sensor
+    assert wrong[ap].sum() > 50  # all its bearings confident-wrong without the rule
+    res, wrong = run(FovGuard(prove_motion_deg=PROVE_MOTION_DEG))
+    assert not res.valid[ap].any()
+    assert wrong.sum() <= CONFIDENT_WRONG_MAX * res.valid.sum()
+    assert res.valid[~ap].mean() > 0.4  # the price: the phone's first seconds

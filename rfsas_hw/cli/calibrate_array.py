@@ -20,7 +20,7 @@ import numpy as np
 from rich.console import Console
 from rich.table import Table
 
-from rfsas_hw.cli.calibrate_phase import _numbers
+from rfsas_hw.cli.options import comma_numbers
 from rfsas_hw.df import load_calibration, save_calibration
 from rfsas_hw.df.array import ArrayGeometry, load_geometry
 from rfsas_hw.df.arraycsi import fit_array_calibration, known_angle_errors_deg
@@ -71,7 +71,7 @@ def parse_geometry(text: str) -> ArrayGeometry:
     counts = {"ula": 2, "uca": 2, "ura": 4}
     if not sep or shape not in counts:
         return load_geometry(text)
-    values = _numbers(rest, counts[shape], f"--geometry {shape}")
+    values = comma_numbers(rest, counts[shape], f"--geometry {shape}")
     sizes = values[: 2 if shape == "ura" else 1]
     if not all(v.is_integer() and v >= 1 for v in sizes):
         raise ConfigError(f"--geometry {text!r}: element counts must be whole numbers ≥ 1")
@@ -121,15 +121,15 @@ def run_array(
     array = parse_geometry(geometry)
     fov = None
     if array_fov is not None:
-        lo, hi = _numbers(array_fov, 2, "--array-fov")
+        lo, hi = comma_numbers(array_fov, 2, "--array-fov")
         if not -180.0 <= lo < hi <= 180.0:
             raise ConfigError(f"--array-fov {array_fov!r}: LO < HI within ±180°")
         fov = (lo, hi)
     amplitude = load_calibration(inputs[0])
     known = None
     if known_position is not None:
-        x, y = _numbers(known_position, 2, "--known-position")
-        px, py, heading = _numbers(pose, 3, "--pose")
+        x, y = comma_numbers(known_position, 2, "--known-position")
+        px, py, heading = comma_numbers(pose, 3, "--pose")
         known = known_angle_deg(Pose(px, py, heading % 360.0), x, y)
         console.print(f"known transmitter at {known:+.2f}° from boresight")
     obs, true_deg, join = phase_frames(

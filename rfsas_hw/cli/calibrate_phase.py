@@ -9,7 +9,6 @@
 from __future__ import annotations
 
 import dataclasses
-import math
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any, TypeVar
@@ -18,22 +17,12 @@ import click
 from rich.console import Console
 from rich.table import Table
 
+from rfsas_hw.cli.options import comma_numbers
 from rfsas_hw.df import load_calibration, save_calibration
 from rfsas_hw.df.phasecal import PhaseCalibration, fit_phase_pair
 from rfsas_hw.errors import ConfigError
 
 F = TypeVar("F", bound=Callable[..., Any])
-
-
-def _numbers(text: str, count: int, option: str) -> list[float]:
-    message = f"{option} {text!r}: expected {count} comma-separated numbers"
-    try:
-        values = [float(v) for v in text.split(",")]
-    except ValueError as err:
-        raise ConfigError(message) from err
-    if len(values) != count or not all(math.isfinite(v) for v in values):
-        raise ConfigError(message)
-    return values
 
 
 def phase_options(func: F) -> F:
@@ -105,16 +94,16 @@ def run_phase(
         raise click.UsageError("--phase needs --baseline METRES (> 0)")
     if (angles_path is None) == (known_position is None):
         raise click.UsageError("--phase needs --angles LOG.csv or --known-position X,Y (one)")
-    a_f, b_f = _numbers(pair, 2, "--pair")
+    a_f, b_f = comma_numbers(pair, 2, "--pair")
     if not (a_f.is_integer() and b_f.is_integer() and 0 <= a_f < 8 and 0 <= b_f < 8 and a_f != b_f):
         raise ConfigError(f"--pair {pair!r}: two different antenna numbers 0–7, e.g. 0,1")
     a, b = int(a_f), int(b_f)
-    lo, hi = _numbers(phase_fov, 2, "--phase-fov")
+    lo, hi = comma_numbers(phase_fov, 2, "--phase-fov")
     amplitude = load_calibration(inputs[0])
     known = None
     if known_position is not None:
-        x, y = _numbers(known_position, 2, "--known-position")
-        px, py, heading = _numbers(phase_pose, 3, "--pose")
+        x, y = comma_numbers(known_position, 2, "--known-position")
+        px, py, heading = comma_numbers(phase_pose, 3, "--pose")
         known = known_angle_deg(Pose(px, py, heading % 360.0), x, y)
         console.print(f"known transmitter at {known:+.2f}° from boresight")
     obs, true_deg, join = phase_frames(

@@ -9,6 +9,7 @@
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any, TypeVar
@@ -16,6 +17,7 @@ from typing import Any, TypeVar
 import click
 
 from rfsas_hw.cli.outopts import OutputKind, OutputPath
+from rfsas_hw.errors import ConfigError
 
 F = TypeVar("F", bound=Callable[..., Any])
 
@@ -114,3 +116,19 @@ def keys_option(
         default=None,
         help=help,
     )
+
+
+def comma_numbers(text: str, count: int, option: str) -> list[float]:
+    """Parse an option value of ``count`` comma-separated finite numbers.
+
+    Raises:
+        ConfigError: not ``count`` numbers, or one is not finite; the message names ``option``.
+    """
+    message = f"{option} {text!r}: expected {count} comma-separated numbers"
+    try:
+        values = [float(v) for v in text.split(",")]
+    except ValueError as err:
+        raise ConfigError(message) from err
+    if len(values) != count or not all(math.isfinite(v) for v in values):
+        raise ConfigError(message)
+    return values

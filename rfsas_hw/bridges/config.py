@@ -77,6 +77,11 @@ EntityKind = Literal["pedestrian", "cyclist", "vehicle"]
 ENTITY_KINDS: tuple[EntityKind, ...] = ("pedestrian", "cyclist", "vehicle")
 
 
+def _check_floor(value: float | None, unit: str) -> None:
+    if value is not None and not (math.isfinite(value) and value >= 0.0):
+        raise ValueError(f"unit {unit!r}: env_floor_deg must be a finite number ≥ 0, got {value}")
+
+
 @dataclass(frozen=True)
 class UnitSpec:
     """A roadside unit: a direction-finding sensor at a fixed pose."""
@@ -97,6 +102,14 @@ class UnitSpec:
     """Scan plan."""
     threshold_dbm: dict[str, float] = field(default_factory=dict)
     """Sensitivity per technology, dBm."""
+    env_floor_deg: float | None = None
+    """Environment floor of the unit's bearings where it is mounted, degrees: the
+    angle error that multipath and scatter add beyond the calibration's σ model,
+    as a check against known positions measures it there (None: the calibration's
+    own floor; 0 for a turntable fit, which sees free space only)."""
+
+    def __post_init__(self) -> None:
+        _check_floor(self.env_floor_deg, self.id)
 
 
 @dataclass(frozen=True)
@@ -119,6 +132,14 @@ class EgoUnitSpec:
     """Scan plan."""
     threshold_dbm: dict[str, float] = field(default_factory=dict)
     """Sensitivity per technology, dBm."""
+    env_floor_deg: float | None = None
+    """Environment floor of the unit's bearings where it is mounted, degrees: the
+    angle error that multipath and scatter add beyond the calibration's σ model,
+    as a check against known positions measures it there (None: the calibration's
+    own floor; 0 for a turntable fit, which sees free space only)."""
+
+    def __post_init__(self) -> None:
+        _check_floor(self.env_floor_deg, self.id)
 
 
 @dataclass(frozen=True)

@@ -9,6 +9,7 @@ Example (every key optional except ``units``)::
       - id: rsu-ne
         pose: {x_m: 9.0, y_m: 9.0, heading_deg: 225.0}
         calibration: turntable   # or a calibration file, relative to this file
+        env_floor_deg: 3.0       # the site's bearing-sigma floor (default: the calibration's)
     ego_unit: {heading_offset_deg: 0.0}   # the ego vehicle's own unit (null: none)
     buildings:                   # added to what the simulator reports
       - {x_min_m: -60, x_max_m: -9, y_min_m: -60, y_max_m: -9, name: sw}

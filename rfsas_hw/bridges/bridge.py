@@ -363,10 +363,16 @@ class Bridge:
 
     def _calibration(self, sensor_id: str, unit: UnitSpec | EgoUnitSpec) -> Calibration:
         if unit.calibration != "turntable":
-            return load_calibration(unit.calibration)
-        return fitted_calibration(
-            self.scenario.sensor(sensor_id), seed=self.config.calibration_seed
-        )
+            cal = load_calibration(unit.calibration)
+        else:
+            cal = fitted_calibration(
+                self.scenario.sensor(sensor_id), seed=self.config.calibration_seed
+            )
+        if unit.env_floor_deg is None:
+            return cal
+        # the site's floor replaces the calibration's own in every table's σ model
+        tables = tuple(replace(t, env_floor_deg=unit.env_floor_deg) for t in cal.tables)
+        return replace(cal, tables=tables)
 
     @property
     def unit_ids(self) -> list[str]:

@@ -9,6 +9,7 @@ Example (every key optional except ``units``)::
       - id: rsu-ne
         pose: {x_m: 9.0, y_m: 9.0, heading_deg: 225.0}
         calibration: turntable   # or a calibration file, relative to this file
+        env_floor_deg: 3.0       # the site's bearing-sigma floor (default: the calibration's)
     ego_unit: {heading_offset_deg: 0.0}   # the ego vehicle's own unit (null: none)
     buildings:                   # added to what the simulator reports
       - {x_min_m: -60, x_max_m: -9, y_min_m: -60, y_max_m: -9, name: sw}
@@ -77,6 +78,11 @@ EntityKind = Literal["pedestrian", "cyclist", "vehicle"]
 ENTITY_KINDS: tuple[EntityKind, ...] = ("pedestrian", "cyclist", "vehicle")
 
 
+def _check_floor(value: float | None, unit: str) -> None:
+    if value is not None and not (math.isfinite(value) and value >= 0.0):
+        raise ValueError(f"unit {unit!r}: env_floor_deg must be a finite number ≥ 0, got {value}")
+
+
 @dataclass(frozen=True)
 class UnitSpec:
     """A roadside unit: a direction-finding sensor at a fixed pose."""
@@ -97,6 +103,14 @@ class UnitSpec:
     """Scan plan."""
     threshold_dbm: dict[str, float] = field(default_factory=dict)
     """Sensitivity per technology, dBm."""
+    env_floor_deg: float | None = None
+    """Environment floor of the unit's bearings where it is mounted, degrees: the
+    angle error that multipath and scatter add beyond the calibration's σ model,
+    as a check against known positions measures it there (None: the calibration's
+    own floor; 0 for a turntable fit, which sees free space only)."""
+
+    def __post_init__(self) -> None:
+        _check_floor(self.env_floor_deg, self.id)
 
 
 @dataclass(frozen=True)
@@ -119,6 +133,14 @@ class EgoUnitSpec:
     """Scan plan."""
     threshold_dbm: dict[str, float] = field(default_factory=dict)
     """Sensitivity per technology, dBm."""
+    env_floor_deg: float | None = None
+    """Environment floor of the unit's bearings where it is mounted, degrees: the
+    angle error that multipath and scatter add beyond the calibration's σ model,
+    as a check against known positions measures it there (None: the calibration's
+    own floor; 0 for a turntable fit, which sees free space only)."""
+
+    def __post_init__(self) -> None:
+        _check_floor(self.env_floor_deg, self.id)
 
 
 @dataclass(frozen=True)

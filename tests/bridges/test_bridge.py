@@ -17,7 +17,7 @@ from rfsas_hw.bridges.config import (
 )
 from rfsas_hw.errors import ConfigError, SimulationError
 
-from .helpers import config_data, drive
+from .helpers import UNITS, config_data, drive
 
 
 def test_unknown_keys_and_bad_values_are_named(tmp_path: Path) -> None:
@@ -118,3 +118,27 @@ def test_bad_steps_are_refused() -> None:
             bridge.step(0.1, car, [ped, ped])
         with pytest.raises(SimulationError, match="reserved"):
             bridge.step(0.2, car, [Entity("ego", "pedestrian", 0.0, 0.0, 0.0)])
+
+
+def test_a_units_site_floor_widens_its_bearings_sigma() -> None:
+    """``env_floor_deg`` replaces the calibration's environment floor, so every bearing's
+    σ covers it; without it the turntable fit's (free-space) σ stays."""
+    with pytest.raises(ConfigError, match=r"'rsu-nw'.*env_floor_deg"):
+        units = [dict(UNITS[0], env_floor_deg=-1.0), *UNITS[1:]]
+        bridge_config_from_mapping(config_data(units=units), "u")
+    floor = 6.0
+    plain = bridge_config_from_mapping(config_data(), "u")
+    units = [dict(u, env_floor_deg=floor) for u in UNITS]
+    floored = bridge_config_from_mapping(
+        config_data(units=units, ego_unit={"env_floor_deg": floor}), "u"
+    )
+    sigmas: dict[bool, list[float]] = {}
+    for with_floor, cfg in ((False, plain), (True, floored)):
+        with Bridge(cfg) as bridge:
+            tables = [t for c in bridge.calibrations.values() for t in c.tables]
+            assert all((t.env_floor_deg == floor) == with_floor for t in tables)
+            sigmas[with_floor] = [
+                float(s) for r in drive(bridge) for b in r.bearings.values() for s in b.sigma_deg
+            ]
+    assert sigmas[False] and sigmas[True]
+    assert min(sigmas[False]) < floor <= min(sigmas[True])

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from rfsas_hw.ncap.rfsas import RSU_POSE, bridge_config
+from rfsas_hw.ncap.rfsas import RSU_POSE, SITE_FLOOR_DEG, bridge_config
 from rfsas_hw.ncap.scenarios import PARKED_LOSS_DB, VAN_LOSS_DB, Cell, plan
 from rfsas_hw.twin.rfworld import blockage_db, building_array
 
@@ -15,6 +15,8 @@ def test_deployments_and_devices() -> None:
     both = bridge_config("car+rsu", "phone-idle", 7, obstacles)
     assert [u.pose for u in both.units] == [RSU_POSE] and both.ego_unit is not None
     assert both.seed == 7
+    # both units carry the track's measured floor, not the turntable's free space
+    assert both.units[0].env_floor_deg == both.ego_unit.env_floor_deg == SITE_FLOOR_DEG > 0
     assert both.devices["pedestrian"].model == "phone-idle"
     assert both.devices["cyclist"].penetration == 1.0
     car = bridge_config("car", "phone-active", 0, obstacles)

@@ -67,9 +67,9 @@ _preset_option = click.option(
     show_default=True,
     help="protocol: the risk-progress reward at quiet and busy corners, no prior, 8 "
     "environments, PPO n_steps 128, batch 256, entropy 0.01 (learned at or below the rule "
-    "in the multi-seed protocol); method: method.md §10 as written (its reward, one crosser, "
-    "one environment, n_steps 64, batch 64, entropy 0). --reward, --scenario, --prior and "
-    "the PPO options override it.",
+    "in the multi-seed protocol); method: method.md "
+    "§10 as written (its reward, one crosser, one environment, n_steps 64, batch 64, "
+    "entropy 0). --reward, --scenario, --prior and the PPO options override it.",
 )
 _seeds_option = click.option(
     "--seeds",
@@ -132,7 +132,23 @@ def _env_config(
     "--steps",
     type=click.IntRange(min=1),
     default=None,
-    help="Environment steps to train [default: the preset's; protocol 150000, method 40000].",
+    help="Environment steps to train, a warm start's included "
+    "[default: the preset's; protocol 150000, method 40000].",
+)
+@click.option(
+    "--warm-start",
+    "warm_start",
+    type=click.IntRange(min=0),
+    default=0,
+    show_default=True,
+    help="Episodes of the rule (resuming after a stop) cloned into the policy before PPO, "
+    "their steps part of --steps; 0: PPO starts from a random policy.",
+)
+@click.option(
+    "--gamma",
+    type=click.FloatRange(min=0.0, max=1.0, min_open=True),
+    default=None,
+    help="PPO discount [default: 0.99].",
 )
 @out_option(
     "Where to save the model (zip).",
@@ -187,6 +203,8 @@ def _env_config(
 @_detail_option
 def train(
     steps: int | None,
+    warm_start: int,
+    gamma: float | None,
     model_path: Path,
     log_dir: Path | None,
     seed: int,
@@ -212,8 +230,9 @@ def train(
     chosen = named(preset)
     steps = chosen.steps if steps is None else steps
     n_envs = chosen.n_envs if n_envs is None else n_envs
-    given = {"n_steps": n_steps, "batch_size": batch_size, "ent_coef": ent_coef}
+    given = {"n_steps": n_steps, "batch_size": batch_size, "ent_coef": ent_coef, "gamma": gamma}
     ppo = {**chosen.ppo, **{k: v for k, v in given.items() if v is not None}}
+    ppo["warm_start_episodes"] = warm_start
     seed_list = _parse_seeds(seeds)
     if seed_list is not None:
         _train_seeds(seed_list, steps, model_path, config, n_envs, ppo)
@@ -249,8 +268,15 @@ def train(
         f"detail {config.sensing.detail}, reward {config.reward.kind}, "
         f"scenario {config.scenario.kind}, prior {'on' if config.prior.observe else 'off'}, "
         f"{n_envs} env(s), PPO n_steps {ppo['n_steps']}, batch {ppo['batch_size']}, "
-        f"entropy {ppo['ent_coef']:g}"
+        f"entropy {ppo['ent_coef']:g}, discount {ppo.get('gamma', 0.99):g}"
     )
+    if result.warm_start_steps:
+        console.print(
+            f"warm start: {result.warm_start_episodes} "
+            f"episode{'s' if result.warm_start_episodes != 1 else ''} of the rule "
+            f"({result.warm_start_steps} of the steps), its action in "
+            f"{result.agreement:.0%} of their states after cloning"
+        )
     console.print(f"model: {result.model_path}")
     monitor = "monitor.csv" if n_envs == 1 else "env-<i>.monitor.csv"
     console.print(f"logs:  {logs / 'progress.csv'}, {logs / monitor}")

@@ -66,14 +66,25 @@ class Policy(Protocol):
 
 @dataclass
 class RulePolicy:
-    """Brake while the estimated risk (observation entry 2) is above the threshold, else coast."""
+    """Brake while the estimated risk (observation entry 2) is above the threshold, else coast.
+
+    With ``resume`` it accelerates instead of coasting: below the speed limit
+    it drives back up to it, and at the limit accelerating holds the speed as
+    coasting does. The rule as the method states it (and as it is evaluated)
+    coasts, and a car that coasts at a standstill stays there; the warm start
+    (:mod:`rfsas_hw.envs.warmstart`) clones the resuming rule, so that the
+    policy PPO starts from drives on after a stop.
+    """
 
     threshold: float
     name: str = "rule"
+    resume: bool = False
 
     def act(self, obs: ObsArray) -> int:
-        """BRAKE or COAST."""
-        return BRAKE if float(obs[2]) > self.threshold else COAST
+        """BRAKE, else COAST (or ACCELERATE with ``resume``)."""
+        if float(obs[2]) > self.threshold:
+            return BRAKE
+        return ACCELERATE if self.resume else COAST
 
 
 @dataclass
@@ -150,9 +161,18 @@ class TrainResult:
     """Episodes completed during training."""
     log_dir: Path | None
     """Directory of progress.csv and monitor.csv (None: no logs)."""
+    warm_start_steps: int = 0
+    """Of ``steps``, the environment steps of the rule's demonstrations (0: no warm start)."""
+    warm_start_episodes: int = 0
+    """Episodes of the rule's demonstrations."""
+    agreement: float = float("nan")
+    """After the warm start, the fraction of the demonstrated states where the policy's
+    most likely action is the rule's (NaN: no warm start)."""
 
 
-def _progress_callback(progress: Progress | None, total: int, max_seconds: float | None) -> Any:
+def _progress_callback(
+    progress: Progress | None, total: int, max_seconds: float | None, done_before: int = 0
+) -> Any:
     from stable_baselines3.common.callbacks import BaseCallback
 
     class _Progress(BaseCallback):
@@ -168,7 +188,7 @@ def _progress_callback(progress: Progress | None, total: int, max_seconds: float
             if dones is not None:
                 self.episodes += int(np.sum(dones))
             if progress is not None:
-                progress(min(self.num_timesteps, total), total)
+                progress(min(done_before + self.num_timesteps, total), total)
             return time.perf_counter() < self.deadline
 
     return _Progress()
@@ -184,6 +204,7 @@ def train(
     progress: Progress | None = None,
     max_seconds: float | None = None,
     n_envs: int = 1,
+    warm_start_episodes: int = 0,
     **ppo: Any,
 ) -> TrainResult:
     """Train PPO on the environment for ``steps`` steps and save the model.
@@ -196,10 +217,20 @@ def train(
     shared 2-core machine processes would only compete); each writes its own
     ``env-<i>.monitor.csv``, and ``n_steps`` is per environment.
 
+    With ``warm_start_episodes`` > 0 the policy starts from the rule
+    (:class:`RulePolicy` at the configuration's threshold, resuming after a
+    stop): that many episodes of the rule (fewer when they would take more
+    than a quarter of ``steps``), a fifth of their actions random, are cloned
+    into the actor and the critic (:mod:`rfsas_hw.envs.warmstart`) before PPO
+    runs. Their environment steps count in ``steps``: PPO gets the rest (at
+    least one rollout).
+
     Raises:
         MissingDependencyError: stable-baselines3 is not installed.
-        ConfigError: ``steps`` < 1 or ``n_envs`` < 1.
+        ConfigError: ``steps`` < 1, ``n_envs`` < 1 or ``warm_start_episodes`` < 0.
     """
+    if warm_start_episodes < 0:
+        raise ConfigError(f"warm_start_episodes must be >= 0, got {warm_start_episodes}")
     if steps < 1:
         raise ConfigError(f"training needs at least one step, got {steps}")
     if n_envs < 1:
@@ -230,17 +261,42 @@ def train(
     model = PPO("MlpPolicy", env, seed=seed, device="cpu", verbose=0, **params)
     if logs is not None:
         model.set_logger(configure(str(logs), ["csv"]))
-    callback = _progress_callback(progress, steps, max_seconds)
     start = time.perf_counter()
+    demo_steps, demo_episodes, agreement = 0, 0, math.nan
     try:
-        model.learn(total_timesteps=steps, callback=callback)
+        if warm_start_episodes > 0:
+            demo_steps, demo_episodes, agreement = _warm_start(
+                model, config, seed, warm_start_episodes, steps
+            )
+            if progress is not None:
+                progress(min(demo_steps, steps), steps)
+        callback = _progress_callback(progress, steps, max_seconds, demo_steps)
+        model.learn(total_timesteps=max(steps - demo_steps, 1), callback=callback)
     finally:
         model.logger.close()
         env.close()
     seconds = time.perf_counter() - start
     model.save(str(out))
     saved = out if out.suffix == ".zip" else out.with_name(out.name + ".zip")
-    return TrainResult(saved, int(model.num_timesteps), seconds, callback.episodes, logs)
+    done = int(model.num_timesteps) + demo_steps
+    return TrainResult(
+        saved, done, seconds, callback.episodes, logs, demo_steps, demo_episodes, agreement
+    )
+
+
+def _warm_start(
+    model: Any, config: EnvConfig | None, seed: int, episodes: int, budget: int
+) -> tuple[int, int, float]:
+    """Clone the resuming rule into ``model``'s policy; the demonstrations' steps and
+    episodes, and the agreement after cloning."""
+    from rfsas_hw.envs.warmstart import clone, demonstrations
+
+    teacher = RulePolicy((config or EnvConfig()).risk_threshold, resume=True)
+    demo = demonstrations(
+        teacher, episodes, config=config, seed=seed, gamma=model.gamma, max_steps=budget // 4
+    )
+    stats = clone(model.policy, demo, seed=seed)
+    return demo.steps, demo.episodes, stats.agreement
 
 
 @dataclass(frozen=True)

@@ -201,6 +201,7 @@ def test_cli_defaults_train_the_protocol_configuration(tmp_path: Path) -> None:
     assert "scenario corners" in out and "prior off" in out
     ppo = LearnedPolicy.load(model).model
     assert (ppo.n_envs, ppo.n_steps, ppo.batch_size, ppo.ent_coef) == (8, 128, 256, 0.01)
+    assert ppo.gamma == 0.99 and "discount 0.99" in out and "warm start" not in out
     assert PRESETS["protocol"].steps <= 150_000  # the documented budget of a few minutes
     # the method's settings are one option away
     model = tmp_path / "method.zip"
@@ -218,3 +219,11 @@ def test_cli_defaults_train_the_protocol_configuration(tmp_path: Path) -> None:
     model = tmp_path / "reward.zip"
     code, out = rfsas("sim", "train", "--steps", "64", "--reward", "method", "-o", str(model))
     assert code == 0 and "preset protocol" in out and "reward method" in out
+    # the warm start and the discount are options; 64 steps leave room for one episode
+    model = tmp_path / "warm.zip"
+    code, out = rfsas(
+        "sim", "train", "--steps", "64", "--warm-start", "100", "--gamma", "0.999", "-o", str(model)
+    )  # fmt: skip
+    assert code == 0, out
+    assert "warm start: 1 episode of the rule" in out and "discount 0.999" in out
+    assert LearnedPolicy.load(model).model.gamma == 0.999

@@ -11,9 +11,12 @@ from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
+from rfsas_hw.cli.options import runner_options
 from rfsas_hw.cli.outopts import OutputPath
 from rfsas_hw.errors import ConfigError
 
+DEFAULT_WORKERS = 2
+"""Worker processes of the local cluster unless --workers says otherwise."""
 ALL = "all"
 TN = "tn"
 
@@ -86,19 +89,7 @@ def _speeds(value: str | None) -> list[float] | None:
     "--seeds", default=3, show_default=True, type=click.IntRange(1), help="Seeds per cell."
 )
 @click.option("--first-seed", default=0, show_default=True, type=click.IntRange(0))
-@click.option(
-    "--workers",
-    default=2,
-    show_default=True,
-    type=click.IntRange(0),
-    help="Worker processes of the local Dask cluster (0: run here, no Dask).",
-)
-@click.option(
-    "--scheduler",
-    metavar="ADDRESS",
-    default=None,
-    help="Use a running Dask scheduler (tcp://host:8786) instead of a local cluster.",
-)
+@runner_options(default_workers=DEFAULT_WORKERS, what="runs")
 @click.option(
     "--out",
     "out_dir",

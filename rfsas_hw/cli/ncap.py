@@ -58,7 +58,8 @@ def _speeds(value: str | None) -> list[float] | None:
     "--scenarios",
     default=ALL,
     show_default=True,
-    help="Comma-separated scenarios (CPNA, CPFA, CPNCO, CPLA, CBNA, CBNAO, CBFA, CBLA, "
+    help="Comma-separated scenarios (CPNA, CPFA, CPNCO, CPLA, CBNA, CBNAO, CBFA, CBLA, CPTA, "
+    "CBTA, "
     "TN-ALONG, TN-KERB, TN-BEHIND, TN-BIKELANE, TN-PHONES), 'tn' for the true "
     "negatives, 'all' for everything.",
 )
@@ -163,6 +164,7 @@ def ncap(
         "nuisance": {k: list(v) for k, v in nuis.items()},
         "goals": goals(scored, pts, nuis),
         "wall_s_total": sum(r.wall_s for r in results),
+        "cpu_s_total": sum(r.cpu_s for r in results),
     }
     write_text_atomic(summary_path, json.dumps(summary, indent=1) + "\n")
     if pngs:

@@ -81,6 +81,10 @@ def _completed(
     if not items:
         return
     distributed: Any = require("distributed")
+    if not logging.getLogger().isEnabledFor(logging.INFO):
+        # Dask sets its own loggers to INFO when imported: its start-up and shut-down
+        # chatter would reach the terminal unless the application asked for INFO
+        logging.getLogger("distributed").setLevel(logging.WARNING)
     cluster = None
     if scheduler is None:
         # loopback only, on free ports: nothing outside this machine can talk to the

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import logging
 from pathlib import Path
 
 import click
@@ -114,8 +113,6 @@ def ncap(
     from rfsas_hw.ncap.sweep import configs, run_sweep, specs_for
     from rfsas_hw.outpaths import AtomicFile, check_output, inside, safe_name, write_text_atomic
 
-    if not logging.getLogger().isEnabledFor(logging.INFO):
-        logging.getLogger("distributed").setLevel(logging.WARNING)  # its start-up chatter
     names = _scenario_names(scenarios)
     chosen = cells(names, _speeds(speeds))
     if not chosen:

@@ -18,7 +18,7 @@ from rfsas_hw.bridges.bridge import Entity
 
 Point = tuple[float, float]
 
-__all__ = ["box_distance", "corners", "overlap"]
+__all__ = ["box_distance", "corners", "overlap", "reach"]
 
 
 def corners(e: Entity) -> list[Point]:
@@ -50,8 +50,27 @@ def _polys_overlap(a: Sequence[Point], b: Sequence[Point]) -> bool:
     return not (_separated(a, b) or _separated(b, a))
 
 
+_ROUNDING_M = 1e-9
+"""Slack of the circle test in :func:`overlap`, metres: far above floating-point rounding of
+a few metres, far below any distance that matters."""
+
+
+def reach(a: Entity, b: Entity) -> float:
+    """The sum of the boxes' half-diagonals, metres: each box lies within that circle round
+    its centre, so boxes whose centres are farther apart than this (plus a rounding slack,
+    :data:`_ROUNDING_M`) cannot touch."""
+    return (math.hypot(a.length_m, a.width_m) + math.hypot(b.length_m, b.width_m)) / 2 + (
+        _ROUNDING_M
+    )
+
+
 def overlap(a: Entity, b: Entity) -> bool:
-    """Whether the boxes of ``a`` and ``b`` overlap (touching counts)."""
+    """Whether the boxes of ``a`` and ``b`` overlap (touching counts).
+
+    Boxes farther apart than their :func:`reach` are not tested edge by edge.
+    """
+    if math.hypot(a.x_m - b.x_m, a.y_m - b.y_m) > reach(a, b):
+        return False
     return _polys_overlap(corners(a), corners(b))
 
 

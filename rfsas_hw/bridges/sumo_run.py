@@ -6,6 +6,11 @@ profile; :mod:`rfsas_hw.bridges.config`) and a ``sumo:`` section
 walking speeds vary by seed). Per seed, SUMO gets ``--seed``, the bridge the
 same seed, and every person a walking speed drawn from it.
 
+Seeds run on the project's runner (:func:`run_seeds` through
+:mod:`rfsas_hw.parallel`): side by side on Dask workers, each a
+:class:`SeedJob` with its own SUMO, or one after the other in this process;
+the results do not depend on the number of workers.
+
 Controllers: ``rfsas`` (advisories act on the ego), ``ignore`` (RF-SAS runs,
 the ego ignores it: the baseline with advisory times) and ``off`` (no RF-SAS
 at all: the fastest baseline).
@@ -23,10 +28,11 @@ time of SUMO's steps and the bridge's.
 from __future__ import annotations
 
 import datetime as dt
+import io
 import json
 import math
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import IO, Any, Literal
@@ -46,15 +52,18 @@ from rfsas_hw.bridges.sumo import (
 from rfsas_hw.bridges.vru_score import VruScore, vru_class
 from rfsas_hw.config import from_mapping, read_yaml
 from rfsas_hw.errors import ConfigError, SimulationError
+from rfsas_hw.parallel import completed, in_order
 from rfsas_hw.twin.rng import stream
 
 Controller = Literal["rfsas", "ignore", "off"]
 
 __all__ = [
     "RunSummary",
+    "SeedJob",
     "SeedResult",
     "SumoRunConfig",
     "load_run_file",
+    "run_job",
     "run_seed",
     "run_seeds",
 ]
@@ -433,6 +442,42 @@ def _loop(
     result.median_fix_error_m = float(np.median(errors)) if errors else math.nan
 
 
+@dataclass(frozen=True)
+class SeedJob:
+    """One seed of a ``sumo run`` as handed to the runner (picklable: it may run in a worker
+    process)."""
+
+    sumocfg: Path
+    config: BridgeConfig
+    run: SumoRunConfig
+    seed: int
+    controller: Controller = "rfsas"
+    api: SumoApi = "libsumo"
+    truth_path: Path | None = None
+    fcd_path: Path | None = None
+    keep_steps: bool = False
+    """Give the step lines back (JSON lines, hashed ids only)."""
+    gui: bool = False
+    send: str | None = None
+    keys_dir: Path | None = None
+
+
+def run_job(job: SeedJob, on_step: Callable[[float], None] | None = None) -> tuple[SeedResult, str]:
+    """:func:`run_seed` of ``job``; its result and its step lines (empty unless
+    ``job.keep_steps``).
+
+    Raises:
+        as :func:`run_seed`.
+    """
+    lines = io.StringIO() if job.keep_steps else None
+    result = run_seed(
+        job.sumocfg, job.config, job.run, job.seed, controller=job.controller, api=job.api,
+        gui=job.gui, out=lines, truth_path=job.truth_path, fcd_path=job.fcd_path,
+        on_step=on_step, send=job.send, keys_dir=job.keys_dir,
+    )  # fmt: skip
+    return result, lines.getvalue() if lines is not None else ""
+
+
 def run_seeds(
     sumocfg: str | Path,
     config: BridgeConfig,
@@ -443,19 +488,70 @@ def run_seeds(
     api: SumoApi = "libsumo",
     out: IO[str] | None = None,
     on_seed: Callable[[SeedResult], None] | None = None,
-    **options: Any,
+    truth_paths: Mapping[int, Path] | None = None,
+    fcd_path: Path | None = None,
+    workers: int = 0,
+    scheduler: str | None = None,
+    on_step: Callable[[int, float], None] | None = None,
+    gui: bool = False,
+    send: str | None = None,
+    keys_dir: Path | None = None,
 ) -> RunSummary:
-    """:func:`run_seed` for every seed; the summary.
+    """:func:`run_seed` for every seed on the project's runner (:mod:`rfsas_hw.parallel`:
+    ``workers`` processes of a local Dask cluster, a ``scheduler``, or this process with
+    ``workers=0``); the summary, seeds in the given order.
+
+    Every seed is its own SUMO run with its own seed, so the results do not depend on
+    ``workers``. ``out`` gets each seed's step lines and then its ``seed`` record, seed by
+    seed in the given order (a seed that finished early waits for the ones before it).
+
+    Args:
+        truth_paths: the bridge's truth file per seed.
+        fcd_path: SUMO's FCD output of the first seed.
+        on_seed: called with each seed's result, in the given order.
+        on_step: called with the seed and the simulation time after every step; only
+            when running here (``workers=0`` and no scheduler).
+        gui, send, keys_dir: as :func:`run_seed`; only when running here.
 
     Raises:
-        as :func:`run_seed`.
+        ConfigError: repeated seeds, or ``gui``/``send`` with workers or a scheduler.
+        MissingDependencyError: Dask distributed is needed and not installed.
+        as :func:`run_seed` (the first failing seed's error).
     """
+    if len(set(seeds)) != len(seeds):
+        raise ConfigError(f"seeds must be distinct, got {list(seeds)}")
+    here = workers == 0 and scheduler is None
+    if (gui or send is not None) and not here:
+        raise ConfigError(
+            "--gui and --send run the seeds in this process, one after the other "
+            "(not with --workers or --scheduler)"
+        )
+    jobs = [
+        SeedJob(
+            Path(sumocfg), config, run, seed, controller, api,
+            truth_path=(truth_paths or {}).get(seed),
+            fcd_path=fcd_path if k == 0 else None,
+            keep_steps=out is not None, gui=gui, send=send, keys_dir=keys_dir,
+        )
+        for k, seed in enumerate(seeds)
+    ]  # fmt: skip
+    fn: Callable[[SeedJob], tuple[SeedResult, str]] = run_job
+    if here and on_step is not None:
+        step = on_step
+
+        def fn(job: SeedJob) -> tuple[SeedResult, str]:
+            return run_job(job, lambda t: step(job.seed, t))
+
     summary = RunSummary(controller)
-    for seed in seeds:
-        r = run_seed(sumocfg, config, run, seed, controller=controller, api=api, out=out, **options)
-        summary.results.append(r)
-        if out is not None:
-            out.write(json.dumps({"record": "seed", **r.as_dict()}) + "\n")
-        if on_seed is not None:
-            on_seed(r)
+    pairs = completed(fn, jobs, workers=workers, scheduler=scheduler, name="sumo-seed")
+    try:
+        for _, (r, lines) in in_order(pairs):
+            summary.results.append(r)
+            if out is not None:
+                out.write(lines)
+                out.write(json.dumps({"record": "seed", **r.as_dict()}) + "\n")
+            if on_seed is not None:
+                on_seed(r)
+    finally:
+        pairs.close()
     return summary

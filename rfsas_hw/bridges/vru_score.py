@@ -18,7 +18,7 @@ import math
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 
-from rfsas_hw.bridges.boxes import box_distance
+from rfsas_hw.bridges.boxes import box_distance, reach
 from rfsas_hw.bridges.bridge import Entity
 
 VRU_VCLASSES: tuple[str, ...] = ("bicycle", "moped", "motorcycle")
@@ -84,6 +84,9 @@ class VruScore:
         """
         touching: dict[str, str] = {}
         for v, cls in vrus:
+            known = self.min_gap_by_class.get(cls, math.inf)
+            if math.hypot(v.x_m - ego.x_m, v.y_m - ego.y_m) - reach(ego, v) > known:
+                continue  # even the boxes' closest possible gap is above the smallest so far
             gap = box_distance(ego, v)
             self.min_gap_m = min(self.min_gap_m, gap)
             self.min_gap_by_class[cls] = min(self.min_gap_by_class.get(cls, math.inf), gap)

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import logging
 from pathlib import Path
 
 import click
@@ -11,9 +10,12 @@ from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
+from rfsas_hw.cli.options import runner_options
 from rfsas_hw.cli.outopts import OutputPath
 from rfsas_hw.errors import ConfigError
 
+DEFAULT_WORKERS = 2
+"""Worker processes of the local cluster unless --workers says otherwise."""
 ALL = "all"
 TN = "tn"
 
@@ -55,7 +57,8 @@ def _speeds(value: str | None) -> list[float] | None:
     "--scenarios",
     default=ALL,
     show_default=True,
-    help="Comma-separated scenarios (CPNA, CPFA, CPNCO, CPLA, CBNA, CBNAO, CBFA, CBLA, "
+    help="Comma-separated scenarios (CPNA, CPFA, CPNCO, CPLA, CBNA, CBNAO, CBFA, CBLA, CPTA, "
+    "CBTA, "
     "TN-ALONG, TN-KERB, TN-BEHIND, TN-BIKELANE, TN-PHONES), 'tn' for the true "
     "negatives, 'all' for everything.",
 )
@@ -86,19 +89,7 @@ def _speeds(value: str | None) -> list[float] | None:
     "--seeds", default=3, show_default=True, type=click.IntRange(1), help="Seeds per cell."
 )
 @click.option("--first-seed", default=0, show_default=True, type=click.IntRange(0))
-@click.option(
-    "--workers",
-    default=2,
-    show_default=True,
-    type=click.IntRange(0),
-    help="Worker processes of the local Dask cluster (0: run here, no Dask).",
-)
-@click.option(
-    "--scheduler",
-    metavar="ADDRESS",
-    default=None,
-    help="Use a running Dask scheduler (tcp://host:8786) instead of a local cluster.",
-)
+@runner_options(default_workers=DEFAULT_WORKERS, what="runs")
 @click.option(
     "--out",
     "out_dir",
@@ -122,8 +113,6 @@ def ncap(
     from rfsas_hw.ncap.sweep import configs, run_sweep, specs_for
     from rfsas_hw.outpaths import AtomicFile, check_output, inside, safe_name, write_text_atomic
 
-    if not logging.getLogger().isEnabledFor(logging.INFO):
-        logging.getLogger("distributed").setLevel(logging.WARNING)  # its start-up chatter
     names = _scenario_names(scenarios)
     chosen = cells(names, _speeds(speeds))
     if not chosen:
@@ -172,6 +161,7 @@ def ncap(
         "nuisance": {k: list(v) for k, v in nuis.items()},
         "goals": goals(scored, pts, nuis),
         "wall_s_total": sum(r.wall_s for r in results),
+        "cpu_s_total": sum(r.cpu_s for r in results),
     }
     write_text_atomic(summary_path, json.dumps(summary, indent=1) + "\n")
     if pngs:

@@ -5,6 +5,7 @@
 - :func:`duration_option`: ``--duration SECONDS``, how long a command runs.
 - :func:`json_option`: ``--json``, one JSON object instead of a table.
 - :func:`keys_option`: ``--keys DIR``, the command's key directory.
+- :func:`runner_options`: ``--workers N`` and ``--scheduler ADDRESS``, where sweeps run.
 """
 
 from __future__ import annotations
@@ -132,3 +133,37 @@ def comma_numbers(text: str, count: int, option: str) -> list[float]:
     if len(values) != count or not all(math.isfinite(v) for v in values):
         raise ConfigError(message)
     return values
+
+
+def runner_options(*, default_workers: int | None = None, what: str = "seeds") -> Callable[[F], F]:
+    """``--workers N`` and ``--scheduler ADDRESS`` of the project's runner
+    (:mod:`rfsas_hw.parallel`), passed as ``workers`` and ``scheduler``.
+
+    Args:
+        default_workers: the default of ``--workers`` (None: the command decides, see
+            :func:`rfsas_hw.parallel.default_workers`).
+        what: what the workers run, for the help text.
+    """
+    auto = f"2 with several {what}, else 0"
+    workers = click.option(
+        "--workers",
+        type=click.IntRange(0),
+        default=default_workers,
+        show_default=default_workers is not None,
+        help=f"Worker processes of the local Dask cluster (0: the {what} run here, one after "
+        "the other, no Dask)"
+        + ("" if default_workers is not None else f" [default: {auto}]")
+        + ".",
+    )
+    scheduler = click.option(
+        "--scheduler",
+        metavar="ADDRESS",
+        default=None,
+        help=f"Use a running Dask scheduler (tcp://host:8786) for the {what} instead of a "
+        "local cluster.",
+    )
+
+    def both(f: F) -> F:
+        return workers(scheduler(f))
+
+    return both

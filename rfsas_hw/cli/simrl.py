@@ -24,7 +24,7 @@ from rich.progress import (
 )
 from rich.table import Table
 
-from rfsas_hw.cli.options import out_option
+from rfsas_hw.cli.options import out_option, runner_options
 from rfsas_hw.cli.outopts import OutputPath
 from rfsas_hw.outpaths import check_output
 
@@ -197,6 +197,7 @@ def _env_config(
 )
 @_preset_option
 @_seeds_option
+@runner_options(what="seeds")
 @_prior_option
 @_scenario_option
 @_config_option
@@ -215,6 +216,8 @@ def train(
     ent_coef: float | None,
     preset: str,
     seeds: str | None,
+    workers: int | None,
+    scheduler: str | None,
     prior: str | None,
     scenario: str | None,
     config_path: Path | None,
@@ -235,7 +238,7 @@ def train(
     ppo["warm_start_episodes"] = warm_start
     seed_list = _parse_seeds(seeds)
     if seed_list is not None:
-        _train_seeds(seed_list, steps, model_path, config, n_envs, ppo)
+        _train_seeds(seed_list, steps, model_path, config, n_envs, ppo, workers, scheduler)
         return
     logs = log_dir if log_dir is not None else model_path.with_name(model_path.stem + "-logs")
     columns = (
@@ -289,9 +292,15 @@ def _train_seeds(
     config: EnvConfig,
     n_envs: int,
     ppo: dict[str, Any],
+    workers: int | None,
+    scheduler: str | None,
 ) -> None:
     from rfsas_hw.envs import protocol
+    from rfsas_hw.parallel import default_workers
 
+    if workers is None:
+        workers = default_workers(len(seeds), here=scheduler is not None)
+    here = workers == 0 and scheduler is None
     columns = (
         TextColumn("seed {task.fields[seed]}"),
         BarColumn(),
@@ -309,9 +318,14 @@ def _train_seeds(
 
             return update
 
+        def finished(s: int, result: Any) -> None:  # side by side: a seed's bar fills at its end
+            bar.update(tasks[s], completed=steps)
+
         results = protocol.train_seeds(
-            seeds, steps, model_path, config=config, n_envs=n_envs, progress=progress, **ppo
-        )
+            seeds, steps, model_path, config=config, n_envs=n_envs,
+            progress=progress if here else None, on_seed=finished, workers=workers,
+            scheduler=scheduler, **ppo,
+        )  # fmt: skip
     for s, result in zip(seeds, results, strict=True):
         console.print(
             f"seed {s}: trained {result.steps} steps ({result.episodes} episodes) in "

@@ -3,18 +3,24 @@
 from __future__ import annotations
 
 import dataclasses
-import json
 import math
 from pathlib import Path
 from typing import IO, TYPE_CHECKING, cast
 
 import click
 from rich.console import Console
-from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+from rich.progress import (
+    BarColumn,
+    MofNCompleteColumn,
+    Progress,
+    ProgressColumn,
+    TextColumn,
+    TimeElapsedColumn,
+)
 from rich.table import Table
 
 from rfsas_hw.cli.exitcodes import WorkFailed
-from rfsas_hw.cli.options import keys_option, out_option
+from rfsas_hw.cli.options import keys_option, out_option, runner_options
 from rfsas_hw.cli.outopts import OutputPath
 from rfsas_hw.errors import ConfigError
 from rfsas_hw.outpaths import check_output
@@ -97,6 +103,7 @@ def _fmt(x: float | None, digits: int = 2) -> str:
     "file names it otherwise.",
     required=False,
 )
+@runner_options(what="seeds")
 @click.option("--force", is_flag=True, help="Replace existing output files (never an input).")
 def run(
     net_or_sumocfg: Path | None,
@@ -112,11 +119,17 @@ def run(
     fcd: Path | None,
     send: str | None,
     keys_dir: Path | None,
+    workers: int | None,
+    scheduler: str | None,
     force: bool,
 ) -> None:
-    """Run NET_OR_SUMOCFG closed loop with RF-SAS (default: the bundled crossing)."""
-    from rfsas_hw.bridges.sumo_run import Controller, load_run_file, run_seed
+    """Run NET_OR_SUMOCFG closed loop with RF-SAS (default: the bundled crossing).
+
+    Several seeds run side by side on a local Dask cluster (or --scheduler); the results
+    do not depend on the number of workers."""
+    from rfsas_hw.bridges.sumo_run import Controller, load_run_file, run_seeds
     from rfsas_hw.bridges.sumofiles import sumo_inputs
+    from rfsas_hw.parallel import default_workers
 
     cfg_path = net_or_sumocfg or EXAMPLE_DIR / "crossing.sumocfg"
     if not cfg_path.exists():
@@ -147,6 +160,13 @@ def run(
         run_cfg = dataclasses.replace(run_cfg, ego=ego)
     chosen_api = api or ("traci" if gui else "libsumo")
     ctl = cast(Controller, controller)
+    seed_list = list(range(first_seed, first_seed + seeds))
+    here = gui or send is not None
+    if workers is None:
+        workers = default_workers(len(seed_list), here=here or scheduler is not None)
+    local = workers == 0 and scheduler is None
+    if here and not local:
+        raise ConfigError("--gui and --send run here: not with --workers > 0 or --scheduler")
     results: list[SeedResult] = []
     sink: IO[str] | None = None
     if out is not None:
@@ -154,36 +174,35 @@ def run(
             sink = out.open("w", encoding="utf-8")
         except OSError as err:
             raise ConfigError(f"{out}: cannot write: {err.strerror or err}") from err
-    columns = (
-        TextColumn("seed {task.fields[seed]}"),
-        BarColumn(),
-        TextColumn("{task.completed:.1f}/{task.total:.0f} s"),
-        TimeElapsedColumn(),
-    )
+    if local:  # one seed at a time: a bar of each seed's simulation time
+        columns: tuple[ProgressColumn, ...] = (
+            TextColumn("seed {task.fields[seed]}"),
+            BarColumn(),
+            TextColumn("{task.completed:.1f}/{task.total:.0f} s"),
+            TimeElapsedColumn(),
+        )
+    else:  # seeds side by side: a bar of seeds done
+        columns = (TextColumn("seeds"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn())
     try:
         with Progress(*columns, transient=True) as bar:
-            task = bar.add_task("sumo", total=run_cfg.end_s, seed=first_seed)
-            for k, seed in enumerate(range(first_seed, first_seed + seeds)):
-                bar.update(task, completed=0.0, seed=seed)
-                truth_k = truths.get(seed)
-                r = run_seed(
-                    cfg_path,
-                    bridge_cfg,
-                    run_cfg,
-                    seed,
-                    controller=ctl,
-                    api=chosen_api,  # type: ignore[arg-type]
-                    gui=gui,
-                    out=sink,
-                    truth_path=truth_k,
-                    fcd_path=fcd if k == 0 else None,
-                    on_step=lambda t: bar.update(task, completed=min(t, run_cfg.end_s)),
-                    send=send,
-                    keys_dir=keys_dir,
-                )
-                if sink is not None:
-                    sink.write(json.dumps({"record": "seed", **r.as_dict()}) + "\n")
-                results.append(r)
+            total = run_cfg.end_s if local else len(seed_list)
+            task = bar.add_task("sumo", total=total, seed=first_seed)
+
+            def on_step(seed: int, t: float) -> None:
+                bar.update(task, completed=min(t, run_cfg.end_s), seed=seed)
+
+            def on_seed(r: SeedResult) -> None:
+                if not local:
+                    bar.update(task, advance=1)
+
+            summary = run_seeds(
+                cfg_path, bridge_cfg, run_cfg, seed_list, controller=ctl,
+                api=chosen_api,  # type: ignore[arg-type]
+                out=sink, on_seed=on_seed, truth_paths=truths, fcd_path=fcd,
+                workers=workers, scheduler=scheduler, on_step=on_step if local else None,
+                gui=gui, send=send, keys_dir=keys_dir,
+            )  # fmt: skip
+            results = summary.results
     finally:
         if sink is not None:
             sink.close()

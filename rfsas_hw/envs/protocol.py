@@ -1,7 +1,9 @@
 """The learned-vs-rule protocol: several seeds, paired episodes, standard errors, tests.
 
-- :func:`train_seeds`: one PPO run per seed (vectorised environments), each
-  saved as ``<stem>-seed-<s>.zip`` with its logs in ``<stem>-seed-<s>-logs``.
+- :func:`train_seeds`: one PPO run per seed (vectorised environments) on the
+  project's runner (seeds side by side on Dask workers, or one after the
+  other here), each saved as ``<stem>-seed-<s>.zip`` with its logs in
+  ``<stem>-seed-<s>-logs``.
 - :func:`outcomes`: one policy over the same episodes at each reaction
   distance (episode ``k`` has seed ``seed + k`` for every policy): the
   realised risk, collision and duration of every episode.
@@ -41,10 +43,12 @@ from rfsas_hw.envs.rl import EvalRow, Policy, Progress, TrainResult, train
 from rfsas_hw.errors import ConfigError
 from rfsas_hw.optional import pyplot
 from rfsas_hw.outpaths import save_figure
+from rfsas_hw.parallel import run_tasks
 
 __all__ = [
     "Outcomes",
     "PairedRow",
+    "TrainJob",
     "cannot_stop",
     "compare",
     "eval_rows",
@@ -54,6 +58,7 @@ __all__ = [
     "pooled_ratio",
     "seed_model_path",
     "speed_profiles",
+    "train_job",
     "train_seeds",
 ]
 
@@ -67,6 +72,40 @@ def seed_model_path(model_path: str | Path, seed: int) -> Path:
     return p.with_name(f"{stem}-seed-{seed}.zip")
 
 
+@dataclass(frozen=True)
+class TrainJob:
+    """One seed's training as handed to the runner (picklable: it may run in a worker
+    process)."""
+
+    seed: int
+    steps: int
+    model_path: Path
+    """Where this seed's model goes (see :func:`seed_model_path`)."""
+    config: EnvConfig | None
+    n_envs: int
+    max_seconds: float | None
+    ppo: Mapping[str, Any]
+
+
+def train_job(job: TrainJob, progress: Progress | None = None) -> TrainResult:
+    """:func:`~rfsas_hw.envs.rl.train` of ``job``, its logs in ``<model stem>-logs``.
+
+    Raises:
+        as :func:`~rfsas_hw.envs.rl.train`.
+    """
+    return train(
+        job.steps,
+        job.model_path,
+        config=job.config,
+        seed=job.seed,
+        log_dir=job.model_path.with_name(job.model_path.stem + "-logs"),
+        progress=progress,
+        max_seconds=job.max_seconds,
+        n_envs=job.n_envs,
+        **job.ppo,
+    )
+
+
 def train_seeds(
     seeds: Sequence[int],
     steps: int,
@@ -76,36 +115,49 @@ def train_seeds(
     n_envs: int = 4,
     progress: Callable[[int], Progress | None] | None = None,
     max_seconds: float | None = None,
+    workers: int = 0,
+    scheduler: str | None = None,
+    on_seed: Callable[[int, TrainResult], None] | None = None,
     **ppo: Any,
 ) -> list[TrainResult]:
-    """Train one PPO model per seed; ``progress(seed)`` gives that seed's progress callback.
+    """Train one PPO model per seed on the project's runner (:mod:`rfsas_hw.parallel`:
+    ``workers`` processes of a local Dask cluster, a ``scheduler``, or this process with
+    ``workers=0``); the results in the order of ``seeds``.
 
     Seed ``s`` is saved as :func:`seed_model_path` (``<stem>-seed-<s>.zip``) with its
-    logs in ``<stem>-seed-<s>-logs``.
+    logs in ``<stem>-seed-<s>-logs``. Each seed's training is seeded and independent, so
+    the models do not depend on ``workers`` (unless ``max_seconds`` cuts them short).
+
+    Args:
+        progress: ``progress(seed)`` gives that seed's per-step progress callback; only
+            when training here (``workers=0`` and no scheduler).
+        on_seed: called with each seed and its result as it finishes.
 
     Raises:
         ConfigError: no seeds, repeated seeds, or ``steps`` < 1.
-        MissingDependencyError: stable-baselines3 is not installed.
+        MissingDependencyError: stable-baselines3 (or, with workers, Dask distributed) is
+            not installed.
     """
     if not seeds or len(set(seeds)) != len(seeds):
         raise ConfigError(f"seeds must be one or more distinct integers, got {list(seeds)}")
-    results = []
-    for s in seeds:
-        path = seed_model_path(model_path, s)
-        results.append(
-            train(
-                steps,
-                path,
-                config=config,
-                seed=s,
-                log_dir=path.with_name(path.stem + "-logs"),
-                progress=progress(s) if progress is not None else None,
-                max_seconds=max_seconds,
-                n_envs=n_envs,
-                **ppo,
-            )
-        )
-    return results
+    if steps < 1:
+        raise ConfigError(f"training needs at least one step, got {steps}")
+    jobs = [
+        TrainJob(s, steps, seed_model_path(model_path, s), config, n_envs, max_seconds, ppo)
+        for s in seeds
+    ]
+    fn: Callable[[TrainJob], TrainResult] = train_job
+    if workers == 0 and scheduler is None and progress is not None:
+        per_seed = progress
+
+        def fn(job: TrainJob) -> TrainResult:
+            return train_job(job, per_seed(job.seed))
+
+    def done(i: int, result: TrainResult) -> None:
+        if on_seed is not None:
+            on_seed(jobs[i].seed, result)
+
+    return run_tasks(fn, jobs, workers=workers, scheduler=scheduler, name="train", on_result=done)
 
 
 @dataclass(frozen=True)

@@ -29,7 +29,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from rfsas_hw.angles import math_rad_to_compass, wrap_deg_180
-from rfsas_hw.bridges.boxes import overlap
+from rfsas_hw.bridges.boxes import overlap, reach
 from rfsas_hw.bridges.bridge import Entity
 from rfsas_hw.twin.rfworld import building_array, segment_crossings
 from rfsas_hw.twin.scenario import BuildingSpec
@@ -142,6 +142,13 @@ class LosAeb:
     ) -> bool:
         a = math.radians(ego.heading_deg)
         ex, ey = ego.speed_mps * math.sin(a), ego.speed_mps * math.cos(a)
+        # the centres' closest approach within the horizon (both move straight on): beyond
+        # the boxes' reach no sampled instant can overlap, so none is tested
+        dx, dy, dvx, dvy = tgt.x_m - ego.x_m, tgt.y_m - ego.y_m, vx - ex, vy - ey
+        dv2 = dvx * dvx + dvy * dvy
+        tau_min = 0.0 if dv2 == 0 else min(max(-(dx * dvx + dy * dvy) / dv2, 0.0), horizon_s)
+        if math.hypot(dx + dvx * tau_min, dy + dvy * tau_min) > reach(ego, tgt):
+            return False
         n = math.ceil(horizon_s / self.params.ttc_step_s)
         for i in range(n + 1):
             tau = min(i * self.params.ttc_step_s, horizon_s)

@@ -104,6 +104,9 @@ class RunResult:
     final_speed_kmh: float = 0.0
     steps: int = 0
     wall_s: float = 0.0
+    """Wall time of the run, seconds."""
+    cpu_s: float = 0.0
+    """CPU time of the run in its thread (SUMO through libsumo included), seconds."""
 
     @property
     def nuisance(self) -> bool:
@@ -154,6 +157,7 @@ def run_one(spec: RunSpec) -> RunResult:
     if spec.controller not in CONTROLLERS:
         raise ValueError(f"unknown controller {spec.controller!r} (known: {CONTROLLERS})")
     wall0 = time.perf_counter()
+    cpu0 = time.thread_time()
     p = plan(spec.cell)
     sc = scenario(spec.cell.scenario)
     res = RunResult(
@@ -173,6 +177,7 @@ def run_one(spec: RunSpec) -> RunResult:
         if bridge is not None:
             bridge.close()
     res.wall_s = time.perf_counter() - wall0
+    res.cpu_s = time.thread_time() - cpu0
     return res
 
 

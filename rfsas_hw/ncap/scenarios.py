@@ -45,9 +45,18 @@ PARKED_LOSS_DB = 10.0
 """Extra radio loss through a parked car, dB (chosen; see docs/ncap.md)."""
 VAN_LOSS_DB = 12.0
 """Extra radio loss through a parked van, dB (chosen; see docs/ncap.md)."""
+TURN_RADII_M = {10.0: 9.0, 15.0: 11.75, 20.0: 14.5}
+"""Radius of the turning VUT's path (its box centre) per VUT speed, metres (chosen; see
+docs/ncap.md)."""
+TURN_CROSSING_M = 4.0
+"""Turning scenarios: the target's crossing line lies this far beyond the end of the VUT's
+turn, along the side street, metres (chosen: contact on the side street's straight)."""
+TURN_LEAD_S = 8.0
+"""Turning scenarios: the VUT starts this long before the planned contact (the approach,
+the turn and the side street fit in it at every turning speed), seconds."""
 
 TargetKind = Literal["pedestrian", "cyclist"]
-Motion = Literal["cross", "along"]
+Motion = Literal["cross", "along", "turn"]
 
 __all__ = [
     "SCENARIOS",
@@ -57,6 +66,7 @@ __all__ = [
     "Scenario",
     "Target",
     "TargetPath",
+    "VutPath",
     "cells",
     "plan",
 ]
@@ -104,8 +114,11 @@ class Scenario:
     speed_kmh: float
     """Target speed, km/h."""
     motion: Motion
-    """``cross`` (perpendicular to the VUT) or ``along`` (ahead in the lane, same direction)."""
+    """``cross`` (perpendicular to the VUT), ``along`` (ahead in the lane, same direction) or
+    ``turn`` (the VUT turns into a side street; the target crosses the side street)."""
     side: Literal["near", "far", "lane"] = "near"
+    """Where the target comes from; for ``turn`` the side the VUT turns to (``near``: right,
+    ``far``: left, across the oncoming lane)."""
     impacts: tuple[float, ...] = (0.5,)
     """Impact locations, fraction of the VUT width from its right edge."""
     vut_speeds_kmh: tuple[float, ...] = (10, 20, 30, 40, 50, 60)
@@ -150,9 +163,16 @@ SCENARIOS: dict[str, Scenario] = {
                   impacts=(0.5,), start_offset_m=23.0, points=1.0),
         Scenario("CBLA", "bicyclist ahead in the VUT's lane", "cyclist", 15.0, "along",
                  side="lane", impacts=(0.5,), vut_speeds_kmh=(20, 30, 40, 50, 60), points=2.0),
+        Scenario("CPTA", "VUT turns left into an adult crossing the side street towards it",
+                 "pedestrian", 5.0, "turn", side="far", impacts=(0.5,),
+                 vut_speeds_kmh=(10, 15, 20), start_offset_m=4.0, points=2.0),
+        Scenario("CBTA", "VUT turns right across a bicyclist riding straight on beside it",
+                 "cyclist", 15.0, "turn", side="near", impacts=(0.5,),
+                 vut_speeds_kmh=(10, 15, 20), start_offset_m=17.0, points=2.0),
     )
 }  # fmt: skip
-"""The matrix (points: docs/ncap.md; CPNA/CPFA day only)."""
+"""The matrix (points: docs/ncap.md; CPNA/CPFA day only; CPTA/CBTA: the protocol's turning
+cases, scored by avoidance only)."""
 
 TRUE_NEGATIVES: dict[str, Scenario] = {
     s.name: s
@@ -250,6 +270,35 @@ class TargetPath:
 
 
 @dataclass(frozen=True)
+class VutPath:
+    """A turning VUT's path (its box centre): east along ``y = 0`` from ``start_x_m`` to
+    ``arc_x_m``, a quarter circle of ``radius_m`` to the right (``sign`` +1, ending southbound)
+    or to the left (``sign`` −1, northbound), then straight on along ``x = arc_x_m +
+    radius_m``."""
+
+    start_x_m: float
+    arc_x_m: float
+    radius_m: float
+    sign: float
+
+    def pose(self, s_m: float) -> tuple[float, float, float]:
+        """Box centre (x, y) and compass heading, degrees, after ``s_m`` metres of path."""
+        r = self.radius_m
+        d = s_m - (self.arc_x_m - self.start_x_m)
+        if d <= 0:
+            return self.start_x_m + s_m, 0.0, 90.0
+        arc = math.pi / 2 * r
+        if d < arc:
+            th = d / r
+            return (
+                self.arc_x_m + r * math.sin(th),
+                self.sign * (r * math.cos(th) - r),
+                (90.0 + self.sign * math.degrees(th)),
+            )
+        return self.arc_x_m + r, -self.sign * (r + d - arc), 90.0 + self.sign * 90.0
+
+
+@dataclass(frozen=True)
 class Plan:
     """A cell made concrete: VUT start, target paths, parked vehicles."""
 
@@ -263,6 +312,8 @@ class Plan:
     obstacles: tuple[Obstacle, ...] = field(default_factory=tuple)
     relative_speed: bool = False
     """Impact speed counts relative to the target (longitudinal scenarios)."""
+    vut_path: VutPath | None = None
+    """The turning VUT's path (None: straight east along ``y = 0``)."""
 
 
 def _obstacles() -> tuple[Obstacle, ...]:
@@ -293,6 +344,8 @@ def plan(cell: Cell) -> Plan:
     obstacles = _obstacles() if s.obstructed else ()
     if s.true_negative:
         return _true_negative(s, cell, v_car, t_c)
+    if s.motion == "turn":
+        return _turning(s, cell, v_car, y_imp)
     if s.motion == "cross":
         sign = 1.0 if s.side == "near" else -1.0  # +1: moving north, from the nearside
         # contact: the VUT's front reaches the target's west side as its centre is at y_imp
@@ -323,6 +376,50 @@ def plan(cell: Cell) -> Plan:
         90.0,
     )
     return Plan(cell, start_x, v_car, t_c, (path,), obstacles, relative_speed=True)
+
+
+def _turning(s: Scenario, cell: Cell, v_car: float, y_imp: float) -> Plan:
+    """The VUT turns (right for ``near``, left for ``far``) into a side street along
+    ``x = PATH_X_M``; the target crosses it from the VUT's right on the line
+    :data:`TURN_CROSSING_M` beyond the end of the turn, synchronised as a crossing."""
+    tgt = s.target
+    try:
+        r = TURN_RADII_M[cell.vut_speed_kmh]
+    except KeyError:
+        known = ", ".join(f"{v:g}" for v in TURN_RADII_M)
+        raise KeyError(
+            f"{s.name}: no turning path at {cell.vut_speed_kmh:g} km/h (known: {known})"
+        ) from None
+    sign = 1.0 if s.side == "near" else -1.0
+    h = math.radians(90.0 + sign * 90.0)  # heading after the turn
+    right = (math.cos(h), -math.sin(h))
+    c0 = (PATH_X_M, -sign * (r + TURN_CROSSING_M))  # crossing line ∩ the VUT's centre line
+    t_c = TURN_LEAD_S
+    # contact: the VUT's front reaches the target's near side as its centre is at the impact
+    # location, i.e. y_imp to the left of the VUT's centre line (-y_imp along 'right')
+    after = TURN_CROSSING_M - VUT_LENGTH_M / 2 - tgt.width_m / 2  # straight after the arc
+    approach = v_car * t_c - math.pi / 2 * r - after
+    arc_x = PATH_X_M - r
+    path = VutPath(arc_x - approach, arc_x, r, sign)
+    lat_imp = -y_imp
+    walk_s = (s.start_offset_m - lat_imp) / (tgt.speed_kmh * KMH)
+    v_t = tgt.speed_kmh * KMH
+    vx, vy = -right[0] * v_t, -right[1] * v_t
+
+    def at(lat: float) -> tuple[float, float]:
+        return c0[0] + right[0] * lat, c0[1] + right[1] * lat
+
+    go = t_c - walk_s
+    legs: list[tuple[float, float, float, float, float]] = []
+    if go > 0:
+        x0, y0 = at(s.start_offset_m)
+        legs += [(0.0, x0, y0, 0.0, 0.0), (go, x0, y0, vx, vy)]
+    else:
+        x0, y0 = at(s.start_offset_m - go * v_t)
+        legs.append((0.0, x0, y0, vx, vy))
+    heading = (sign * 90.0) % 360.0  # along -right: east after a right turn, else west
+    target = TargetPath("target", s.kind, tgt.length_m, tgt.width_m, tuple(legs), heading)
+    return Plan(cell, path.start_x_m, v_car, t_c, (target,), (), vut_path=path)
 
 
 def _true_negative(s: Scenario, cell: Cell, v_car: float, t_c: float) -> Plan:

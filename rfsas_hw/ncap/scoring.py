@@ -10,8 +10,10 @@ collision was avoided, yellow for ``r ≥ 0.75``, orange ``r ≥ 0.5``, brown
 the cell's points, as in the 2026 protocols; the thresholds are chosen here
 (the protocol gives them in a figure that is not in its public text). A
 scenario's points (:attr:`~rfsas_hw.ncap.scenarios.Scenario.points`) are
-shared equally by the cells that were run. True-negative scenarios score no
-points: every run with a brake request in them is a nuisance brake.
+shared equally by the cells that were run. The turning scenarios (CPTA,
+CBTA) count avoidance only, as the protocol does: green when avoided, red
+otherwise. True-negative scenarios score no points: every run with a brake
+request in them is a nuisance brake.
 """
 
 from __future__ import annotations
@@ -103,7 +105,10 @@ def score_cells(results: Iterable[RunResult]) -> list[CellScore]:
     for (config, _), rs in sorted(groups.items()):
         r0 = rs[0]
         v = statistics.median(r.impact_speed_kmh for r in rs)
-        name, share = band(v, _test_kmh(r0))
+        if scenario(r0.scenario).motion == "turn":  # avoidance only
+            name, share = ("green", 1.0) if v <= 0.0 else ("red", 0.0)
+        else:
+            name, share = band(v, _test_kmh(r0))
         out.append(
             CellScore(
                 r0.scenario,

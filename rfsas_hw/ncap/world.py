@@ -6,7 +6,10 @@ the frame of :mod:`rfsas_hw.ncap.scenarios`. The VUT is a SUMO vehicle whose
 speed the controllers set every step (speed mode 0: SUMO's own rules and
 limits are off, the brake model is the controllers'); the targets are SUMO
 persons and ``bicycle`` vehicles moved along their planned paths with
-``moveToXY`` (as the protocol's dummies run on a platform); the parked
+``moveToXY`` (as the protocol's dummies run on a platform); a turning VUT
+(CPTA, CBTA) is placed on its planned path with ``moveToXY`` too, each step
+as far along it as its speed took it (the free area beside the road stands
+in for the side street); the parked
 vehicles are SUMO polygons of type ``parked-vehicle``. Every entity is read
 back through :class:`~rfsas_hw.bridges.sumo.SumoAdapter`, so the scoring and
 RF-SAS see exactly what a ``rfsas sumo run`` would.
@@ -104,6 +107,8 @@ class SumoWorld:
         self.adapter = SumoAdapter(self.sumo, EGO)
         self.t_s = 0.0
         """Run time, seconds (0 when the VUT starts)."""
+        self.vut_s_m = 0.0
+        """How far the VUT has driven, metres."""
 
     def _populate(self) -> None:
         s = self.sumo
@@ -160,8 +165,16 @@ class SumoWorld:
         """Move the targets to their next places, drive the VUT at ``vut_speed_mps`` for one
         step; the new run time, seconds."""
         t_next = self.t_s + STEP_S
+        v = max(vut_speed_mps, 0.0)
         self._place(t_next)
-        self.sumo.vehicle.setSpeed(EGO, max(vut_speed_mps, 0.0))
+        self.vut_s_m += v * STEP_S
+        path = self.plan.vut_path
+        if path is not None:  # a turning VUT: placed on its path, as SUMO's own step would
+            x, y, h = path.pose(self.vut_s_m)
+            a = math.radians(h)
+            fx, fy = x + VUT_LENGTH_M / 2 * math.sin(a), y + VUT_LENGTH_M / 2 * math.cos(a)
+            self.sumo.vehicle.moveToXY(EGO, "", 0, fx, fy, angle=h, keepRoute=2)
+        self.sumo.vehicle.setSpeed(EGO, v)
         self.sumo.simulationStep()
         self.t_s = t_next
         return t_next

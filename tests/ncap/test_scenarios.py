@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import itertools
+import math
+
 import pytest
 
 from rfsas_hw.ncap.scenarios import (
@@ -80,3 +83,42 @@ def test_a_target_at_the_start_waits_and_then_moves_at_its_speed() -> None:
     assert v0 == 0.0 and y0 == pytest.approx(-4.3)
     _, y1, v1 = path.at(p.contact_t_s)
     assert v1 == pytest.approx(5.0 * KMH) and y1 == pytest.approx(0.0)
+
+
+@pytest.mark.parametrize(("name", "heading"), [("CBTA", 180.0), ("CPTA", 0.0)])
+def test_turning_vut_follows_its_path_in_sumo(name: str, heading: float) -> None:
+    """The VUT turns right (CBTA) or left (CPTA) in SUMO and meets the target on the side
+    street's straight, with the target crossing from the VUT's right."""
+    pytest.importorskip("libsumo", reason="needs the sumo extra (pip install .[sumo])")
+    from rfsas_hw.ncap.scenarios import TURN_RADII_M
+    from rfsas_hw.ncap.world import SumoWorld
+
+    cell = Cell(name, 15.0, 0.5)
+    p = plan(cell)
+    assert p.vut_path is not None and p.obstacles == ()
+    r = TURN_RADII_M[15.0]
+    sign = 1.0 if heading == 180.0 else -1.0
+    tgt = p.targets[0]
+    assert tgt.heading_deg == (90.0 if sign > 0 else 270.0)
+    with SumoWorld(p) as world:
+        ego, _ = world.read()
+        assert ego.heading_deg == pytest.approx(90.0) and ego.y_m == pytest.approx(0.0)
+        headings = []
+        while world.t_s < p.contact_t_s - 0.3:
+            world.step(p.vut_speed_mps)
+            ego, vrus = world.read()
+            headings.append(ego.heading_deg)
+            assert ego.speed_mps == pytest.approx(p.vut_speed_mps, abs=1e-6)
+        # after the turn: on the side street's centre line, past the arc, heading along it
+        assert ego.heading_deg == pytest.approx(heading, abs=1e-6)
+        assert ego.x_m == pytest.approx(0.0, abs=1e-6)  # the side street's centre line
+        assert -sign * ego.y_m > r  # past the arc
+        # through the turn step by step: halfway round, never turning back
+        assert any(abs(h - (90.0 + sign * 45.0)) < 5.0 for h in headings)
+        assert all(sign * (b - a) >= 0 for a, b in itertools.pairwise(headings))
+        ((target, cls),) = vrus
+        assert cls == ("bicycle" if name == "CBTA" else "pedestrian")
+        # the target is still to the VUT's right, coming towards its path
+        a = math.radians(ego.heading_deg)
+        right = (target.x_m - ego.x_m) * math.cos(a) - (target.y_m - ego.y_m) * math.sin(a)
+        assert right > 0

@@ -48,3 +48,18 @@ def test_cells_take_the_median_seed_and_points_share_the_scenarios_points() -> N
     assert pts["CPNCO"] == pytest.approx((1.0, 2.0))  # half the cells green
     assert pts["CPLA"] == pytest.approx((0.4, 2.0))
     assert nuisance(runs) == {"los": (1, 2)}
+
+
+def test_turning_cells_count_avoidance_only() -> None:
+    runs = [
+        _r("CPTA-50@20", "los", 20.0, 0.0),
+        _r("CBTA-50@20", "los", 20.0, 1.0),  # 95 % of the speed off: yellow elsewhere, red here
+        _r("CBTA-50@10", "los", 10.0, 0.0),
+    ]
+    got = {c.cell: (c.band, c.share) for c in score_cells(runs)}
+    assert got == {
+        "CPTA-50@20": ("green", 1.0),
+        "CBTA-50@20": ("red", 0.0),
+        "CBTA-50@10": ("green", 1.0),
+    }
+    assert points(score_cells(runs))["los"] == {"CBTA": (1.0, 2.0), "CPTA": (2.0, 2.0)}

@@ -10,7 +10,7 @@ STAMP  := $(VENV)/.installed-core
 TORCH_PIN := torch==2.13.0
 RL_STAMP  := $(VENV)/.installed-rl
 # Every integration extra, so that its tests run in CI (MetaDrive has its own venv).
-EXTRAS    := sumo,highway,carla,mqtt,csi,ros2,web,v2x,ncap
+EXTRAS    := sumo,highway,carla,mqtt,csi,ros2,web,v2x,ncap,city
 INT_STAMP := $(VENV)/.installed-integrations
 
 .PHONY: demo calibration-demo test lint pytest pytest-nodispatch ctest bench fuzz clean venv rl integrations metadrive metadrive-ci

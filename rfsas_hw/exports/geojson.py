@@ -30,11 +30,15 @@ from rfsas_hw.outpaths import write_text_atomic
 DECIMALS = 8
 """Decimals of a coordinate in degrees (1e-8° ≈ 1.1 mm of latitude)."""
 
-__all__ = ["scene_to_geojson", "write_geojson"]
+__all__ = ["feature", "position", "scene_to_geojson", "write_geojson"]
 
 
-def _pos(lat: float, lon: float) -> list[float]:
+def position(lat: float, lon: float) -> list[float]:
+    """A GeoJSON position ``[longitude, latitude]`` in degrees, :data:`DECIMALS` decimals."""
     return [round(float(lon), DECIMALS), round(float(lat), DECIMALS)]
+
+
+_pos = position
 
 
 def _clean(value: Any) -> Any:
@@ -44,7 +48,8 @@ def _clean(value: Any) -> Any:
     return value
 
 
-def _feature(geometry: dict[str, Any], properties: dict[str, Any]) -> dict[str, Any]:
+def feature(geometry: dict[str, Any], properties: dict[str, Any]) -> dict[str, Any]:
+    """A GeoJSON ``Feature``; non-finite numbers among ``properties`` become null."""
     return {
         "type": "Feature",
         "geometry": geometry,
@@ -57,7 +62,7 @@ def scene_to_geojson(scene: Scene) -> dict[str, Any]:
     features: list[dict[str, Any]] = []
     for s in scene.sensors:
         features.append(
-            _feature(
+            feature(
                 {"type": "Point", "coordinates": _pos(s.lat_deg, s.lon_deg)},
                 {"kind": "sensor", "sensor_id": s.sensor_id, "time": iso_utc(s.t_ns)},
             )
@@ -87,12 +92,12 @@ def scene_to_geojson(scene: Scene) -> dict[str, Any]:
                 orientation_deg=round(m.ellipse.orientation_deg, 2),
             )
         features.append(
-            _feature({"type": "Point", "coordinates": _pos(m.lat_deg, m.lon_deg)}, props)
+            feature({"type": "Point", "coordinates": _pos(m.lat_deg, m.lon_deg)}, props)
         )
         if m.ring_deg is not None and m.ellipse is not None:
             ring = [_pos(lat, lon) for lat, lon in m.ring_deg]
             features.append(
-                _feature(
+                feature(
                     {"type": "Polygon", "coordinates": [ring]},
                     {
                         "kind": "fix_ellipse",
@@ -104,7 +109,7 @@ def scene_to_geojson(scene: Scene) -> dict[str, Any]:
             )
     for b in scene.bearings:
         features.append(
-            _feature(
+            feature(
                 {"type": "LineString", "coordinates": [_pos(*b.start_deg), _pos(*b.end_deg)]},
                 {
                     "kind": "bearing",
@@ -119,7 +124,7 @@ def scene_to_geojson(scene: Scene) -> dict[str, Any]:
         )
     for t in scene.tracks:
         features.append(
-            _feature(
+            feature(
                 {
                     "type": "LineString",
                     "coordinates": [

@@ -1,0 +1,116 @@
+"""Roadside units at every signalised junction; buildings from polygons or city blocks."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import pytest
+
+pytest.importorskip("sumo", reason="needs the city extra: pip install 'rfsas-hw[city]'")
+pytest.importorskip("sumolib", reason="needs the city extra: pip install 'rfsas-hw[city]'")
+
+from rfsas_hw.city.net import NetInfo, read_net
+from rfsas_hw.city.placement import (
+    BuildingOptions,
+    buildings,
+    load_placement,
+    place_units,
+)
+from rfsas_hw.errors import ConfigError
+from rfsas_hw.link.topics import quadkey
+
+
+@pytest.fixture(scope="module")
+def info(grid_net: Path) -> NetInfo:
+    return read_net(grid_net)
+
+
+def test_two_units_on_opposite_corners_facing_each_junction(info: NetInfo) -> None:
+    units = place_units(info)
+    assert len(units) == 2 * 9
+    by_junction: dict[str, list] = {}
+    for u in units:
+        by_junction.setdefault(u.junction, []).append(u)
+    for jid, pair in by_junction.items():
+        j = next(j for j in info.junctions if j.id == jid)
+        a, b = pair
+        # opposite corners: the junction's centre is the midpoint
+        assert (a.x_m + b.x_m) / 2 == pytest.approx(j.x_m, abs=1e-6)
+        assert (a.y_m + b.y_m) / 2 == pytest.approx(j.y_m, abs=1e-6)
+        for u in pair:
+            # on a diagonal of the (axis-aligned) grid to within a degree (SUMO rounds the
+            # junction outline's corners), outside the junction, facing it
+            dx, dy = j.x_m - u.x_m, j.y_m - u.y_m
+            assert math.degrees(math.atan2(abs(dy), abs(dx))) == pytest.approx(45.0, abs=1.0)
+            assert math.hypot(dx, dy) > 8.0
+            facing = math.degrees(math.atan2(dx, dy)) % 360.0
+            assert u.boresight_deg == pytest.approx(facing, abs=1e-6)
+            lat, lon, _ = info.origin.to_geodetic(u.x_m, u.y_m)
+            assert u.tile == quadkey(float(lat), float(lon))
+
+
+def test_yaml_chooses_junctions_and_adds_units(info: NetInfo, tmp_path: Path) -> None:
+    f = tmp_path / "units.yaml"
+    f.write_text(
+        "junctions: [B1]\nper_junction: 1\n"
+        "units:\n  - {id: rsu-extra, x_m: 30.0, y_m: 40.0, boresight_deg: 90.0}\n"
+    )
+    units = place_units(info, load_placement(f))
+    assert [u.id for u in units] == ["rsu-B1-0", "rsu-extra"]
+    assert units[1].junction == "" and units[1].boresight_deg == 90.0
+    f.write_text("units:\n  - {id: only, x_m: 1.0, y_m: 2.0, boresight_deg: 0.0}\nreplace: true\n")
+    assert [u.id for u in place_units(info, load_placement(f))] == ["only"]
+
+
+@pytest.mark.parametrize(
+    ("text", "match"),
+    [
+        ("junctions: [nowhere]\n", "not a traffic-light program"),
+        ("per_junction: 3\n", "per_junction"),
+        ("setback: 2\n", "unknown key 'setback'"),
+        ("units:\n  - {id: 'bad id', x_m: 0, y_m: 0, boresight_deg: 0}\n", "units"),
+        ("replace: true\n", "no units"),
+    ],
+)
+def test_bad_placement_yaml_names_the_problem(
+    info: NetInfo, tmp_path: Path, text: str, match: str
+) -> None:
+    f = tmp_path / "units.yaml"
+    f.write_text(text)
+    with pytest.raises(ConfigError, match=match):
+        place_units(info, load_placement(f))
+
+
+def test_block_buildings_stay_off_every_lane(info: NetInfo) -> None:
+    units = place_units(info)
+    found = buildings(info, units)
+    # the grid's four inner blocks are 120 m squares between the streets: each gets cells
+    assert len(found) >= 4
+    for b in found:
+        for r in info.roads:
+            for x, y in r.shape:
+                inside = b.x_min_m - 3 < x < b.x_max_m + 3 and b.y_min_m - 3 < y < b.y_max_m + 3
+                assert not inside, (b, r.edge)
+    # the outer stubs do not enclose a block: nothing beyond the outer streets
+    assert all(-120 < b.x_min_m and b.x_max_m < 120 for b in found)
+    assert buildings(info, units, opts=BuildingOptions(near_m=1.0)) == []
+
+
+def test_polygon_file_buildings_are_bounding_boxes_in_the_frame(
+    info: NetInfo, tmp_path: Path
+) -> None:
+    poly = tmp_path / "district.poly.xml"
+    # net coordinates: the frame is shifted by the net's centre (180, 180)
+    poly.write_text(
+        "<additional>\n"
+        '  <poly id="b1" type="building" shape="200,200 230,200 230,220 200,220"/>\n'
+        '  <poly id="park" type="park" shape="0,0 10,0 10,10"/>\n'
+        "</additional>\n"
+    )
+    units = place_units(info)
+    (b,) = buildings(info, units, polygons=poly)
+    assert (b.x_min_m, b.x_max_m, b.y_min_m, b.y_max_m) == pytest.approx((20, 50, 20, 40))
+    poly.write_text('<additional><poly id="x" type="building" shape="1,a"/></additional>')
+    with pytest.raises(ConfigError, match="bad shape"):
+        buildings(info, units, polygons=poly)

@@ -40,7 +40,9 @@ from rfsas_hw.backend.encounter import assess_encounters
 from rfsas_hw.backend.service import BackendConfig
 from rfsas_hw.backend.triangulation import triangulate_batch
 from rfsas_hw.backend.vehicle import VehicleState
+from rfsas_hw.city.clock import SimClock
 from rfsas_hw.fleet.advisory import AdvisorySink
+from rfsas_hw.fleet.advisory_limits import AdvisoryLimits
 from rfsas_hw.geo import SiteOrigin
 from rfsas_hw.link.mqtt import open_mqtt
 from rfsas_hw.link.topics import TopicRouter
@@ -72,6 +74,12 @@ class BackendWork:
     """Nonce epoch length, seconds."""
     near_m: float = 60.0
     """Emitters farther than this from a vehicle are not judged against it, metres."""
+    quick_s: float = 0.02
+    """Shortest time between two steps of the service when bearings arrive, seconds."""
+    repeat_s: float = 0.5
+    """Unchanged advice about an emitter goes to a vehicle again after this long, seconds."""
+    clock: SimClock = field(default_factory=lambda: SimClock(0))
+    """The deployment's clock."""
 
 
 @dataclass(frozen=True)
@@ -115,13 +123,15 @@ class CityBackend:
 
     def __init__(self, work: BackendWork) -> None:
         self.work = work
+        self.clock = work.clock
         self.app = BackendApp(
             BackendAppConfig(
                 listen=(work.listen_url,),
                 keys_dir=work.keys_dir,
                 settings=work.settings,
                 overrides=SettingsOverrides(epoch_s=work.epoch_s, origin=work.origin),
-            )
+            ),
+            clock=self.clock,
         )
         try:
             self.transport = open_mqtt(work.advise_url, "send")
@@ -163,6 +173,9 @@ class CityBackend:
                 self.home_tile,
                 vehicle_id=vehicle_id,
                 epoch_s=self.work.epoch_s,
+                clock=self.clock,
+                limits=AdvisoryLimits(min_interval_s=self.work.repeat_s),
+                monotonic=lambda: self.clock() / NS_PER_S,
                 tile_topics=False,
             )
             self.sinks[vehicle_id] = sink
@@ -182,10 +195,11 @@ class CityBackend:
         self._seen = dict(self.app.service.fixes)
         return out
 
-    def judge(self, now_ns: int) -> list[tuple[str, int, int, int]]:
-        """Step the service and advise every vehicle near a live emitter; per advisory
-        that carried a fix made in this step, (vehicle id, first and last sequence
-        number, time of that fix in UTC ns)."""
+    def judge(self, now_ns: int, fresh_only: bool = False) -> list[tuple[str, int, int, int]]:
+        """Step the service and advise every vehicle near a live emitter (``fresh_only``:
+        near an emitter fixed in this step, judged against those emitters only); per
+        advisory that carried a fix made in this step, (vehicle id, first and last
+        sequence number, time of that fix in UTC ns)."""
         service = self.app.service
         service.step(now_ns)
         fresh_ns = {
@@ -196,10 +210,13 @@ class CityBackend:
         if states is None or not len(states.ids) or not service.assessments:
             self._forget(set() if states is None else set(states.ids))
             return []
+        if fresh_only and not fresh_ns:
+            return []
         t0 = time.perf_counter()
-        emitters = np.fromiter(service.assessments, np.uint64, len(service.assessments))
-        ax = np.array([a.x_m for a in service.assessments.values()])
-        ay = np.array([a.y_m for a in service.assessments.values()])
+        chosen = fresh_ns if fresh_only else service.assessments
+        emitters = np.fromiter(chosen, np.uint64, len(chosen))
+        ax = np.array([service.assessments[e].x_m for e in chosen])
+        ay = np.array([service.assessments[e].y_m for e in chosen])
         located = np.isfinite(ax) & np.isfinite(ay)
         emitters, ax, ay = emitters[located], ax[located], ay[located]
         out: list[tuple[str, int, int, int]] = []
@@ -246,29 +263,44 @@ class CityBackend:
             self.counters.advisories_failed += sink.stats.errors
 
     def run(self, conn: Connection) -> None:
-        """Receive, judge every 0.1 s and report to ``conn`` until ``None`` arrives on it."""
+        """Receive and judge, reporting to ``conn``, until ``None`` arrives on it.
+
+        Every ``step_s`` (0.1 s) every vehicle near a live emitter is judged; between
+        those steps, when bearings arrived and :attr:`BackendWork.quick_s` has passed
+        since the last step, the service steps again and the vehicles near an emitter
+        it fixed are judged against it at once (a new fix does not wait for the tick).
+        """
         receiver = self.app.receiver
         service = self.app.service
+        clock = self.clock
         step_ns = int(service.config.step_s * NS_PER_S)
-        next_ns = time.time_ns() + step_ns
+        quick_ns = int(self.work.quick_s * NS_PER_S)
+        next_ns = clock() + step_ns
+        last_ns = 0
         while True:
-            wait_s = max(next_ns - time.time_ns(), 0) / NS_PER_S
-            for message in receiver.receive(timeout=min(wait_s, 0.02)):
+            wait_s = clock.wall_s(max(next_ns - clock(), 0) / NS_PER_S)
+            got = receiver.receive(timeout=min(wait_s, clock.wall_s(self.work.quick_s)))
+            for message in got:
                 service.on_verified(message)
             while conn.poll():
                 msg: Any = conn.recv()
                 if msg is None:
                     return
                 self.vehicles = msg
-            now = time.time_ns()
+            now = clock()
             if now >= next_ns:
                 next_ns += step_ns * max(1, math.ceil((now - next_ns) / step_ns))
                 sent = self.judge(now)
-                if sent:
-                    conn.send(("sent", sent))
-                fixes = self.new_fixes()
-                if fixes:
-                    conn.send(("fixes", fixes))
+            elif got and now - last_ns >= quick_ns:
+                sent = self.judge(now, fresh_only=True)
+            else:
+                continue
+            last_ns = now
+            if sent:
+                conn.send(("sent", sent))
+            fixes = self.new_fixes()
+            if fixes:
+                conn.send(("fixes", fixes))
 
     def close(self) -> BackendCounters:
         """Close the advisory transport and the app; the counters. Idempotent."""

@@ -33,7 +33,7 @@ import multiprocessing as mp
 import os
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from multiprocessing.connection import Connection
 from pathlib import Path
 from typing import Any
@@ -45,6 +45,7 @@ from rfsas_hw.backend.service import BackendConfig
 from rfsas_hw.bridges.bridge import fitted_calibration
 from rfsas_hw.bridges.config import BridgeConfig, UnitSpec
 from rfsas_hw.city.backendproc import BackendCounters, BackendWork, VehicleStates, backend_main
+from rfsas_hw.city.clock import SimClock
 from rfsas_hw.city.deploy import AUTHORITY_ID, GATEWAY_ID, Deployment, LocalBroker, make_deployment
 from rfsas_hw.city.partition import Site, district_tiles, plan_tiles, split_units
 from rfsas_hw.city.sumoio import Movers
@@ -72,6 +73,8 @@ STEP_TIMEOUT_S = 10.0
 """How long a worker may take to answer a step, seconds."""
 END_TIMEOUT_S = 20.0
 """How long a worker or backend may take to stop, seconds."""
+DRAIN_S = 1.0
+"""Time the backends get to take the workers' last messages before they stop, seconds."""
 OWNER_MEMORY_S = 1.0
 """An advisory from the backend of the tile a vehicle left this long ago still counts
 as its owner's (it was judged there and is on its way), seconds."""
@@ -97,8 +100,16 @@ class LiveConfig:
     """A backend judges an emitter against the vehicles this close to it, metres."""
     hold_s: float = 1.0
     """A BRAKE holds a vehicle stopped until no BRAKE came for this long, seconds."""
+    repeat_s: float = 0.5
+    """A vehicle is told an emitter's unchanged (or milder) advice again after this
+    long; new emitters and more severe advice go at once, seconds."""
+    time_scale: float = 1.0
+    """Simulated seconds per wall second the deployment's clock runs at (1: real time;
+    below 1 for a machine that cannot keep up, see :mod:`rfsas_hw.city.clock`)."""
 
     def __post_init__(self) -> None:
+        if not 0.0 < self.time_scale <= 1.0:
+            raise ValueError("time_scale must be in (0, 1]")
         if self.backends < 1 or self.workers < 1:
             raise ValueError("backends and workers must be at least 1")
         if not self.epoch_s > 0 or not self.hear_m > 0 or not self.near_m > 0:
@@ -128,10 +139,14 @@ class StepOut:
     arrivals: list[Arrival] = field(default_factory=list)
     """Advisories verified at their vehicle this step."""
     latency_s: dict[tuple[str, int], float] = field(default_factory=dict)
-    """Frame → advisory latency of arrivals matched so far, by (backend, sequence number)."""
+    """Frame → advisory latency, seconds of the deployment's clock (wall seconds at time
+    scale 1), of the advisories that carried a fix of their step (the others repeat a
+    track's state), by (backend, sequence number)."""
     fixes: list[FixRecord] = field(default_factory=list)
     foreign: int = 0
     """Arrivals signed by a backend that does not own the vehicle's tile."""
+    messages: int = 0
+    """Signed bearing messages the workers published since the previous step."""
 
 
 @dataclass
@@ -144,14 +159,15 @@ class LiveStats:
     broker_cpu_s: float = 0.0
     bearing_messages: int = 0
     """Signed bearing messages the workers published."""
+    bearing_messages_received: int = 0
+    """Of them, taken from the broker by the backends."""
     bearing_messages_verified: int = 0
-    """Of them, verified by the backends."""
+    """Of them, verified by the backends (the others refused, e.g. ``stale`` when the
+    run fell behind its clock)."""
     advisories_sent: int = 0
     advisories_received: int = 0
     """Advisory datagrams the gateway took from the broker."""
     foreign: int = 0
-    unmatched_latency: int = 0
-    """Arrivals whose frame time never came (not in the latency figures)."""
     problems: list[str] = field(default_factory=list)
 
 
@@ -210,10 +226,14 @@ class DistributedRfsas:
         self.config = cfg = config or LiveConfig()
         self.origin = origin
         self.router = TopicRouter(origin)
+        self.clock = SimClock(time.time_ns() // 1000 * 1000, cfg.time_scale)
+        """The deployment's clock (the wall clock at time scale 1)."""
         self.t0_ns = 0
-        """UTC of simulation time 0, ns (set by :meth:`start`)."""
+        """UTC of simulation time 0 on :attr:`clock`, ns (set by :meth:`start`)."""
         backend_ids = [f"be-{i + 1}" for i in range(cfg.backends)]
         self.plan: TilePlan = plan_tiles(units, backend_ids, district_tiles(self.router, bounds_m))
+        # fewer groups of tiles than backends asked for: the others would own nothing
+        backend_ids = [b for b in backend_ids if b in self.plan.groups]
         self.owner = {t: g.name for g in self.plan.groups.values() for t in g.tiles}
         self.deployment = make_deployment(work_dir, [u.id for u in units], backend_ids)
         self.stats = LiveStats()
@@ -221,14 +241,19 @@ class DistributedRfsas:
         self._workers: dict[str, tuple[Connection, np.ndarray, np.ndarray]] = {}
         self._backends: dict[str, Connection] = {}
         self._truth: dict[str, str] = {}
+        self._sent: dict[str, int] = {}
         self._frame_ns: dict[tuple[str, int], int] = {}
         self._arrived: dict[tuple[str, int], int] = {}
         self._owners: dict[str, dict[str, float]] = {}
         """Per vehicle, the backends whose tiles it was in lately, with when (sim s)."""
+        self._tiles_of: dict[str, dict[str, float]] = {}
+        """Per vehicle, the tiles it was in lately, with when (sim s)."""
         self.broker: LocalBroker | None = None
         self.gateway: VehicleGateway | None = None
         self._auth_transport: Any = None
         self._closed = False
+        self.late: list[Arrival] = []
+        """Advisories that reached vehicles after the last step (taken by :meth:`close`)."""
         try:
             self.broker = LocalBroker(self.deployment.files, work_dir / "mosquitto.log")
             self._start_authority()
@@ -237,7 +262,10 @@ class DistributedRfsas:
             self._start_workers(ctx, units, buildings, bridge)
             self._wait_ready()
             gw_url = self.deployment.url(GATEWAY_ID, sub=f"{ROOT}/vehicle/+/advisory")
-            self.gateway = VehicleGateway(_BackendKeys(self.deployment), open_mqtt(gw_url, "recv"))
+            self.gateway = VehicleGateway(
+                _BackendKeys(self.deployment), open_mqtt(gw_url, "recv"), clock=self.clock
+            )
+            self.gateway.start()
         except BaseException:
             self.close()
             raise
@@ -247,15 +275,17 @@ class DistributedRfsas:
     def start(self) -> int:
         """Now is simulation time 0: its UTC in ns (whole microseconds, as the twin's
         start time is written). Call right before the first step."""
-        self.t0_ns = time.time_ns() // 1000 * 1000
+        self.t0_ns = self.clock() // 1000 * 1000
         return self.t0_ns
 
     def _start_authority(self) -> None:
         schedule = EpochSchedule(self.config.epoch_s, min(5.0, self.config.epoch_s / 4))
         authority = self.deployment.authority.nonce_authority(schedule)
         self._auth_transport = open_mqtt(self.deployment.url(AUTHORITY_ID), "send")
+        # the retained envelopes expire at the end of their epoch on the deployment's clock
+        self._auth_transport.clock = self.clock
         self.distributor = NonceDistributor(
-            authority, dict.fromkeys(authority.receivers, self._auth_transport)
+            authority, dict.fromkeys(authority.receivers, self._auth_transport), clock=self.clock
         )
         self.distributor.tick()
 
@@ -274,6 +304,8 @@ class DistributedRfsas:
                 settings=settings,
                 epoch_s=self.config.epoch_s,
                 near_m=self.config.near_m,
+                repeat_s=self.config.repeat_s,
+                clock=self.clock,
             )
             parent, child = ctx.Pipe()
             proc = ctx.Process(target=backend_main, args=(work, child), name=b, daemon=True)
@@ -319,6 +351,7 @@ class DistributedRfsas:
                     s.id: fitted_calibration(unit_sensor(s), seed=bridge.calibration_seed)
                     for s in specs
                 },
+                clock=self.clock,
             )
             parent, child = ctx.Pipe()
             proc = ctx.Process(target=worker_main, args=(work, child), name=wid, daemon=True)
@@ -404,24 +437,25 @@ class DistributedRfsas:
             )
             for i in sel:
                 vid = cars.ids[i]
-                held = self._owners.setdefault(vid, {})
-                held[b] = t_s
-                if len(held) > 1:  # a vehicle that crossed into another backend's tiles
-                    for k in [k for k, t in held.items() if t < t_s - OWNER_MEMORY_S]:
-                        del held[k]
+                for memory, name in ((self._owners, b), (self._tiles_of, tiles[i])):
+                    held = memory.setdefault(vid, {})
+                    held[name] = t_s
+                    if len(held) > 1:  # a vehicle that crossed into another tile
+                        for old in [k for k, t in held.items() if t < t_s - OWNER_MEMORY_S]:
+                            del held[old]
         out = StepOut()
         self._from_backends(out)
         assert self.gateway is not None
         self.gateway.vehicles(cars.ids)
-        for arrival in self.gateway.receive(0.0):
+        for arrival in self.gateway.drain():
             key = (arrival.message.sender_id, arrival.message.seq)
             self._arrived[key] = arrival.t_ns
-            owners = self._owners.get(arrival.vehicle_id, {})
-            if arrival.message.sender_id not in owners:
-                out.foreign += 1
-            out.arrivals.append(arrival)
+            owned = arrival.message.sender_id in self._owners.get(arrival.vehicle_id, {})
+            out.foreign += not owned
+            lately = tuple(self._tiles_of.get(arrival.vehicle_id, {}))
+            out.arrivals.append(replace(arrival, owned=owned, tiles=lately))
         self._match(out, now_ns)
-        self._wait_workers(t_s)
+        out.messages = self._wait_workers(t_s)
         self.stats.foreign += out.foreign
         return out
 
@@ -455,16 +489,19 @@ class DistributedRfsas:
     def _match(self, out: StepOut, now_ns: int) -> None:
         for key in [k for k in self._arrived if k in self._frame_ns]:
             arrived = self._arrived.pop(key)
+            # on the deployment's clock: wall seconds at time scale 1
             out.latency_s[key] = (arrived - self._frame_ns.pop(key)) / NS_PER_S
         old = now_ns - 5 * NS_PER_S
         for key in [k for k, v in self._arrived.items() if v < old]:
-            del self._arrived[key]
-            self.stats.unmatched_latency += 1
+            del self._arrived[key]  # an advisory that carried no fix of its step
         if len(self._frame_ns) > 200_000:  # sent but never arrived: bounded
             for key in list(self._frame_ns)[:100_000]:
                 del self._frame_ns[key]
 
-    def _wait_workers(self, t_s: float) -> None:
+    def _wait_workers(self, t_s: float) -> int:
+        """Wait for every worker's answer to this step; the bearing messages they sent
+        since their previous answers."""
+        messages = 0
         for wid, (conn, _, _) in self._workers.items():
             if not conn.poll(STEP_TIMEOUT_S):
                 raise SimulationError(
@@ -476,19 +513,17 @@ class DistributedRfsas:
             if msg[0] == "step":
                 for emitter, vru in msg[5]:
                     self._truth[emitter] = vru
+                messages += msg[6] - self._sent.get(wid, 0)
+                self._sent[wid] = msg[6]
+        return messages
 
     # -- end --------------------------------------------------------------------------
 
-    def close(self) -> LiveStats:
-        """Stop every process and the broker; the counters (collected once). Idempotent."""
-        if self._closed:
-            return self.stats
-        self._closed = True
-        conns = {**{w: c for w, (c, _, _) in self._workers.items()}, **self._backends}
+    def _stop(self, conns: dict[str, Connection], deadline: float) -> None:
+        """Tell the processes behind ``conns`` to stop and take their counters."""
         for conn in conns.values():
             with contextlib.suppress(OSError):
                 conn.send(None)
-        deadline = time.monotonic() + END_TIMEOUT_S
         for name, conn in conns.items():
             try:
                 while conn.poll(max(deadline - time.monotonic(), 0.0)):
@@ -505,6 +540,24 @@ class DistributedRfsas:
             except (EOFError, OSError):
                 self.stats.problems.append(f"{name} ended without its counters")
             conn.close()
+
+    def close(self) -> LiveStats:
+        """Stop every process and the broker; the counters (collected once). Idempotent."""
+        if self._closed:
+            return self.stats
+        self._closed = True
+        deadline = time.monotonic() + END_TIMEOUT_S
+        # the workers first: the backends take what they sent last before they stop
+        self._stop({w: c for w, (c, _, _) in self._workers.items()}, deadline)
+        time.sleep(DRAIN_S)
+        self._stop(dict(self._backends), deadline)
+        if self.gateway is not None:
+            time.sleep(DRAIN_S)
+            for arrival in self.gateway.drain():
+                owned = arrival.message.sender_id in self._owners.get(arrival.vehicle_id, {})
+                self.stats.foreign += not owned
+                lately = tuple(self._tiles_of.get(arrival.vehicle_id, {}))
+                self.late.append(replace(arrival, owned=owned, tiles=lately))
         for proc in self._procs:
             proc.join(max(deadline - time.monotonic(), 1.0))
             if proc.is_alive():
@@ -517,9 +570,11 @@ class DistributedRfsas:
                 "verified": totals.verified,
                 "unknown_vehicle": totals.unknown_vehicle,
                 "rejected": dict(totals.rejected),
+                "cpu_s": self.gateway.cpu_s,
             }
             self.stats.advisories_received = totals.datagrams
             self.gateway.close()
+            self.stats.gateway["cpu_s"] = self.gateway.cpu_s
         if self._auth_transport is not None:
             self._auth_transport.close()
         if self.broker is not None:
@@ -530,6 +585,9 @@ class DistributedRfsas:
             self.stats.problems += w.send_problems
         for bc in self.stats.backends.values():
             self.stats.bearing_messages_verified += bc.stats.get("link.verified", 0)
+            self.stats.bearing_messages_received += bc.stats.get(
+                "link.datagrams", 0
+            ) - bc.stats.get("link.nonces", 0)
             self.stats.advisories_sent += bc.advisories_sent
             self.stats.problems += bc.problems
         return self.stats

@@ -14,7 +14,10 @@ the main process sends it, over a pipe, the VRUs with a phone near its units
    MAC hashing with the deployment's epoch nonces from the authority);
 3. signs each unit's bearings with that unit's key and publishes them on its
    bearing topic (:class:`~rfsas_hw.link.publisher.Publisher`, version 2 with
-   the pre-authentication tag).
+   the pre-authentication tag), each in the :data:`SLOT_S` slot of its frame's
+   time, when that slot is over on the wall clock: the main process runs the
+   simulation one step ahead of the wall clock, so a step's frames are known
+   before they are "heard" and go out as a sensor would send them.
 
 Raw MACs exist only inside this process, as in a sensor. The worker answers
 every step with ``("step", t_s, frames, bearings)`` so the main process knows it
@@ -44,6 +47,7 @@ import numpy as np
 
 from rfsas_hw.bridges.bridge import device_mac
 from rfsas_hw.bridges.config import BridgeConfig, UnitSpec
+from rfsas_hw.city.clock import SimClock
 from rfsas_hw.df.calibration import Calibration
 from rfsas_hw.link.distribution import NonceInbox
 from rfsas_hw.link.keys import KeyStore
@@ -52,7 +56,7 @@ from rfsas_hw.link.transport import open_transport
 from rfsas_hw.pipeline import SensorPipeline
 from rfsas_hw.privacy.epochs import EpochSchedule
 from rfsas_hw.privacy.hashing import MacHasher, NonceUnavailableError
-from rfsas_hw.records import Pose, emitter_hex, int_to_mac
+from rfsas_hw.records import BearingBatch, Pose, emitter_hex, int_to_mac
 from rfsas_hw.sources.twinstream import StreamTwinSource
 from rfsas_hw.twin.scenario import (
     BuildingSpec,
@@ -65,6 +69,8 @@ from rfsas_hw.twin.scenario import (
 from rfsas_hw.twin.stream import StreamTwin
 
 NS_PER_S = 1_000_000_000
+SLOT_S = 0.02
+"""A worker sends the bearings of a step in slots this long, each when it is over, seconds."""
 NONCE_WAIT_S = 10.0
 """How long a worker waits for the authority's first envelope, seconds."""
 
@@ -95,6 +101,8 @@ class TileWork:
     """Nonce epoch length, seconds."""
     calibrations: dict[str, Calibration]
     """Calibration per unit id (a unit build is calibrated once, not per worker)."""
+    clock: SimClock
+    """The deployment's clock."""
 
 
 @dataclass(frozen=True)
@@ -180,20 +188,21 @@ class TwinWorker:
         self._phones: dict[str, _Phone] = {}
         self._visits: dict[str, int] = {}
         self._now_ns = 0
-        self._publishers: dict[str, Publisher] = {}
+        self.publishers: dict[str, Publisher] = {}
         first = work.units[0].id
         store = KeyStore.open(work.keys[first])
         schedule = EpochSchedule(work.epoch_s, min(5.0, work.epoch_s / 4))
         self.inbox = NonceInbox(
-            store.nonce_store(schedule),
+            store.nonce_store(schedule, work.clock),
             open_transport(work.nonce_url, "recv"),
-            # envelopes are checked against the wall clock (the simulation is paced to it
-            # and its step times are not known yet)
+            # envelopes are checked against the deployment's clock (the simulation is
+            # paced to it and its step times are not known yet)
+            clock=work.clock,
             wait_s=NONCE_WAIT_S,
         )
         # the first nonce is waited for here; afterwards a missing one holds the frames
         # in the pipeline (as a live sensor does) instead of stopping the worker
-        self.inbox.nonce_for(schedule.epoch_of(time.time_ns()))
+        self.inbox.nonce_for(schedule.epoch_of(work.clock()))
         self.inbox.wait_s = 0.0
         self.hasher = MacHasher(self.inbox, work.epoch_s)
         self.pipelines: dict[str, SensorPipeline] = {}
@@ -201,7 +210,7 @@ class TwinWorker:
             pose = Pose(u.pose.x_m, u.pose.y_m, u.pose.heading_deg)
             self.pipelines[u.id] = SensorPipeline(work.calibrations[u.id], self.hasher, u.id, pose)
             signer = KeyStore.open(work.keys[u.id]).signer()
-            self._publishers[u.id] = Publisher.to_url(
+            self.publishers[u.id] = Publisher.to_url(
                 work.urls[u.id],
                 signer,
                 pose,
@@ -210,6 +219,8 @@ class TwinWorker:
                 preauth=self.inbox,
             )
         self._sources: dict[str, StreamTwinSource] = {}
+        self._due: list[tuple[int, str, BearingBatch]] = []
+        """Bearings of the last step waiting for their time: (UTC ns, unit id, rows)."""
 
     def _clock(self) -> int:
         return self._now_ns
@@ -313,6 +324,7 @@ class TwinWorker:
             return 0, 0
         twin.prepare(snap.t_s)
         frames = bearings = 0
+        slot_ns = round(SLOT_S * NS_PER_S)
         for sid, src in self._sources.items():
             src.horizon_s = snap.t_s
             obs = src.read()
@@ -321,22 +333,39 @@ class TwinWorker:
             batch = self.pipelines[sid].process(obs)
             frames += len(obs)
             bearings += len(batch)
-            if len(batch):
-                self._publishers[sid].on_bearings(batch)
+            if not len(batch):
+                continue
+            # each frame leaves when its slot of the step is over, as a sensor sends
+            # what it has heard as it hears it (not at the end of the simulator's step)
+            due = -(-batch.t_ns // slot_ns) * slot_ns
+            for when in np.unique(due).tolist():
+                self._due.append((int(when), sid, batch.select(due == when)))
+        self._due.sort(key=lambda d: d[0])
         self.counters.frames += frames
         self.counters.bearings += bearings
         return frames, bearings
 
+    def send_due(self, clock: SimClock) -> None:
+        """Publish the bearings of the last step, each group when its time has come on
+        ``clock``, sleeping in between; late groups go at once."""
+        for when, sid, batch in self._due:
+            wait_ns = when - clock()
+            if wait_ns > 0:
+                time.sleep(clock.wall_s(wait_ns / NS_PER_S))
+            self._now_ns = max(when, self._now_ns)
+            self.publishers[sid].on_bearings(batch)
+        self._due.clear()
+
     def close(self) -> WorkerCounters:
         """Close the publishers, sources and the nonce inbox; the counters. Idempotent."""
-        for pub in self._publishers.values():
+        for pub in self.publishers.values():
             pub.close()
             self.counters.sent += pub.stats.bearings
             self.counters.messages += pub.stats.messages
             problem = pub.problem()
             if problem is not None:
                 self.counters.send_problems.append(f"{pub.signer.sender_id}: {problem}")
-        self._publishers.clear()
+        self.publishers.clear()
         for src in self._sources.values():
             src.close()
         self._sources.clear()
@@ -364,7 +393,9 @@ def worker_main(work: TileWork, conn: Connection) -> None:
             t0 = time.perf_counter()
             frames, bearings = worker.step(msg)
             spent = time.perf_counter() - t0
-            conn.send(("step", msg.t_s, frames, bearings, spent, worker.truth()))
+            sent = sum(p.stats.messages for p in worker.publishers.values())
+            conn.send(("step", msg.t_s, frames, bearings, spent, worker.truth(), sent))
+            worker.send_due(work.clock)
         counters = worker.close()
         worker = None
         counters.cpu_s = _cpu_s()

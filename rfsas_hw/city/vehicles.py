@@ -13,8 +13,9 @@ are counted and dropped; receivers of vehicles that left are dropped.
 
 from __future__ import annotations
 
+import threading
 import time
-from collections import Counter
+from collections import Counter, deque
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 
@@ -27,6 +28,8 @@ from rfsas_hw.fleet.advisory import (
 from rfsas_hw.link.message import MessageFormatError
 from rfsas_hw.link.transport import Transport
 
+QUEUE_MAX = 100_000
+"""Most arrivals the thread holds for the caller (the oldest go first)."""
 _SEVERITY = {"brake": 3, "caution": 2, "clear": 1, "none": 0}
 
 __all__ = ["Arrival", "GatewayStats", "VehicleGateway", "most_severe"]
@@ -40,6 +43,10 @@ class Arrival:
     message: AdvisoryMessage
     t_ns: int
     """When it arrived, UTC ns."""
+    owned: bool | None = None
+    """Whether the signing backend owned the vehicle's tile (None: not checked)."""
+    tiles: tuple[str, ...] = ()
+    """The tiles the vehicle was in during the last second (when checked)."""
 
 
 @dataclass
@@ -83,12 +90,39 @@ class VehicleGateway:
         self.receivers: dict[str, AdvisoryReceiver] = {}
         self.stats = GatewayStats()
         self._present: set[str] = set()
+        self._lock = threading.Lock()
+        self._queue: deque[Arrival] = deque(maxlen=QUEUE_MAX)
+        self._thread: threading.Thread | None = None
+        self._stop = threading.Event()
+        self.cpu_s = 0.0
+        """CPU time of the receiving thread, seconds."""
 
     def vehicles(self, present: Iterable[str]) -> None:
         """The vehicles in the simulation now (receivers of the others are dropped)."""
-        self._present = set(present)
-        for vid in [v for v in self.receivers if v not in self._present]:
-            self._retire(self.receivers.pop(vid))
+        with self._lock:
+            self._present = set(present)
+            for vid in [v for v in self.receivers if v not in self._present]:
+                self._retire(self.receivers.pop(vid))
+
+    def start(self) -> None:
+        """Receive in a thread of its own from now on (arrival times are then taken when
+        a message arrives, not when the caller next looks); :meth:`drain` takes them."""
+        if self._thread is None:
+            self._thread = threading.Thread(target=self._loop, name="vehicle-gateway", daemon=True)
+            self._thread.start()
+
+    def _loop(self) -> None:
+        start = time.thread_time()
+        while not self._stop.is_set():
+            self._queue.extend(self.receive(0.05))
+            self.cpu_s = time.thread_time() - start
+
+    def drain(self) -> list[Arrival]:
+        """The arrivals the thread has taken since the last call, oldest first."""
+        out = []
+        while self._queue:
+            out.append(self._queue.popleft())
+        return out
 
     def _retire(self, rx: AdvisoryReceiver) -> None:
         self.stats.rejected.update(rx.stats.rejected)
@@ -107,24 +141,29 @@ class VehicleGateway:
                 self.stats.rejected[err.reason] += 1
                 got = self.transport.recv(0)
                 continue
-            if vid not in self._present:
-                self.stats.unknown_vehicle += 1
-            else:
-                rx = self.receivers.get(vid)
-                if rx is None:
-                    rx = AdvisoryReceiver(
-                        self.trust, vehicle_id=vid, max_age_s=self.max_age_s, clock=self.clock
-                    )
-                    self.receivers[vid] = rx
-                now = self.clock()
-                msg = rx.feed(got, now)
-                if msg is not None:
-                    out.append(Arrival(vid, msg, now))
+            with self._lock:
+                if vid not in self._present:
+                    self.stats.unknown_vehicle += 1
+                else:
+                    rx = self.receivers.get(vid)
+                    if rx is None:
+                        rx = AdvisoryReceiver(
+                            self.trust, vehicle_id=vid, max_age_s=self.max_age_s, clock=self.clock
+                        )
+                        self.receivers[vid] = rx
+                    now = self.clock()
+                    msg = rx.feed(got, now)
+                    if msg is not None:
+                        out.append(Arrival(vid, msg, now))
             got = self.transport.recv(0)
         return out
 
     def totals(self) -> GatewayStats:
         """Every count so far, with the receivers still open."""
+        with self._lock:
+            return self._totals()
+
+    def _totals(self) -> GatewayStats:
         total = GatewayStats(
             datagrams=self.stats.datagrams,
             verified=self.stats.verified,
@@ -137,5 +176,9 @@ class VehicleGateway:
         return total
 
     def close(self) -> None:
-        """Close the transport; idempotent."""
+        """Stop the thread and close the transport; idempotent."""
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(5.0)
+            self._thread = None
         self.transport.close()

@@ -2,15 +2,15 @@
 
     python bench/bench_city_scoring.py [--steps 300]
 
-Cars stand on random points of the net's vehicle lanes and VRUs (a fifth of
+Cars stand on random points of the net's car lanes and VRUs (a fifth of
 them cyclists) on its sidewalks, all heading along their lane at city speeds
 (cars 0–14 m/s, pedestrians 0.8–1.5 m/s, cyclists 3–6 m/s), and move at
 constant velocity for ``--steps`` steps of 0.1 s. Every step is scored by
 :class:`~rfsas_hw.city.scoring.CityScorer` with the net's 503 crossings; every
 tenth step adds 20 fixes and one BRAKE. The table gives the wall time of
-``step`` (median, 90th percentile, mean) for 125/250, 250/500 and 500/1000
-cars/VRUs; the scorer must stay a small share of a 100 ms step. Needs the
-``city`` extra.
+``step`` (median, 90th percentile, mean) and its mean CPU time (which a
+loaded machine inflates less) for 125/250, 250/500 and 500/1000 cars/VRUs; the
+scorer must stay a small share of a 100 ms step. Needs the ``city`` extra.
 """
 
 from __future__ import annotations
@@ -39,10 +39,12 @@ def on_lanes(roads: list[Road], n: int, rng: np.random.Generator) -> np.ndarray:
     return out
 
 
-def run(info: NetInfo, cars: int, vrus: int, steps: int, seed: int = 1) -> np.ndarray:
-    """Per-step wall times of the scorer, milliseconds."""
+def run(
+    info: NetInfo, cars: int, vrus: int, steps: int, seed: int = 1
+) -> tuple[np.ndarray, np.ndarray]:
+    """Per-step wall and CPU times of the scorer, milliseconds."""
     rng = np.random.default_rng(seed)
-    car_lanes = [r for r in info.roads if not r.pedestrian_only and len(r.shape) > 1]
+    car_lanes = [r for r in info.roads if r.cars and len(r.shape) > 1]
     walks = [r for r in info.roads if r.pedestrian_only and len(r.shape) > 1]
     v, u = on_lanes(car_lanes, cars, rng), on_lanes(walks, vrus, rng)
     bikes = vrus // 5
@@ -55,26 +57,27 @@ def run(info: NetInfo, cars: int, vrus: int, steps: int, seed: int = 1) -> np.nd
     vru_ids = [f"vru{i}" for i in range(vrus)]
     route = np.zeros(cars)
     scorer = CityScorer(info.crossings)
-    times = np.empty(steps)
+    times, cpu = np.empty(steps), np.empty(steps)
     for k in range(steps):
         t = k * DT_S
         veh = Actors.of(
             car_ids, ["vehicle"] * cars, v[:, 0], v[:, 1], v_speed, v[:, 2], 4.5, 1.8, route
         )
         ppl = Actors.of(vru_ids, classes, u[:, 0], u[:, 1], u_speed, u[:, 2], u_len, u_wid)
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         scorer.step(t, veh, ppl)
         if k % 10 == 0:
             for j in range(20):
                 scorer.fix(t, f"e{j}", vru_ids[j], float(u[j, 0]), float(u[j, 1]), 2.0)
             scorer.advisory(t, car_ids[k % cars], "brake", 0.03)
         times[k] = (time.perf_counter() - t0) * 1000.0
+        cpu[k] = (time.process_time() - c0) * 1000.0
         for arr, speed in ((v, v_speed), (u, u_speed)):
             a = np.radians(arr[:, 2])
             arr[:, 0] += speed * np.sin(a) * DT_S
             arr[:, 1] += speed * np.cos(a) * DT_S
         route += v_speed * DT_S
-    return times
+    return times, cpu
 
 
 def main() -> None:
@@ -82,11 +85,11 @@ def main() -> None:
     parser.add_argument("--steps", type=int, default=300)
     args = parser.parse_args()
     info = read_net(district_net())
-    print(f"{'cars':>5} {'VRUs':>5} {'p50 ms':>7} {'p90 ms':>7} {'mean ms':>8}")
+    print(f"{'cars':>5} {'VRUs':>5} {'p50 ms':>7} {'p90 ms':>7} {'mean ms':>8} {'CPU ms':>7}")
     for cars, vrus in SIZES:
-        ms = run(info, cars, vrus, args.steps)
+        ms, cpu = run(info, cars, vrus, args.steps)
         p50, p90 = np.percentile(ms, [50, 90])
-        print(f"{cars:>5} {vrus:>5} {p50:>7.2f} {p90:>7.2f} {ms.mean():>8.2f}")
+        print(f"{cars:>5} {vrus:>5} {p50:>7.2f} {p90:>7.2f} {ms.mean():>8.2f} {cpu.mean():>7.2f}")
 
 
 if __name__ == "__main__":

@@ -1,10 +1,11 @@
 """The district's traffic: cars, pedestrians and cyclists, who carries a phone, who takes risks.
 
 Trips come from SUMO's own ``randomTrips.py`` (from the installed wheel's
-tools), one run per class, each validated by ``duarouter`` so that every trip
-has a route: cars (``--vehicle-class passenger``), pedestrians
-(``--pedestrians``: persons walking between two edges) and bicycles as
-vehicles (``--vehicle-class bicycle``). Departures are spread evenly over
+tools), one run per class, each routed by ``duarouter`` (trips without a
+route are dropped, and SUMO need not route at insertion): cars
+(``--vehicle-class passenger``), pedestrians (``--pedestrians``: persons
+walking between two edges) and bicycles as vehicles
+(``--vehicle-class bicycle``). Departures are spread evenly over
 ``[begin_s, end_s)``.
 
 Then, per VRU (a person or a bicycle), drawn from the seed and the VRU's id
@@ -29,8 +30,8 @@ Then, per VRU (a person or a bicycle), drawn from the seed and the VRU's id
   and SUMO saw 0 and 2 collisions.
 
 Every output goes to ``out_dir``: ``vehicles.rou.xml``, ``pedestrians.rou.xml``,
-``bicycles.rou.xml`` (SUMO inputs, with their vTypes) and ``vrus.csv`` (the
-per-VRU table).
+``bicycles.rou.xml`` (routed SUMO inputs, with their vTypes), the trips they
+were routed from (``*.trips.xml``) and ``vrus.csv`` (the per-VRU table).
 """
 
 from __future__ import annotations
@@ -169,13 +170,16 @@ class Demand:
 
 
 def _run_trips(net: Path, out: Path, args: list[str], seed: int) -> None:
+    """Trips to ``out`` with ``.trips.xml`` suffix, routed by duarouter into ``out``."""
     cmd = [
         sys.executable,
         str(sumo_tool("randomTrips.py")),
         "-n",
-        str(net),
+        str(net.resolve()),
         "-o",
-        str(out),
+        str(out.with_suffix("").with_suffix(".trips.xml").resolve()),
+        "-r",
+        str(out.resolve()),
         "--seed",
         str(seed),
         "--validate",
@@ -183,7 +187,12 @@ def _run_trips(net: Path, out: Path, args: list[str], seed: int) -> None:
     ]
     try:
         done = subprocess.run(
-            cmd, env=sumo_env(), capture_output=True, text=True, timeout=TRIPS_TIMEOUT_S
+            cmd,
+            env=sumo_env(),
+            cwd=out.parent,  # SUMO's tools leave helper files in the working directory
+            capture_output=True,
+            text=True,
+            timeout=TRIPS_TIMEOUT_S,
         )
     except subprocess.TimeoutExpired as err:
         raise SimulationError(f"{net}: randomTrips.py took over {TRIPS_TIMEOUT_S:g} s") from err
@@ -255,7 +264,7 @@ def generate(net: str | Path, out_dir: str | Path, cfg: DemandConfig, seed: int)
                 "--min-distance",
                 f"{cfg.vehicle_min_distance_m:g}",
             ],
-            "trip",
+            "vehicle",
         ),
         (
             "pedestrians",
@@ -274,7 +283,7 @@ def generate(net: str | Path, out_dir: str | Path, cfg: DemandConfig, seed: int)
                 "--min-distance",
                 f"{cfg.vru_min_distance_m:g}",
             ],
-            "trip",
+            "vehicle",
         ),
     ]
     route_files: list[Path] = []

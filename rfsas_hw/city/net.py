@@ -187,6 +187,8 @@ class Road:
     """Lane width, metres."""
     pedestrian_only: bool
     """Whether only pedestrians may use it (a sidewalk or footpath)."""
+    cars: bool
+    """Whether passenger cars may use it."""
 
 
 @dataclass(frozen=True)
@@ -281,7 +283,8 @@ def read_net(path: str | Path, origin: SiteOrigin | None = None) -> NetInfo:
             :data:`DEFAULT_ORIGIN`); ignored for a geo-referenced net.
 
     Raises:
-        MissingDependencyError: eclipse-sumo or sumolib is not installed.
+        MissingDependencyError: eclipse-sumo or sumolib is not installed, or pyproj for a
+            geo-referenced net.
         ConfigError: the file is missing, has a DTD, or is not a SUMO net.
     """
     p = Path(path)
@@ -300,6 +303,12 @@ def read_net(path: str | Path, origin: SiteOrigin | None = None) -> NetInfo:
     rotation, scale, residual = 0.0, 1.0, 0.0
     georef = bool(net.hasGeoProj())
     if georef:
+        try:
+            import pyproj  # noqa: F401  (sumolib projects with it)
+        except ImportError as err:
+            raise MissingDependencyError(
+                f"{p} is geo-referenced and pyproj is not installed; install it with: {INSTALL}"
+            ) from err
         lon, lat = net.convertXY2LonLat(*centre)
         site = SiteOrigin(float(lat), float(lon))
         gx, gy = np.meshgrid(np.linspace(x0, x1, FIT_GRID), np.linspace(y0, y1, FIT_GRID))
@@ -378,6 +387,7 @@ def read_net(path: str | Path, origin: SiteOrigin | None = None) -> NetInfo:
                         shape=frame.points_to_frame(lane.getShape()),
                         width_m=float(lane.getWidth()),
                         pedestrian_only=set(allowed) == {"pedestrian"},
+                        cars="passenger" in allowed,
                     )
                 )
     return replace(

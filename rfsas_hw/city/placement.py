@@ -20,8 +20,9 @@ beyond the outline's farthest vertex. A YAML file overrides it::
 Buildings. From a SUMO polygon file when given (every polygon of type
 ``building``, as its axis-aligned bounding box, since the twin's buildings are
 axis-aligned rectangles); otherwise derived from the net's city blocks: the
-net is rasterised at :data:`RASTER_M`, every lane (sidewalks included) widened
-by ``setback_m`` is free space, and each connected area enclosed by them that
+net is rasterised at :data:`RASTER_M`; every lane (sidewalks included) and
+every junction's outline is street, and so is everything within half the
+widest lane plus ``setback_m`` of it; each connected area of what is left that
 does not touch the net's edge is a city block. A block's interior is covered
 by square cells of ``cell_m`` that lie wholly inside it, and the cells of a row
 are merged into one rectangle per run. Only buildings within ``near_m`` of a
@@ -38,6 +39,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+import numpy.typing as npt
 from scipy import ndimage
 
 from rfsas_hw.bridges.sumo import BUILDING_TYPES
@@ -259,6 +261,31 @@ def _near(b: BuildingSpec, units: Sequence[UnitSite], near_m: float) -> bool:
     return False
 
 
+def _fill(
+    raster: npt.NDArray[np.bool_], shape: Sequence[tuple[float, float]], corner: tuple[float, float]
+) -> None:
+    """Mark the cells of ``raster`` (origin ``corner``, :data:`RASTER_M` cells) whose
+    centres lie inside polygon ``shape`` (even-odd rule)."""
+    if len(shape) < 3:
+        return
+    poly = np.asarray(shape, dtype=np.float64)
+    lo = np.floor((poly.min(axis=0) - corner) / RASTER_M).astype(int)
+    hi = np.ceil((poly.max(axis=0) - corner) / RASTER_M).astype(int)
+    lo = np.clip(lo, 0, [raster.shape[1] - 1, raster.shape[0] - 1])
+    hi = np.clip(hi, 0, [raster.shape[1] - 1, raster.shape[0] - 1])
+    gx, gy = np.meshgrid(np.arange(lo[0], hi[0] + 1), np.arange(lo[1], hi[1] + 1))
+    px = corner[0] + (gx + 0.5) * RASTER_M
+    py = corner[1] + (gy + 0.5) * RASTER_M
+    inside = np.zeros(px.shape, dtype=bool)
+    for (ax, ay), (bx, by) in zip(poly, np.roll(poly, -1, axis=0), strict=True):
+        if ay == by:
+            continue
+        crosses = (ay > py) != (by > py)
+        x_at = ax + (py - ay) * (bx - ax) / (by - ay)
+        inside ^= crosses & (px < x_at)
+    raster[gy[inside], gx[inside]] = True
+
+
 def _block_buildings(info: NetInfo, opts: BuildingOptions) -> list[BuildingSpec]:
     x0, y0, x1, y1 = info.bounds_m
     nx, ny = math.ceil((x1 - x0) / RASTER_M) + 1, math.ceil((y1 - y0) / RASTER_M) + 1
@@ -279,6 +306,8 @@ def _block_buildings(info: NetInfo, opts: BuildingOptions) -> list[BuildingSpec]
         ix = np.clip(((samples[:, 0] - x0) / RASTER_M).astype(int), 0, nx - 1)
         iy = np.clip(((samples[:, 1] - y0) / RASTER_M).astype(int), 0, ny - 1)
         road[iy, ix] = True
+    for j in info.junctions:
+        _fill(road, j.shape, (x0, y0))
     half_widths = max((r.width_m for r in info.roads), default=3.2) / 2
     clearance = ndimage.distance_transform_edt(~road) * RASTER_M
     free = clearance > half_widths + opts.setback_m

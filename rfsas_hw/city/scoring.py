@@ -81,17 +81,34 @@ ERROR_BIN_M = 0.25
 ERROR_MAX_M = 100.0
 """Fix errors above this land in the last bin, metres."""
 
+_COLUMNS = (
+    "classes",
+    "x_m",
+    "y_m",
+    "vx_mps",
+    "vy_mps",
+    "heading_deg",
+    "length_m",
+    "width_m",
+    "route_m",
+)
+
 __all__ = ["Actors", "CityScorer", "CitySummary", "CrossingCoverage", "ScoringConfig"]
 
 
 @dataclass(frozen=True)
 class Actors:
-    """Road users of one step, one entry per user, rfsas frame (box centres)."""
+    """Road users of one step, one entry per user, rfsas frame (box centres).
+
+    Cars are every vehicle that is not a VRU; a bicycle is a VRU (SUMO runs it as
+    a vehicle)."""
 
     ids: Sequence[str]
     """Simulator ids."""
     classes: Sequence[str]
-    """``vehicle`` for a car; ``pedestrian`` or ``bicycle`` for a VRU."""
+    """The VRU class of a VRU (``pedestrian``, ``bicycle``, ``moped``, …), by which
+    conflicts and collisions are counted; any label for a car (``vehicle``, SUMO's
+    vehicle class)."""
     x_m: FloatArray
     """Metres east of the origin."""
     y_m: FloatArray
@@ -111,10 +128,7 @@ class Actors:
 
     def __post_init__(self) -> None:
         n = len(self.ids)
-        for name in ("classes", "x_m", "y_m", "vx_mps", "vy_mps", "heading_deg"):
-            if len(getattr(self, name)) != n:
-                raise ConfigError(f"actors: {name} has {len(getattr(self, name))} entries, not {n}")
-        for name in ("length_m", "width_m", "route_m"):
+        for name in _COLUMNS:
             if len(getattr(self, name)) != n:
                 raise ConfigError(f"actors: {name} has {len(getattr(self, name))} entries, not {n}")
 
@@ -162,7 +176,7 @@ class Actors:
 
     def entity(self, i: int) -> Entity:
         """Entry ``i`` as a bridge entity (for the box geometry)."""
-        kind: EntityKind = "vehicle" if self.classes[i] == "vehicle" else "pedestrian"
+        kind: EntityKind = "pedestrian" if self.classes[i] == "pedestrian" else "vehicle"
         return Entity(
             str(self.ids[i]),
             kind,

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import subprocess
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
@@ -39,3 +40,16 @@ def grid_net(tmp_path_factory: pytest.TempPathFactory) -> Path:
     pytest.importorskip("sumo", reason=CITY)
     pytest.importorskip("sumolib", reason=CITY)
     return make_grid(tmp_path_factory.mktemp("grid") / "grid3.net.xml")
+
+
+@pytest.fixture(scope="session")
+def grid_factory(tmp_path_factory: pytest.TempPathFactory) -> Callable[[int, float], Path]:
+    """Make other grids: ``grid_factory(number, length_m)`` → the net's path."""
+    pytest.importorskip("sumo", reason=CITY)
+    pytest.importorskip("sumolib", reason=CITY)
+
+    def make(number: int, length_m: float) -> Path:
+        folder = tmp_path_factory.mktemp("grid")
+        return make_grid(folder / f"grid{number}.net.xml", number, length_m)
+
+    return make

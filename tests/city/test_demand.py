@@ -18,9 +18,15 @@ from rfsas_hw.errors import ConfigError
 SMALL = DemandConfig(vehicles=20, pedestrians=30, bicycles=10, end_s=60.0)
 
 
-def test_demand_is_seeded_and_carries_the_vru_table(grid_net: Path, tmp_path: Path) -> None:
+def test_demand_is_seeded_and_carries_the_vru_table(
+    grid_net: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    elsewhere = tmp_path / "cwd"
+    elsewhere.mkdir()
+    monkeypatch.chdir(elsewhere)
     a = generate(grid_net, tmp_path / "a", SMALL, seed=5)
     b = generate(grid_net, tmp_path / "b", SMALL, seed=5)
+    assert list(elsewhere.iterdir()) == []  # nothing left where the caller stood
     assert [p.name for p in a.route_files] == [
         "vehicles.rou.xml",
         "pedestrians.rou.xml",

@@ -30,6 +30,7 @@ def test_grid_net_is_read_in_a_frame_centred_on_its_boundary(grid_net: Path) -> 
     assert all(c.signalised for c in info.crossings)
     assert all(5.0 < c.length_m < 20.0 for c in info.crossings)
     assert any(r.pedestrian_only for r in info.roads)
+    assert all(r.cars != r.pedestrian_only for r in info.roads)  # a road and its sidewalks
 
 
 def test_a_net_without_projection_is_placed_at_the_given_origin(grid_net: Path) -> None:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
@@ -48,6 +49,14 @@ def test_two_units_on_opposite_corners_facing_each_junction(info: NetInfo) -> No
             assert u.boresight_deg == pytest.approx(facing, abs=1e-6)
             lat, lon, _ = info.origin.to_geodetic(u.x_m, u.y_m)
             assert u.tile == quadkey(float(lat), float(lon))
+
+
+def test_a_two_by_two_grid_gets_a_pair_per_junction(
+    grid_factory: Callable[[int, float], Path],
+) -> None:
+    units = place_units(read_net(grid_factory(2, 200.0)))
+    assert len(units) == 8
+    assert len({u.junction for u in units}) == 4
 
 
 def test_yaml_chooses_junctions_and_adds_units(info: NetInfo, tmp_path: Path) -> None:

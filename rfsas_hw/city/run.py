@@ -412,6 +412,7 @@ def _run_loop(
                         "wall_s": round(elapsed, 3),
                         "vehicles": len(cars),
                         "vrus": len(vrus),
+                        "vrus_with_phone": sum(v in phones for v in vrus.ids),
                         "advisories": advisories,
                         "brakes": brakes,
                     }

@@ -585,9 +585,14 @@ class DistributedRfsas:
             self.stats.problems += w.send_problems
         for bc in self.stats.backends.values():
             self.stats.bearing_messages_verified += bc.stats.get("link.verified", 0)
-            self.stats.bearing_messages_received += bc.stats.get(
-                "link.datagrams", 0
-            ) - bc.stats.get("link.nonces", 0)
+            # what came on the bearing topics: every datagram but the nonce envelopes
+            # (taken, or refused as nonce_rejected)
+            st = bc.stats
+            self.stats.bearing_messages_received += (
+                st.get("link.datagrams", 0)
+                - st.get("link.nonces", 0)
+                - st.get("link.rejected.nonce_rejected", 0)
+            )
             self.stats.advisories_sent += bc.advisories_sent
             self.stats.problems += bc.problems
         return self.stats

@@ -242,6 +242,8 @@ class DistributedRfsas:
         self._backends: dict[str, Connection] = {}
         self._truth: dict[str, str] = {}
         self._sent: dict[str, int] = {}
+        self._pending: dict[str, int] = {}
+        """Steps sent to each worker and not answered yet."""
         self._frame_ns: dict[tuple[str, int], int] = {}
         self._arrived: dict[tuple[str, int], int] = {}
         self._owners: dict[str, dict[str, float]] = {}
@@ -499,22 +501,31 @@ class DistributedRfsas:
                 del self._frame_ns[key]
 
     def _wait_workers(self, t_s: float) -> int:
-        """Wait for every worker's answer to this step; the bearing messages they sent
-        since their previous answers."""
+        """Wait until every worker has answered all steps but this one (a worker has the
+        time of one step to compute the next, while this process goes on); the bearing
+        messages they sent since their previous answers."""
         messages = 0
         for wid, (conn, _, _) in self._workers.items():
-            if not conn.poll(STEP_TIMEOUT_S):
-                raise SimulationError(
-                    f"{wid} did not answer step {t_s:.1f} s within {STEP_TIMEOUT_S:g} s"
-                )
-            msg = conn.recv()
-            if msg[0] == "error":
-                raise SimulationError(str(msg[1]))
-            if msg[0] == "step":
-                for emitter, vru in msg[5]:
-                    self._truth[emitter] = vru
-                messages += msg[6] - self._sent.get(wid, 0)
-                self._sent[wid] = msg[6]
+            self._pending[wid] = self._pending.get(wid, 0) + 1
+            while self._pending[wid] > 1 or conn.poll(0):
+                if not conn.poll(STEP_TIMEOUT_S):
+                    raise SimulationError(
+                        f"{wid} did not answer step {t_s:.1f} s within {STEP_TIMEOUT_S:g} s"
+                    )
+                messages += self._answer(wid, conn.recv())
+        return messages
+
+    def _answer(self, wid: str, msg: Any) -> int:
+        """Take one answer of a worker; the bearing messages it sent since the last one."""
+        if msg[0] == "error":
+            raise SimulationError(str(msg[1]))
+        if msg[0] != "step":
+            return 0
+        self._pending[wid] -= 1
+        for emitter, vru in msg[5]:
+            self._truth[emitter] = vru
+        messages = int(msg[6]) - self._sent.get(wid, 0)
+        self._sent[wid] = int(msg[6])
         return messages
 
     # -- end --------------------------------------------------------------------------

@@ -122,32 +122,26 @@ class SumoDistrict:
             self._static.pop(pid, None)
 
     def _movers(self, results: dict[str, dict[int, Any]], vru: bool) -> Movers:
-        rows = [(k, self._static[k], r) for k, r in results.items() if k in self._static]
-        rows = [(k, s, r) for k, s, r in rows if s.vru == vru]
+        static = self._static
+        rows = [(k, st, r) for k, r in results.items() if (st := static.get(k)) and st.vru == vru]
         n = len(rows)
-        xy = np.empty((n, 2))
-        angle = np.empty(n)
-        speed = np.empty(n)
-        odo = np.zeros(n)
-        length = np.empty(n)
-        width = np.empty(n)
-        for i, (_, s, r) in enumerate(rows):
-            xy[i] = r[_POSITION]
-            angle[i] = r[_ANGLE]
-            speed[i] = r[_SPEED]
-            odo[i] = r.get(_DISTANCE, 0.0)
-            length[i] = s.length_m
-            width[i] = s.width_m
+        # one list per column, then one array each (element-wise numpy writes cost more)
+        xy = np.array([r[_POSITION] for _, _, r in rows], dtype=np.float64).reshape(n, 2)
+        angle = np.array([r[_ANGLE] for _, _, r in rows], dtype=np.float64)
+        speed = np.array([r[_SPEED] for _, _, r in rows], dtype=np.float64)
+        odo = np.array([r.get(_DISTANCE, 0.0) for _, _, r in rows], dtype=np.float64)
+        length = np.array([s.length_m for _, s, _ in rows], dtype=np.float64)
+        width = np.array([s.width_m for _, s, _ in rows], dtype=np.float64)
         e, nn = self.to_frame(xy[:, 0], xy[:, 1])
         heading = np.asarray(self.heading_to_frame(angle), dtype=np.float64)
         # SUMO gives a vehicle's front bumper and a person's centre
-        back = np.array([0.0 if s.person else s.length_m / 2 for _, s, _ in rows])
+        back = np.array([0.0 if st.person else st.length_m / 2 for _, st, _ in rows])
         rad = np.radians(heading)
         e = np.asarray(e, dtype=np.float64) - back * np.sin(rad)
         nn = np.asarray(nn, dtype=np.float64) - back * np.cos(rad)
         return Movers(
             ids=tuple(k for k, _, _ in rows),
-            cls=tuple(s.cls for _, s, _ in rows),
+            cls=tuple(st.cls for _, st, _ in rows),
             x_m=e,
             y_m=nn,
             heading_deg=heading,

@@ -180,6 +180,8 @@ class _Log:
     def write(self, record: dict[str, Any]) -> None:
         try:
             self.fh.write(json.dumps(record, allow_nan=False, default=_plain) + "\n")
+            if record["record"] != "advisory":  # a reader following the log sees each second
+                self.fh.flush()
         except OSError as err:
             raise OutputError(f"{self.path}: cannot write: {err.strerror or err}") from err
 

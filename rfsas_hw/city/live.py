@@ -354,6 +354,8 @@ class DistributedRfsas:
                     for s in specs
                 },
                 clock=self.clock,
+                groups=_junction_groups(part),
+                hear_m=self.config.hear_m,
             )
             parent, child = ctx.Pipe()
             proc = ctx.Process(target=worker_main, args=(work, child), name=wid, daemon=True)
@@ -613,6 +615,14 @@ class DistributedRfsas:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+def _junction_groups(units: Sequence[Site]) -> tuple[tuple[str, ...], ...]:
+    """Unit ids per junction (a unit of no junction alone)."""
+    groups: dict[str, list[str]] = {}
+    for u in units:
+        groups.setdefault(u.junction or f"unit:{u.id}", []).append(u.id)
+    return tuple(tuple(ids) for ids in groups.values())
 
 
 def _boresight(u: Site) -> float:

@@ -5,7 +5,12 @@ the main process sends it, over a pipe, the VRUs with a phone near its units
 (:class:`Snapshot`); the worker
 
 1. grows each VRU's live track in the streaming twin
-   (:class:`~rfsas_hw.twin.stream.StreamTwin`) and gives a newly seen VRU its
+   (:class:`~rfsas_hw.twin.stream.StreamTwin`) of each junction it is near —
+   every junction's units have a twin of their own with only the phones
+   within ``hear_m`` of them (a frame is computed for every unit of a twin, so
+   one twin for all of a worker's units would cost every phone near any of
+   them times all of them); a phone near two junctions transmits in both twins
+   from the same seeded traffic streams — and gives a newly seen VRU its
    phone (the device model the demand drew for it, the MAC
    :func:`~rfsas_hw.bridges.bridge.device_mac` draws from the seed, a new MAC
    every ``mac.rotate_s`` when the policy says so);
@@ -103,6 +108,10 @@ class TileWork:
     """Calibration per unit id (a unit build is calibrated once, not per worker)."""
     clock: SimClock
     """The deployment's clock."""
+    groups: tuple[tuple[str, ...], ...]
+    """Unit ids per junction: each junction's units are twinned together."""
+    hear_m: float = 150.0
+    """A junction's twin has the phones this close to one of its units, metres."""
 
 
 @dataclass(frozen=True)
@@ -170,8 +179,114 @@ def unit_sensor(u: UnitSpec) -> SensorSpec:
     )
 
 
+class _JunctionTwin:
+    """The units of one junction and the phones near them, in a twin of their own.
+
+    A frame is computed for every unit of a twin, so a twin per junction costs the
+    phones near that junction times its units, where one twin for all of a worker's
+    units would cost every phone near any of them times all of them.
+    """
+
+    def __init__(self, worker: TwinWorker, units: tuple[UnitSpec, ...]) -> None:
+        self.worker = worker
+        self.sensors = tuple(unit_sensor(u) for u in units)
+        self.x_m = np.array([u.pose.x_m for u in units])
+        self.y_m = np.array([u.pose.y_m for u in units])
+        self.twin: StreamTwin | None = None
+        self.sources: dict[str, StreamTwinSource] = {}
+        self.phones: dict[str, _Phone] = {}
+        self._visits: dict[str, int] = {}
+
+    def near(self, snap: Snapshot, reach_m: float) -> np.ndarray:
+        """Indices of the snapshot's VRUs within ``reach_m`` of one of these units."""
+        if not snap.ids:
+            return np.zeros(0, np.intp)
+        d2 = (snap.x_m[:, None] - self.x_m[None, :]) ** 2 + (
+            snap.y_m[:, None] - self.y_m[None, :]
+        ) ** 2
+        return np.flatnonzero(d2.min(axis=1) < reach_m**2)
+
+    def start(self, t_s: float, t0_ns: int) -> StreamTwin:
+        work = self.worker.work
+        cfg = work.bridge
+        spec = ScenarioSpec(
+            version=1,
+            name=work.worker_id,
+            seed=cfg.seed,
+            duration_s=1.0,
+            sensors=self.sensors,
+            emitters=(),
+            intersection=IntersectionSpec(buildings=work.buildings),
+            rf=cfg.rf,
+            detail=cfg.detail,
+            start_utc=utc_text(t0_ns),
+        )
+        scenario = Scenario(spec=spec, source=f"<{work.worker_id}>", base_dir=Path.cwd())
+        self.twin = StreamTwin(scenario, start_s=t_s)
+        for sensor in self.sensors:
+            self.sources[sensor.id] = StreamTwinSource(self.twin, sensor.id)
+        return self.twin
+
+    def _give_phone(self, twin: StreamTwin, vru: str, mover: str, model: str, t_s: float) -> None:
+        cfg = self.worker.work.bridge
+        held = self.phones.get(vru)
+        rotation = 0 if held is None else held.rotation + 1
+        device = cfg.device_model(model)
+        mac = device_mac(cfg, vru, rotation)
+        while np.any(twin.emitter_macs == np.uint64(mac)):
+            mac = (mac + 1) & ((1 << 48) - 1)
+        index = twin.add_emitter(
+            EmitterSpec(
+                id=f"{mover}#{rotation}",
+                mac=int_to_mac(mac),
+                tech=device.tech,
+                traffic=device.traffic,
+                tx_power_dbm=device.tx_power_dbm,
+                antenna_gain_dbi=device.antenna_gain_dbi,
+                carried_by=mover,
+            ),
+            start_s=t_s,
+        )
+        self.phones[vru] = _Phone(mover, index, t_s, rotation, mac)
+        self.worker.counters.phones += 1
+
+    def update(self, snap: Snapshot, idx: np.ndarray) -> None:
+        """Move the phones of the snapshot's rows ``idx``; the others have left."""
+        twin = self.twin
+        assert twin is not None
+        t_s = snap.t_s
+        rotate = self.worker.work.bridge.mac.rotate_s
+        rows = idx.tolist()
+        present = {snap.ids[i] for i in rows}
+        for vru in [v for v in self.phones if v not in present]:
+            twin.retire_emitter(self.phones.pop(vru).index, t_s)
+        for i in rows:
+            vru = snap.ids[i]
+            x, y, h = float(snap.x_m[i]), float(snap.y_m[i]), float(snap.heading_deg[i])
+            phone = self.phones.get(vru)
+            if phone is None:
+                # a VRU that comes back into range walks on as a new mover (the twin's
+                # tracks only grow), with a phone of the same model
+                visit = self._visits.get(vru, 0)
+                self._visits[vru] = visit + 1
+                mover = f"{vru}@{visit}"
+                twin.add_mover(mover)
+                twin.live[mover].extend(t_s, x, y, h)
+                self._give_phone(twin, vru, mover, snap.devices[i], t_s)
+                continue
+            twin.live[phone.mover].extend(t_s, x, y, h)
+            if rotate is not None and t_s - phone.since_s >= rotate:
+                twin.retire_emitter(phone.index, t_s)
+                self._give_phone(twin, vru, phone.mover, snap.devices[i], t_s)
+
+    def close(self) -> None:
+        for src in self.sources.values():
+            src.close()
+        self.sources.clear()
+
+
 class TwinWorker:
-    """The units of some tiles (see the module docstring); driven by :meth:`step`.
+    """The units of some junctions (see the module docstring); driven by :meth:`step`.
 
     Raises (from the constructor):
         KeyStoreError: a unit's key directory is unusable.
@@ -181,13 +296,12 @@ class TwinWorker:
 
     def __init__(self, work: TileWork) -> None:
         self.work = work
-        self.sensors = tuple(unit_sensor(u) for u in work.units)
         self.counters = WorkerCounters()
-        self.twin: StreamTwin | None = None
         self.t0_ns = 0
-        self._phones: dict[str, _Phone] = {}
-        self._visits: dict[str, int] = {}
+        self._started = False
         self._now_ns = 0
+        by_id = {u.id: u for u in work.units}
+        self.junctions = [_JunctionTwin(self, tuple(by_id[i] for i in ids)) for ids in work.groups]
         self.publishers: dict[str, Publisher] = {}
         first = work.units[0].id
         store = KeyStore.open(work.keys[first])
@@ -218,81 +332,12 @@ class TwinWorker:
                 clock=self._clock,
                 preauth=self.inbox,
             )
-        self._sources: dict[str, StreamTwinSource] = {}
+        self._reported: dict[tuple[str, int], int] = {}
         self._due: list[tuple[int, str, BearingBatch]] = []
         """Bearings of the last step waiting for their time: (UTC ns, unit id, rows)."""
 
     def _clock(self) -> int:
         return self._now_ns
-
-    def _start(self, t_s: float, t0_ns: int) -> StreamTwin:
-        cfg = self.work.bridge
-        spec = ScenarioSpec(
-            version=1,
-            name=self.work.worker_id,
-            seed=cfg.seed,
-            duration_s=1.0,
-            sensors=self.sensors,
-            emitters=(),
-            intersection=IntersectionSpec(buildings=self.work.buildings),
-            rf=cfg.rf,
-            detail=cfg.detail,
-            start_utc=utc_text(t0_ns),
-        )
-        self.scenario = Scenario(spec=spec, source=f"<{self.work.worker_id}>", base_dir=Path.cwd())
-        self.t0_ns = t0_ns
-        twin = StreamTwin(self.scenario, start_s=t_s)
-        self.twin = twin
-        for s in self.scenario.spec.sensors:
-            self._sources[s.id] = StreamTwinSource(twin, s.id)
-        return twin
-
-    def _give_phone(self, twin: StreamTwin, vru: str, mover: str, model: str, t_s: float) -> None:
-        cfg = self.work.bridge
-        held = self._phones.get(vru)
-        rotation = 0 if held is None else held.rotation + 1
-        device = cfg.device_model(model)
-        mac = device_mac(cfg, vru, rotation)
-        while np.any(twin.emitter_macs == np.uint64(mac)):
-            mac = (mac + 1) & ((1 << 48) - 1)
-        index = twin.add_emitter(
-            EmitterSpec(
-                id=f"{mover}#{rotation}",
-                mac=int_to_mac(mac),
-                tech=device.tech,
-                traffic=device.traffic,
-                tx_power_dbm=device.tx_power_dbm,
-                antenna_gain_dbi=device.antenna_gain_dbi,
-                carried_by=mover,
-            ),
-            start_s=t_s,
-        )
-        self._phones[vru] = _Phone(mover, index, t_s, rotation, mac)
-        self.counters.phones += 1
-
-    def _update(self, twin: StreamTwin, snap: Snapshot) -> None:
-        t_s = snap.t_s
-        rotate = self.work.bridge.mac.rotate_s
-        present = set(snap.ids)
-        for vru in [v for v in self._phones if v not in present]:
-            twin.retire_emitter(self._phones.pop(vru).index, t_s)
-        xs, ys, hs = snap.x_m.tolist(), snap.y_m.tolist(), snap.heading_deg.tolist()
-        for i, vru in enumerate(snap.ids):
-            phone = self._phones.get(vru)
-            if phone is None:
-                # a VRU that comes back into range walks on as a new mover (the twin's
-                # tracks only grow), with the same phone and MAC
-                visit = self._visits.get(vru, 0)
-                self._visits[vru] = visit + 1
-                mover = f"{vru}@{visit}"
-                twin.add_mover(mover)
-                twin.live[mover].extend(t_s, xs[i], ys[i], hs[i])
-                self._give_phone(twin, vru, mover, snap.devices[i], t_s)
-                continue
-            twin.live[phone.mover].extend(t_s, xs[i], ys[i], hs[i])
-            if rotate is not None and t_s - phone.since_s >= rotate:
-                twin.retire_emitter(phone.index, t_s)
-                self._give_phone(twin, vru, phone.mover, snap.devices[i], t_s)
 
     def truth(self) -> list[tuple[str, str]]:
         """(emitter id, VRU id) of every phone whose id in this epoch was not told yet.
@@ -302,44 +347,54 @@ class TwinWorker:
         """
         out = []
         epoch = self._now_ns // self.hasher.epoch_ns
-        for vru, phone in self._phones.items():
-            if phone.reported_epoch == epoch:
-                continue
-            try:
-                emitter = self.hasher.hash_one(phone.mac, self._now_ns)
-            except NonceUnavailableError:
-                continue
-            phone.reported_epoch = epoch
-            out.append((emitter_hex(emitter), vru))
+        for j in self.junctions:
+            for vru, phone in j.phones.items():
+                if phone.reported_epoch == epoch:
+                    continue
+                try:
+                    emitter = self.hasher.hash_one(phone.mac, self._now_ns)
+                except NonceUnavailableError:
+                    continue
+                phone.reported_epoch = epoch
+                if self._reported.get((vru, phone.mac)) != epoch:
+                    self._reported[(vru, phone.mac)] = epoch
+                    out.append((emitter_hex(emitter), vru))
         return out
 
     def step(self, snap: Snapshot) -> tuple[int, int]:
         """Advance to ``snap.t_s``; the frames heard and bearings sent in this step."""
-        first = self.twin is None
-        twin = self._start(snap.t_s, snap.t0_ns) if self.twin is None else self.twin
+        first = not self._started
+        if first:
+            self._started = True
+            self.t0_ns = snap.t0_ns
+            for j in self.junctions:
+                j.start(snap.t_s, snap.t0_ns)
         self._now_ns = self.t0_ns + round(snap.t_s * NS_PER_S)
-        self._update(twin, snap)
+        for j in self.junctions:
+            j.update(snap, j.near(snap, self.work.hear_m))
         self.counters.steps += 1
         if first:
             return 0, 0
-        twin.prepare(snap.t_s)
         frames = bearings = 0
         slot_ns = round(SLOT_S * NS_PER_S)
-        for sid, src in self._sources.items():
-            src.horizon_s = snap.t_s
-            obs = src.read()
-            if obs is None or not len(obs):
-                continue
-            batch = self.pipelines[sid].process(obs)
-            frames += len(obs)
-            bearings += len(batch)
-            if not len(batch):
-                continue
-            # each frame leaves when its slot of the step is over, as a sensor sends
-            # what it has heard as it hears it (not at the end of the simulator's step)
-            due = -(-batch.t_ns // slot_ns) * slot_ns
-            for when in np.unique(due).tolist():
-                self._due.append((int(when), sid, batch.select(due == when)))
+        for j in self.junctions:
+            assert j.twin is not None
+            j.twin.prepare(snap.t_s)
+            for sid, src in j.sources.items():
+                src.horizon_s = snap.t_s
+                obs = src.read()
+                if obs is None or not len(obs):
+                    continue
+                batch = self.pipelines[sid].process(obs)
+                frames += len(obs)
+                bearings += len(batch)
+                if not len(batch):
+                    continue
+                # each frame leaves when its slot of the step is over, as a sensor sends
+                # what it has heard as it hears it (not at the end of the simulator's step)
+                due = -(-batch.t_ns // slot_ns) * slot_ns
+                for when in np.unique(due).tolist():
+                    self._due.append((int(when), sid, batch.select(due == when)))
         self._due.sort(key=lambda d: d[0])
         self.counters.frames += frames
         self.counters.bearings += bearings
@@ -366,9 +421,8 @@ class TwinWorker:
             if problem is not None:
                 self.counters.send_problems.append(f"{pub.signer.sender_id}: {problem}")
         self.publishers.clear()
-        for src in self._sources.values():
-            src.close()
-        self._sources.clear()
+        for j in self.junctions:
+            j.close()
         self.inbox.close()
         return self.counters
 

@@ -196,6 +196,8 @@ class _JunctionTwin:
         self.sources: dict[str, StreamTwinSource] = {}
         self.phones: dict[str, _Phone] = {}
         self._visits: dict[str, int] = {}
+        self.was_busy = False
+        """Whether it had phones at the previous step (their last frames still count)."""
 
     def near(self, snap: Snapshot, reach_m: float) -> np.ndarray:
         """Indices of the snapshot's VRUs within ``reach_m`` of one of these units."""
@@ -379,6 +381,9 @@ class TwinWorker:
         slot_ns = round(SLOT_S * NS_PER_S)
         for j in self.junctions:
             assert j.twin is not None
+            if not j.phones and not j.was_busy:
+                continue  # nothing near it, nothing in flight: nothing to hear
+            j.was_busy = bool(j.phones)
             j.twin.prepare(snap.t_s)
             for sid, src in j.sources.items():
                 src.horizon_s = snap.t_s

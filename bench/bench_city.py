@@ -12,11 +12,14 @@ loopback, the deployment's clock at real time.
 
 Printed per row: the real-time factor of the stepping loop (simulated seconds
 per wall second; 1.0 is real time), the most VRUs with a phone at one time,
-the messages, and each component's CPU seconds per wall second (1.00 = one
-core): SUMO, reading its state, the scorer, the main process's share of the
-path (snapshots, pipes, acting on advisories), the vehicles' receivers,
-the twin workers, the backends and the broker. The machine has 2 cores; the
-sum of the shares is the load the run puts on it.
+bearing messages per second and the share the backends verified (the rest
+arrived too late: ``stale``, ``wrong_epoch``), advisories per second, messages
+lost in the broker, frame → advisory latency p50/p99 (ms), and each
+component's CPU seconds per wall second (1.00 = one core): SUMO, reading its
+state, the scorer, the main process's share of the path (snapshots, pipes,
+acting on advisories), the vehicles' receivers, the twin workers, the
+backends and the broker. The machine has 2 cores; the sum of the shares is
+the load the run puts on it.
 """
 
 from __future__ import annotations
@@ -57,6 +60,11 @@ def _row(vrus: int, duration_s: float, net: Path | None, seed: int) -> dict[str,
         "behind_s": round(rt.behind_s, 2),
         "bearing_messages_per_s": round(rt.counts.get("bearing_messages_sent", 0) / rt.wall_s, 1),
         "advisories_per_s": round(rt.counts.get("advisories_received", 0) / rt.wall_s, 1),
+        "verified_share": round(
+            rt.counts.get("bearing_messages_verified", 0)
+            / max(rt.counts.get("bearing_messages_sent", 0), 1),
+            3,
+        ),
         "lost": rt.counts.get("bearing_messages_sent", 0)
         - rt.counts.get("bearing_messages_received", 0)
         + rt.counts.get("advisories_sent", 0)
@@ -76,7 +84,8 @@ def main() -> None:
     args = ap.parse_args()
     rows = [_row(int(v), args.duration, args.net, args.seed) for v in args.vrus.split(",")]
     keys = sorted({k for r in rows for k in r["cpu_share"]})  # type: ignore[attr-defined]
-    head = ["VRUs", "cars", "phones", "RTF", "bear/s", "adv/s", "lost", "p50", "p99", *keys]
+    head = ["VRUs", "cars", "phones", "RTF", "bear/s", "verified", "adv/s", "lost", "p50", "p99"]
+    head += keys
     print(" | ".join(head))
     for r in rows:
         share = r["cpu_share"]
@@ -86,6 +95,7 @@ def main() -> None:
             r["phones_at_once"],
             r["realtime_factor"],
             r["bearing_messages_per_s"],
+            r["verified_share"],
             r["advisories_per_s"],
             r["lost"],
             r["latency_p50_ms"],

@@ -37,6 +37,13 @@ def _fmt(x: Any, digits: int = 2) -> str:
     help="SUMO net (default: Berlin-Adlershof from the eclipse-sumo wheel).",
 )
 @click.option(
+    "--origin",
+    metavar="LAT,LON",
+    default=None,
+    help="Where a net without a projection (a generated grid) lies on the globe "
+    "(default: Adlershof's centre); a geo-referenced net keeps its own.",
+)
+@click.option(
     "--out",
     "out_dir",
     type=click.Path(file_okay=False, path_type=Path),
@@ -149,6 +156,7 @@ def _fmt(x: Any, digits: int = 2) -> str:
 @click.option("--no-png", is_flag=True, help="Write the map as GeoJSON only.")
 def run(
     net: Path | None,
+    origin: str | None,
     out_dir: Path,
     duration_s: float,
     seed: int,
@@ -185,8 +193,11 @@ def run(
         reckless_share=reckless_share,
         device_mix={"phone-active": active_share, "phone-idle": 1.0 - active_share},
     )
+    from rfsas_hw.backend.site import parse_origin
+
     cfg = CityRunConfig(
         net=net,
+        origin=None if origin is None else parse_origin(origin),
         demand=demand,
         placement=placement,
         polygons=polygons,

@@ -17,6 +17,7 @@ Python), then the settings file, then the overrides (the command's flags).
 
 from __future__ import annotations
 
+import time
 from collections.abc import Callable
 from contextlib import ExitStack
 from dataclasses import dataclass, field, replace
@@ -167,8 +168,13 @@ class BackendApp:
             before anything is bound, for the map too, which is drawn after the run).
     """
 
-    def __init__(self, config: BackendAppConfig) -> None:
+    def __init__(
+        self, config: BackendAppConfig, *, clock: Callable[[], int] = time.time_ns
+    ) -> None:
         self.config = config
+        self.clock = clock
+        """UTC ns the receiver checks message ages with and the service steps on (the wall
+        clock; a simulation run slower than real time gives its own)."""
         self.settings = self._checked_settings()
         self.store = KeyStore.open(config.keys_dir)
         check_certificate_names(
@@ -199,7 +205,9 @@ class BackendApp:
                 self.vehicle_feed = feed
             with ExitStack() as sink_stack:
                 sinks = self._open_sinks(sink_stack)
-                self.service = BackendService(self.settings, vehicle=vehicle, sinks=sinks)
+                self.service = BackendService(
+                    self.settings, vehicle=vehicle, sinks=sinks, clock=self.clock
+                )
                 sink_stack.pop_all()  # the service closes its sinks from now on
             stack.callback(self.service.close)
             if self.cpm_sink is not None and config.cpm_from_vehicle:
@@ -271,13 +279,16 @@ class BackendApp:
             trust,
             # with an authority enrolled, envelopes arriving on the link (a broker's
             # retained nonce topic) give the keys that pre-authenticate version-2 messages
-            self.store.nonce_store(EpochSchedule(epoch, grace_s)) if trust.authorities() else None,
+            self.store.nonce_store(EpochSchedule(epoch, grace_s), self.clock)
+            if trust.authorities()
+            else None,
             config=ReceiverConfig(
                 epoch_s=epoch,
                 grace_s=grace_s,
                 # with an authority every sensor can send version 2: require it by default
                 accept_v1=self.config.accept_v1 or not trust.authorities(),
             ),
+            clock=self.clock,
         )
 
     def _vehicle(self) -> VehicleState | None:

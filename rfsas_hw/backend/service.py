@@ -382,7 +382,7 @@ class BackendService:
         keep = now - int(self.config.tracker.drop_after_s * NS_PER_S)
         for emitter in [e for e, f in self.fixes.items() if f.t_ns < keep]:
             del self.fixes[emitter]
-        assessments = self._assess(now)
+        assessments = self._assess(now, self._vehicle_at(now))
         self.assessments = {int(a.emitter, 16): a for a in assessments}
         for sink in self.sinks:
             try:
@@ -445,12 +445,31 @@ class BackendService:
         vx, vy = math.cos(a) * v.speed_mps, math.sin(a) * v.speed_mps
         return replace(v, x_m=float(v.x_m + vx * dt), y_m=float(v.y_m + vy * dt), t_ns=now)
 
-    def _assess(self, now: int) -> list[Assessment]:
-        vehicle = self._vehicle_at(now)
+    def assess_for(
+        self, vehicle: VehicleState, emitters: Iterable[int], now_ns: int | None = None
+    ) -> list[Assessment]:
+        """Judge the live ``emitters`` (ids as integers) against another ``vehicle`` than
+        the service's own, at ``now_ns`` (UTC ns; default: the clock). Nothing is kept
+        and no sink is fed: a backend serving many vehicles calls it once per vehicle
+        with the emitters near that vehicle.
+
+        Returns:
+            The assessments of those emitters, highest risk first (unknown ids are skipped).
+        """
+        now = self.clock() if now_ns is None else int(now_ns)
+        keep = set(emitters)
+        return self._assess(now, vehicle, [(e, f) for e, f in self.fixes.items() if e in keep])
+
+    def _assess(
+        self,
+        now: int,
+        vehicle: VehicleState | None,
+        chosen: list[tuple[int, Fix]] | None = None,
+    ) -> list[Assessment]:
         alarm = bool(self.link_alarm()) if self.link_alarm is not None else False
         nan = math.nan
         accel = self.config.tracker.accel_sigma_mps2
-        fixes = list(self.fixes.items())
+        fixes = list(self.fixes.items()) if chosen is None else chosen
         tracks = [self.tracker.tracks.get(emitter) for emitter, _ in fixes]
         live = [(i, t) for i, t in enumerate(tracks) if t is not None]
         tracked = [i for i, _ in live]

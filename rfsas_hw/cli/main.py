@@ -33,6 +33,7 @@ EXIT_BAD_INPUT = BAD_INPUT
 COMMANDS: list[str] = [
     "rfsas_hw.cli.sim:sim",
     "rfsas_hw.cli.sumo:sumo",
+    "rfsas_hw.cli.city:city",
     "rfsas_hw.cli.ncap:ncap",
     "rfsas_hw.cli.plan:plan",
     "rfsas_hw.cli.demo:demo",

@@ -359,6 +359,9 @@ class AdvisorySink:
             (:class:`~rfsas_hw.fleet.advisory_limits.AdvisoryLimits`: by default one
             per emitter per 0.09 s unless its advice gets more severe, 100 per second).
         monotonic: monotonic seconds, for the limits.
+        tile_topics: also publish on the tiles' advisory topics (False: on the
+            vehicle's topic only, for a backend that judges many vehicles and keeps one
+            sink per vehicle).
     """
 
     def __init__(
@@ -374,7 +377,9 @@ class AdvisorySink:
         clock: Callable[[], int] = time.time_ns,
         limits: AdvisoryLimits | None = None,
         monotonic: Callable[[], float] = time.monotonic,
+        tile_topics: bool = True,
     ) -> None:
+        self.tile_topics = tile_topics
         self.limiter = AdvisoryLimiter(limits)
         self.monotonic = monotonic
         self.signer = signer
@@ -401,7 +406,7 @@ class AdvisorySink:
             tile = self.router.tile_of(item.x_m, item.y_m) if located else self.home_tile
             by_tile.setdefault(tile, []).append(item)
         items = [it for group in by_tile.values() for it in group]
-        for tile, group in by_tile.items():
+        for tile, group in by_tile.items() if self.tile_topics else ():
             self._send(Route(advisory_topic(tile)), group, "")
         if self.vehicle_id:
             self._send(Route(vehicle_topic(self.vehicle_id)), items, self.vehicle_id)

@@ -17,8 +17,10 @@ The ACL (topics in :mod:`rfsas_hw.link.topics`): a sensor writes only its own
 bearing topics and reads only its own nonce topic; a backend reads every
 bearing topic and its own nonce topic and writes advisories; the nonce
 authority writes nonce topics; a vehicle reads advisories of every tile and
-its own vehicle topic. Nothing else is granted, and a client without a
-certificate from this CA cannot connect.
+its own vehicle topic; a vehicle gateway (the radio or cloud relay of many
+vehicles, e.g. a traffic simulator standing for them) reads every vehicle's topic
+and the tiles' advisories, and each vehicle behind it verifies its own. Nothing
+else is granted, and a client without a certificate from this CA cannot connect.
 """
 
 from __future__ import annotations
@@ -53,7 +55,7 @@ class Identity:
 
     id: str
     role: str
-    """``sensor``, ``backend``, ``authority`` or ``vehicle``."""
+    """``sensor``, ``backend``, ``authority``, ``vehicle`` or ``gateway``."""
 
 
 def acl_lines(identity: Identity) -> list[str]:
@@ -73,6 +75,7 @@ def acl_lines(identity: Identity) -> list[str]:
         ],
         "authority": [f"write {ROOT}/nonce/#"],
         "vehicle": [f"read {ROOT}/advisory/#", f"read {ROOT}/vehicle/{ident}/advisory"],
+        "gateway": [f"read {ROOT}/advisory/#", f"read {ROOT}/vehicle/+/advisory"],
     }.get(identity.role)
     if grants is None:
         raise ConfigError(f"{ident}: role {identity.role!r} has no broker access")
@@ -218,24 +221,27 @@ class BrokerFiles:
         return f"mqtts://{host}:{self.port}?{text}"
 
 
-def identities_of(store: KeyStore, vehicles: Iterable[str] = ()) -> list[Identity]:
-    """The identities a broker admits: the store's own, every enrolled card, and
-    the named vehicles.
+def identities_of(
+    store: KeyStore, vehicles: Iterable[str] = (), gateways: Iterable[str] = ()
+) -> list[Identity]:
+    """The identities a broker admits: the store's own, every enrolled card, the
+    named vehicles and the named vehicle gateways.
 
     Raises:
-        ConfigError: a vehicle id that is also an enrolled id, or a bad vehicle id.
+        ConfigError: a vehicle or gateway id that is also an enrolled id, or a bad id.
     """
     found: dict[str, Identity] = {store.id: Identity(store.id, store.role)}
     for card in store.trust:
         found[card.id] = Identity(card.id, card.role)
-    for vid in vehicles:
-        try:
-            check_sender_id(vid)
-        except LinkError as err:
-            raise ConfigError(f"vehicle id: {err}") from err
-        if vid in found:
-            raise ConfigError(f"vehicle {vid!r} is already enrolled as a {found[vid].role}")
-        found[vid] = Identity(vid, "vehicle")
+    for role, ids in (("vehicle", vehicles), ("gateway", gateways)):
+        for vid in ids:
+            try:
+                check_sender_id(vid)
+            except LinkError as err:
+                raise ConfigError(f"{role} id: {err}") from err
+            if vid in found:
+                raise ConfigError(f"{role} {vid!r} is already enrolled as a {found[vid].role}")
+            found[vid] = Identity(vid, role)
     return list(found.values())
 
 
@@ -246,6 +252,7 @@ def write_broker_config(
     host: str = "localhost",
     port: int = DEFAULT_PORT,
     vehicles: Iterable[str] = (),
+    gateways: Iterable[str] = (),
     run_as: str | None = "mosquitto",
     days: int = 365,
 ) -> BrokerFiles:
@@ -259,6 +266,7 @@ def write_broker_config(
         host: the address the broker listens on, and the name clients use for it.
         port: the TLS port.
         vehicles: vehicle ids to admit (they read advisories only).
+        gateways: vehicle gateway ids to admit (they read every vehicle's advisories).
         run_as: the user mosquitto drops to when started as root (it must be able
             to read the broker's files; None: leave it to mosquitto).
         days: validity of newly issued certificates.
@@ -271,7 +279,7 @@ def write_broker_config(
         raise ConfigError(f"port {port} outside 1-65535")
     check_host(host)
     store = KeyStore.open(keys_dir)
-    identities = identities_of(store, vehicles)
+    identities = identities_of(store, vehicles, gateways)
     out = out.resolve()
     ca = CertificateAuthority.open_or_create(out / "ca", days=max(days, 3650))
     broker_dir = out / "broker"

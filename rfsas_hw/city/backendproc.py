@@ -1,0 +1,342 @@
+"""A district backend process: a :class:`~rfsas_hw.apps.backend.BackendApp` that advises every
+vehicle in its tiles.
+
+The backend listens on the broker for the bearing topics of its tiles (the tile
+plan) and for its own nonce topic, verifies, associates, triangulates and
+tracks as ``rfsas backend`` does. What differs is the vehicle side: a district
+backend judges every vehicle in its tiles, not one. Every 0.1 s
+
+1. the service steps (fixes, tracks) — :meth:`BackendService.step`;
+2. for each vehicle in its tiles (the states the vehicles report, arriving on a
+   pipe from the simulator, which stands for their cooperative-awareness
+   messages), the live emitters within :attr:`BackendWork.near_m` are judged
+   against that vehicle (:meth:`BackendService.assess_for`, the same encounter
+   model), and the assessments are signed and published on that vehicle's own
+   topic ``rfsas/v1/vehicle/<id>/advisory`` through a per-vehicle
+   :class:`~rfsas_hw.fleet.advisory.AdvisorySink` (its limits hold per vehicle).
+
+When an advisory carries a fix made in this step, the process tells the main
+process (over the pipe) its vehicle, sequence numbers and that fix's time (the
+newest frame it was made of), so the frame → advisory latency is measured where
+the vehicle receives it, once per fix and vehicle (the repeats of a track's
+state in later steps would measure the track's age, not the path).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import resource
+import time
+from dataclasses import dataclass, field
+from multiprocessing.connection import Connection
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from rfsas_hw.apps.backend import BackendApp, BackendAppConfig, SettingsOverrides
+from rfsas_hw.backend.encounter import assess_encounters
+from rfsas_hw.backend.service import BackendConfig
+from rfsas_hw.backend.triangulation import triangulate_batch
+from rfsas_hw.backend.vehicle import VehicleState
+from rfsas_hw.city.clock import SimClock
+from rfsas_hw.fleet.advisory import AdvisorySink
+from rfsas_hw.fleet.advisory_limits import AdvisoryLimits
+from rfsas_hw.geo import SiteOrigin
+from rfsas_hw.link.mqtt import open_mqtt
+from rfsas_hw.link.topics import TopicRouter
+
+NS_PER_S = 1_000_000_000
+_SEVERITY = {"brake": 3, "caution": 2, "clear": 1, "none": 0}
+
+__all__ = ["BackendWork", "VehicleStates", "backend_main"]
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class BackendWork:
+    """What one district backend runs."""
+
+    backend_id: str
+    keys_dir: Path
+    """Its key directory (trusts every unit and the authority)."""
+    listen_url: str
+    """Broker URL with its certificate, its tiles (``tiles=``) and nonce topic (``nonces=``)."""
+    advise_url: str
+    """Broker URL it publishes advisories with."""
+    origin: SiteOrigin
+    """Site origin of the rfsas frame."""
+    settings: BackendConfig
+    """The service's settings (association, tracking, encounter)."""
+    epoch_s: float
+    """Nonce epoch length, seconds."""
+    near_m: float = 60.0
+    """Emitters farther than this from a vehicle are not judged against it, metres."""
+    quick_s: float = 0.02
+    """Shortest time between two steps of the service when bearings arrive, seconds."""
+    repeat_s: float = 0.5
+    """Unchanged advice about an emitter goes to a vehicle again after this long, seconds."""
+    clock: SimClock = field(default_factory=lambda: SimClock(0))
+    """The deployment's clock."""
+
+
+@dataclass(frozen=True)
+class VehicleStates:
+    """The vehicles in a backend's tiles at one moment (rfsas frame, box centres)."""
+
+    t_ns: int
+    """UTC time of the states, ns."""
+    ids: tuple[str, ...]
+    x_m: np.ndarray
+    y_m: np.ndarray
+    heading_deg: np.ndarray
+    """Compass degrees."""
+    speed_mps: np.ndarray
+    length_m: np.ndarray
+    width_m: np.ndarray
+
+
+@dataclass
+class BackendCounters:
+    """What a district backend did."""
+
+    stats: dict[str, int] = field(default_factory=dict)
+    """The service's and the link's counters (:meth:`BackendApp.stats`)."""
+    advisories_sent: int = 0
+    advisories_failed: int = 0
+    vehicles_judged: int = 0
+    """Vehicle-steps with at least one emitter near."""
+    judge_s: float = 0.0
+    """Wall time spent judging vehicles, seconds."""
+    cpu_s: float = 0.0
+    problems: list[str] = field(default_factory=list)
+
+
+class CityBackend:
+    """One district backend (see the module docstring); :meth:`run` until told to stop.
+
+    Raises (from the constructor):
+        as :class:`BackendApp`, and LinkError when the broker cannot be reached.
+    """
+
+    def __init__(self, work: BackendWork) -> None:
+        self.work = work
+        self.clock = work.clock
+        self.app = BackendApp(
+            BackendAppConfig(
+                listen=(work.listen_url,),
+                keys_dir=work.keys_dir,
+                settings=work.settings,
+                overrides=SettingsOverrides(epoch_s=work.epoch_s, origin=work.origin),
+            ),
+            clock=self.clock,
+        )
+        try:
+            self.transport = open_mqtt(work.advise_url, "send")
+        except BaseException:
+            self.app.close()
+            raise
+        self.router = TopicRouter(work.origin)
+        self.home_tile = self.router.tile_of(0.0, 0.0)
+        self.signer = self.app.store.signer()
+        self.sinks: dict[str, AdvisorySink] = {}
+        self.vehicles: VehicleStates | None = None
+        self.counters = BackendCounters()
+        self._seen: dict[int, Any] = {}
+        self._stepped: dict[int, Any] = {}
+        """The fixes as they were after the previous step (to find this step's new ones)."""
+
+    def warm(self) -> None:
+        """Load (or compile, the first time on a machine) the numeric kernels before the
+        run: a first vehicle judged must not wait for the compiler."""
+        settings = self.app.service.config
+        assess_encounters(
+            VehicleState(x_m=0.0, y_m=-30.0, heading_deg=0.0, speed_mps=10.0),
+            np.array([[0.0, 0.0, 1.0, 0.0]]),
+            np.eye(4)[None, :, :],
+            settings.encounter,
+        )
+        stations = np.array([[[-10.0, 0.0], [10.0, 0.0]]])
+        triangulate_batch(
+            stations, np.array([[45.0, 315.0]]), np.array([[2.0, 2.0]]), settings.triangulation
+        )
+
+    def _sink(self, vehicle_id: str) -> AdvisorySink:
+        sink = self.sinks.get(vehicle_id)
+        if sink is None:
+            sink = AdvisorySink(
+                self.signer,
+                self.transport,
+                self.router,
+                self.home_tile,
+                vehicle_id=vehicle_id,
+                epoch_s=self.work.epoch_s,
+                clock=self.clock,
+                limits=AdvisoryLimits(min_interval_s=self.work.repeat_s),
+                monotonic=lambda: self.clock() / NS_PER_S,
+                tile_topics=False,
+            )
+            self.sinks[vehicle_id] = sink
+        return sink
+
+    def new_fixes(self) -> list[tuple[int, str, float, float, float]]:
+        """The trustworthy fixes made since the last call: (UTC ns, emitter id, x, y,
+        one-sigma metres from the covariance's larger eigenvalue)."""
+        out = []
+        for key, fix in self.app.service.fixes.items():
+            if self._seen.get(key) is fix or not fix.ok:
+                continue
+            tr = (fix.cov_xx_m2 + fix.cov_yy_m2) / 2
+            det = fix.cov_xx_m2 * fix.cov_yy_m2 - fix.cov_xy_m2**2
+            sigma = math.sqrt(max(tr + math.sqrt(max(tr * tr - det, 0.0)), 0.0))
+            out.append((fix.t_ns, fix.emitter, fix.x_m, fix.y_m, sigma))
+        self._seen = dict(self.app.service.fixes)
+        return out
+
+    def judge(self, now_ns: int, fresh_only: bool = False) -> list[tuple[str, int, int, int]]:
+        """Step the service and advise every vehicle near a live emitter (``fresh_only``:
+        near an emitter fixed in this step, judged against those emitters only); per
+        advisory that carried a fix made in this step, (vehicle id, first and last
+        sequence number, time of that fix in UTC ns)."""
+        service = self.app.service
+        service.step(now_ns)
+        fresh_ns = {
+            e: f.t_ns for e, f in service.fixes.items() if f.ok and self._stepped.get(e) is not f
+        }
+        self._stepped = dict(service.fixes)
+        states = self.vehicles
+        if states is None or not len(states.ids) or not service.assessments:
+            self._forget(set() if states is None else set(states.ids))
+            return []
+        if fresh_only and not fresh_ns:
+            return []
+        t0 = time.perf_counter()
+        chosen = fresh_ns if fresh_only else service.assessments
+        emitters = np.fromiter(chosen, np.uint64, len(chosen))
+        ax = np.array([service.assessments[e].x_m for e in chosen])
+        ay = np.array([service.assessments[e].y_m for e in chosen])
+        located = np.isfinite(ax) & np.isfinite(ay)
+        emitters, ax, ay = emitters[located], ax[located], ay[located]
+        out: list[tuple[str, int, int, int]] = []
+        dt_s = max(now_ns - states.t_ns, 0) / NS_PER_S
+        near2 = self.work.near_m**2
+        for i, vid in enumerate(states.ids):
+            vx, vy = float(states.x_m[i]), float(states.y_m[i])
+            close = (ax - vx) ** 2 + (ay - vy) ** 2 < near2
+            if not close.any():
+                continue
+            speed = float(states.speed_mps[i])
+            heading = float(states.heading_deg[i])
+            a = math.radians(heading)
+            vehicle = VehicleState(
+                x_m=vx + math.sin(a) * speed * dt_s,
+                y_m=vy + math.cos(a) * speed * dt_s,
+                heading_deg=heading % 360.0,
+                speed_mps=max(speed, 0.0),
+                length_m=float(states.length_m[i]),
+                width_m=float(states.width_m[i]),
+                t_ns=now_ns,
+            )
+            judged = service.assess_for(vehicle, emitters[close].tolist(), now_ns)
+            if not judged:
+                continue
+            self.counters.vehicles_judged += 1
+            sink = self._sink(vid)
+            first, sent = sink.seq, sink.stats.messages
+            sink.on_results([], judged)
+            n = sink.stats.messages - sent
+            fresh = [fresh_ns[e] for e in (int(a.emitter, 16) for a in judged) if e in fresh_ns]
+            if n > 0 and fresh:
+                # the advisory that carries a fix made in this step: its latency counts
+                out.append((vid, first, (first + n - 1) % (1 << 32), max(fresh)))
+        self._forget(set(states.ids))
+        self.counters.judge_s += time.perf_counter() - t0
+        return out
+
+    def _forget(self, present: set[str]) -> None:
+        """Drop the sinks of vehicles no longer in the tiles (their counts are kept)."""
+        for vid in [v for v in self.sinks if v not in present]:
+            sink = self.sinks.pop(vid)
+            self.counters.advisories_sent += sink.stats.messages
+            self.counters.advisories_failed += sink.stats.errors
+
+    def run(self, conn: Connection) -> None:
+        """Receive and judge, reporting to ``conn``, until ``None`` arrives on it.
+
+        Every ``step_s`` (0.1 s) every vehicle near a live emitter is judged; between
+        those steps, when bearings arrived and :attr:`BackendWork.quick_s` has passed
+        since the last step, the service steps again and the vehicles near an emitter
+        it fixed are judged against it at once (a new fix does not wait for the tick).
+        """
+        receiver = self.app.receiver
+        service = self.app.service
+        clock = self.clock
+        step_ns = int(service.config.step_s * NS_PER_S)
+        quick_ns = int(self.work.quick_s * NS_PER_S)
+        next_ns = clock() + step_ns
+        last_ns = 0
+        while True:
+            wait_s = clock.wall_s(max(next_ns - clock(), 0) / NS_PER_S)
+            got = receiver.receive(timeout=min(wait_s, clock.wall_s(self.work.quick_s)))
+            for message in got:
+                service.on_verified(message)
+            while conn.poll():
+                msg: Any = conn.recv()
+                if msg is None:
+                    return
+                self.vehicles = msg
+            now = clock()
+            if now >= next_ns:
+                next_ns += step_ns * max(1, math.ceil((now - next_ns) / step_ns))
+                sent = self.judge(now)
+            elif got and now - last_ns >= quick_ns:
+                sent = self.judge(now, fresh_only=True)
+            else:
+                continue
+            last_ns = now
+            if sent:
+                conn.send(("sent", sent))
+            fixes = self.new_fixes()
+            if fixes:
+                conn.send(("fixes", fixes))
+
+    def close(self) -> BackendCounters:
+        """Close the advisory transport and the app; the counters. Idempotent."""
+        self._forget(set())
+        self.counters.stats = self.app.stats()
+        self.counters.problems = self.app.service.problems()
+        self.transport.close()
+        self.app.close()
+        return self.counters
+
+
+def _cpu_s() -> float:
+    r = resource.getrusage(resource.RUSAGE_SELF)
+    return float(r.ru_utime + r.ru_stime)
+
+
+def backend_main(work: BackendWork, conn: Connection) -> None:
+    """The body of a backend process: build, answer ``("ready",)``, run until ``None``,
+    answer ``("end", counters)``; a failure is answered ``("error", message)``."""
+    backend: CityBackend | None = None
+    try:
+        backend = CityBackend(work)
+        backend.warm()
+        conn.send(("ready",))
+        backend.run(conn)
+        counters = backend.close()
+        backend = None
+        counters.cpu_s = _cpu_s()
+        conn.send(("end", counters))
+    except Exception as err:  # reported to the main process, which ends the run
+        log.debug("backend %s failed", work.backend_id, exc_info=True)
+        if backend is not None:
+            try:
+                backend.close()
+            except Exception:  # already failing: the first error is the one to report
+                log.debug("closing backend %s failed too", work.backend_id, exc_info=True)
+        conn.send(("error", f"backend {work.backend_id}: {type(err).__name__}: {err}"))
+    finally:
+        conn.close()

@@ -1,0 +1,629 @@
+"""The distributed RF-SAS of a district, live: broker, authority, twin workers, backends, vehicles.
+
+:class:`DistributedRfsas` sets up and runs the real path of a deployment on
+this machine:
+
+- the identities and broker files (:mod:`rfsas_hw.city.deploy`) and mosquitto
+  with mutual TLS on a loopback port, unless a running broker's files are given;
+- the nonce authority, in this process, publishing every receiver's retained
+  envelopes per epoch (:class:`~rfsas_hw.link.distribution.NonceDistributor`);
+- the twin workers (:mod:`rfsas_hw.city.tileworker`), each a process with the
+  units of some junctions: bearings signed per unit, published on the broker;
+- the backends (:mod:`rfsas_hw.city.backendproc`), each a process owning the
+  tiles of its group in the tile plan (:mod:`rfsas_hw.city.partition`),
+  advising every vehicle in its tiles on the vehicle's own topic;
+- the vehicles' receivers behind the gateway connection
+  (:mod:`rfsas_hw.city.vehicles`).
+
+:meth:`DistributedRfsas.step` takes the simulation's vehicles and VRUs of one
+step, hands the workers their VRUs with phones and the backends their
+vehicles, and returns the advisories that reached vehicles (verified) and the
+fixes the backends made, with the person each fix belongs to when the truth
+knows it (the truth comes from the workers, beside the backends, never into
+them). Simulation time ``t_s`` stands for UTC ``t0_ns + t_s``: the caller
+paces the steps to the wall clock, as the backends and vehicles check message
+ages against it.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import multiprocessing as mp
+import os
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field, replace
+from multiprocessing.connection import Connection
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from cryptography.hazmat.primitives.asymmetric import ec
+
+from rfsas_hw.backend.service import BackendConfig
+from rfsas_hw.bridges.bridge import fitted_calibration
+from rfsas_hw.bridges.config import BridgeConfig, UnitSpec
+from rfsas_hw.city.backendproc import BackendCounters, BackendWork, VehicleStates, backend_main
+from rfsas_hw.city.clock import SimClock
+from rfsas_hw.city.deploy import AUTHORITY_ID, GATEWAY_ID, Deployment, LocalBroker, make_deployment
+from rfsas_hw.city.partition import Site, district_tiles, plan_tiles, split_units
+from rfsas_hw.city.sumoio import Movers
+from rfsas_hw.city.tileworker import (
+    Snapshot,
+    TileWork,
+    WorkerCounters,
+    unit_sensor,
+    worker_main,
+)
+from rfsas_hw.city.vehicles import Arrival, VehicleGateway
+from rfsas_hw.errors import SimulationError
+from rfsas_hw.fleet.tiles import TilePlan
+from rfsas_hw.geo import SiteOrigin
+from rfsas_hw.link.distribution import NonceDistributor
+from rfsas_hw.link.mqtt import open_mqtt
+from rfsas_hw.link.topics import ROOT, TopicRouter, quadkey
+from rfsas_hw.privacy.epochs import EpochSchedule
+from rfsas_hw.twin.scenario import BuildingSpec, PoseSpec
+
+NS_PER_S = 1_000_000_000
+READY_TIMEOUT_S = 60.0
+"""How long a worker or backend may take to start, seconds."""
+STEP_TIMEOUT_S = 10.0
+"""How long a worker may take to answer a step, seconds."""
+END_TIMEOUT_S = 20.0
+"""How long a worker or backend may take to stop, seconds."""
+DRAIN_S = 1.0
+"""Time the backends get to take the workers' last messages before they stop, seconds."""
+OWNER_MEMORY_S = 1.0
+"""An advisory from the backend of the tile a vehicle left this long ago still counts
+as its owner's (it was judged there and is on its way), seconds."""
+
+__all__ = ["DistributedRfsas", "FixRecord", "LiveConfig", "LiveStats", "StepOut"]
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class LiveConfig:
+    """How the distributed path is laid out."""
+
+    backends: int = 2
+    """Backend processes (one tile group each)."""
+    workers: int = 2
+    """Twin worker processes."""
+    epoch_s: float = 60.0
+    """Nonce epoch length, seconds."""
+    hear_m: float = 150.0
+    """A VRU goes to a worker while it is this close to one of its units, metres."""
+    near_m: float = 60.0
+    """A backend judges an emitter against the vehicles this close to it, metres."""
+    hold_s: float = 1.0
+    """A BRAKE holds a vehicle stopped until no BRAKE came for this long, seconds."""
+    repeat_s: float = 0.5
+    """A vehicle is told an emitter's unchanged (or milder) advice again after this
+    long; new emitters and more severe advice go at once, seconds."""
+    time_scale: float = 1.0
+    """Simulated seconds per wall second the deployment's clock runs at (1: real time;
+    below 1 for a machine that cannot keep up, see :mod:`rfsas_hw.city.clock`)."""
+
+    def __post_init__(self) -> None:
+        if not 0.0 < self.time_scale <= 1.0:
+            raise ValueError("time_scale must be in (0, 1]")
+        if self.backends < 1 or self.workers < 1:
+            raise ValueError("backends and workers must be at least 1")
+        if not self.epoch_s > 0 or not self.hear_m > 0 or not self.near_m > 0:
+            raise ValueError("epoch_s, hear_m and near_m must be positive")
+
+
+@dataclass(frozen=True, slots=True)
+class FixRecord:
+    """A trustworthy fix a backend made, with the truth beside it."""
+
+    t_s: float
+    """Simulation time of the fix, seconds."""
+    emitter: str
+    """Emitter id (16 hex digits)."""
+    person: str | None
+    """The VRU the emitter belonged to (truth), or None when unknown."""
+    x_m: float
+    y_m: float
+    sigma_m: float
+    """One-sigma position error, sqrt of the covariance's larger eigenvalue, metres."""
+
+
+@dataclass
+class StepOut:
+    """What one step of the distributed path gave."""
+
+    arrivals: list[Arrival] = field(default_factory=list)
+    """Advisories verified at their vehicle this step."""
+    latency_s: dict[tuple[str, int], float] = field(default_factory=dict)
+    """Frame → advisory latency, seconds of the deployment's clock (wall seconds at time
+    scale 1), of the advisories that carried a fix of their step (the others repeat a
+    track's state), by (backend, sequence number)."""
+    fixes: list[FixRecord] = field(default_factory=list)
+    foreign: int = 0
+    """Arrivals signed by a backend that does not own the vehicle's tile."""
+    messages: int = 0
+    """Signed bearing messages the workers published since the previous step."""
+
+
+@dataclass
+class LiveStats:
+    """Counters and CPU of a run of the distributed path."""
+
+    workers: dict[str, WorkerCounters] = field(default_factory=dict)
+    backends: dict[str, BackendCounters] = field(default_factory=dict)
+    gateway: dict[str, Any] = field(default_factory=dict)
+    broker_cpu_s: float = 0.0
+    bearing_messages: int = 0
+    """Signed bearing messages the workers published."""
+    bearing_messages_received: int = 0
+    """Of them, taken from the broker by the backends."""
+    bearing_messages_verified: int = 0
+    """Of them, verified by the backends (the others refused, e.g. ``stale`` when the
+    run fell behind its clock)."""
+    advisories_sent: int = 0
+    advisories_received: int = 0
+    """Advisory datagrams the gateway took from the broker."""
+    foreign: int = 0
+    problems: list[str] = field(default_factory=list)
+
+
+class _BackendKeys:
+    """The backends' signing keys, as every vehicle holds them."""
+
+    def __init__(self, deployment: Deployment) -> None:
+        self.keys: dict[str, ec.EllipticCurvePublicKey] = {}
+        for b, store in deployment.backends.items():
+            key = store.card.sign_public
+            if key is not None:
+                self.keys[b] = key
+
+    def backend_key(self, backend_id: str) -> ec.EllipticCurvePublicKey | None:
+        return self.keys.get(backend_id)
+
+
+def _proc_cpu_s(pid: int) -> float:
+    """CPU time of another process from /proc (0 where it cannot be read), seconds."""
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+        return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+    except (OSError, ValueError, IndexError):
+        return 0.0
+
+
+class DistributedRfsas:
+    """The distributed path of a district (see the module docstring).
+
+    Args:
+        work_dir: where keys, broker files and the broker log go (created).
+        units: the unit sites (rfsas frame).
+        buildings: building footprints, rfsas frame.
+        origin: the site origin of the frame.
+        bounds_m: the district's bounds (x_min, y_min, x_max, y_max), frame metres.
+        bridge: radio settings, seed, device models and MAC policy.
+        settings: the backends' service settings.
+        config: the layout.
+
+    Raises:
+        MissingDependencyError: mosquitto is not installed.
+        LinkError / SimulationError: a process or the broker did not start.
+    """
+
+    def __init__(
+        self,
+        work_dir: Path,
+        units: Sequence[Site],
+        buildings: Sequence[BuildingSpec],
+        origin: SiteOrigin,
+        bounds_m: tuple[float, float, float, float],
+        bridge: BridgeConfig,
+        settings: BackendConfig,
+        config: LiveConfig | None = None,
+    ) -> None:
+        self.config = cfg = config or LiveConfig()
+        self.origin = origin
+        self.router = TopicRouter(origin)
+        self.clock = SimClock(time.time_ns() // 1000 * 1000, cfg.time_scale)
+        """The deployment's clock (the wall clock at time scale 1)."""
+        self.t0_ns = 0
+        """UTC of simulation time 0 on :attr:`clock`, ns (set by :meth:`start`)."""
+        backend_ids = [f"be-{i + 1}" for i in range(cfg.backends)]
+        self.plan: TilePlan = plan_tiles(units, backend_ids, district_tiles(self.router, bounds_m))
+        # fewer groups of tiles than backends asked for: the others would own nothing
+        backend_ids = [b for b in backend_ids if b in self.plan.groups]
+        self.owner = {t: g.name for g in self.plan.groups.values() for t in g.tiles}
+        self.deployment = make_deployment(work_dir, [u.id for u in units], backend_ids)
+        self.stats = LiveStats()
+        self._procs: list[Any] = []
+        self._workers: dict[str, tuple[Connection, np.ndarray, np.ndarray]] = {}
+        self._backends: dict[str, Connection] = {}
+        self._truth: dict[str, str] = {}
+        self._sent: dict[str, int] = {}
+        self._pending: dict[str, int] = {}
+        """Steps sent to each worker and not answered yet."""
+        self._frame_ns: dict[tuple[str, int], int] = {}
+        self._arrived: dict[tuple[str, int], int] = {}
+        self._owners: dict[str, dict[str, float]] = {}
+        """Per vehicle, the backends whose tiles it was in lately, with when (sim s)."""
+        self._tiles_of: dict[str, dict[str, float]] = {}
+        """Per vehicle, the tiles it was in lately, with when (sim s)."""
+        self.broker: LocalBroker | None = None
+        self.gateway: VehicleGateway | None = None
+        self._auth_transport: Any = None
+        self._closed = False
+        self.late: list[Arrival] = []
+        """Advisories that reached vehicles after the last step (taken by :meth:`close`)."""
+        try:
+            self.broker = LocalBroker(self.deployment.files, work_dir / "mosquitto.log")
+            self._start_authority()
+            ctx = mp.get_context("spawn")
+            self._start_backends(ctx, backend_ids, settings)
+            self._start_workers(ctx, units, buildings, bridge)
+            self._wait_ready()
+            gw_url = self.deployment.url(GATEWAY_ID, sub=f"{ROOT}/vehicle/+/advisory")
+            self.gateway = VehicleGateway(
+                _BackendKeys(self.deployment), open_mqtt(gw_url, "recv"), clock=self.clock
+            )
+            self.gateway.start()
+        except BaseException:
+            self.close()
+            raise
+
+    # -- start ------------------------------------------------------------------------
+
+    def start(self) -> int:
+        """Now is simulation time 0: its UTC in ns (whole microseconds, as the twin's
+        start time is written). Call right before the first step."""
+        self.t0_ns = self.clock() // 1000 * 1000
+        return self.t0_ns
+
+    def _start_authority(self) -> None:
+        schedule = EpochSchedule(self.config.epoch_s, min(5.0, self.config.epoch_s / 4))
+        authority = self.deployment.authority.nonce_authority(schedule)
+        self._auth_transport = open_mqtt(self.deployment.url(AUTHORITY_ID), "send")
+        # the retained envelopes expire at the end of their epoch on the deployment's clock
+        self._auth_transport.clock = self.clock
+        self.distributor = NonceDistributor(
+            authority, dict.fromkeys(authority.receivers, self._auth_transport), clock=self.clock
+        )
+        self.distributor.tick()
+
+    def _start_backends(self, ctx: Any, backend_ids: list[str], settings: BackendConfig) -> None:
+        origin = f"{self.origin.lat_deg:.7f},{self.origin.lon_deg:.7f}"
+        for b in backend_ids:
+            group = self.plan.group_of(b)
+            work = BackendWork(
+                backend_id=b,
+                keys_dir=self.deployment.backends[b].path,
+                listen_url=self.deployment.url(
+                    b, tiles=",".join(group.tiles), nonces=b, origin=origin
+                ),
+                advise_url=self.deployment.url(b, origin=origin),
+                origin=self.origin,
+                settings=settings,
+                epoch_s=self.config.epoch_s,
+                near_m=self.config.near_m,
+                repeat_s=self.config.repeat_s,
+                clock=self.clock,
+            )
+            parent, child = ctx.Pipe()
+            proc = ctx.Process(target=backend_main, args=(work, child), name=b, daemon=True)
+            proc.start()
+            child.close()
+            self._procs.append(proc)
+            self._backends[b] = parent
+
+    def _start_workers(
+        self,
+        ctx: Any,
+        units: Sequence[Site],
+        buildings: Sequence[BuildingSpec],
+        bridge: BridgeConfig,
+    ) -> None:
+        origin = f"{self.origin.lat_deg:.7f},{self.origin.lon_deg:.7f}"
+        for k, part in enumerate(split_units(units, self.config.workers)):
+            wid = f"twin-{k + 1}"
+            specs = tuple(
+                UnitSpec(id=u.id, pose=PoseSpec(u.x_m, u.y_m, _boresight(u))) for u in part
+            )
+            xs = np.array([u.x_m for u in part])
+            ys = np.array([u.y_m for u in part])
+            reach = self.config.hear_m + 50.0
+            near = tuple(
+                b
+                for b in buildings
+                if b.x_max_m > xs.min() - reach
+                and b.x_min_m < xs.max() + reach
+                and b.y_max_m > ys.min() - reach
+                and b.y_min_m < ys.max() + reach
+            )
+            work = TileWork(
+                worker_id=wid,
+                units=specs,
+                bridge=bridge,
+                buildings=near,
+                urls={u.id: self.deployment.url(u.id, origin=origin) for u in part},
+                nonce_url=self.deployment.url(part[0].id, nonces=part[0].id),
+                keys={u.id: self.deployment.units[u.id].path for u in part},
+                epoch_s=self.config.epoch_s,
+                calibrations={
+                    s.id: fitted_calibration(unit_sensor(s), seed=bridge.calibration_seed)
+                    for s in specs
+                },
+                clock=self.clock,
+                groups=_junction_groups(part),
+                hear_m=self.config.hear_m,
+            )
+            parent, child = ctx.Pipe()
+            proc = ctx.Process(target=worker_main, args=(work, child), name=wid, daemon=True)
+            proc.start()
+            child.close()
+            self._procs.append(proc)
+            self._workers[wid] = (parent, xs, ys)
+
+    def _wait_ready(self) -> None:
+        conns = {**{w: c for w, (c, _, _) in self._workers.items()}, **self._backends}
+        deadline = time.monotonic() + READY_TIMEOUT_S
+        for name, conn in conns.items():
+            while not conn.poll(0.1):
+                self.distributor.tick()
+                if time.monotonic() > deadline:
+                    raise SimulationError(f"{name} did not start within {READY_TIMEOUT_S:g} s")
+            try:
+                msg = conn.recv()
+            except EOFError:
+                raise SimulationError(f"{name} exited before it was ready") from None
+            if msg[0] != "ready":
+                raise SimulationError(str(msg[1]) if msg[0] == "error" else f"{name}: {msg!r}")
+
+    # -- step -------------------------------------------------------------------------
+
+    def _tiles(self, cars: Movers) -> list[str]:
+        lat, lon, _ = self.origin.to_geodetic(cars.x_m, cars.y_m)
+        return [quadkey(a, b) for a, b in zip(lat.tolist(), lon.tolist(), strict=True)]
+
+    def step(self, t_s: float, cars: Movers, vrus: Movers, phones: dict[str, str]) -> StepOut:
+        """Run the distributed path for one step (see the module docstring).
+
+        Args:
+            t_s: simulation time, seconds.
+            cars: the vehicles to advise.
+            vrus: every VRU.
+            phones: device model of each VRU that carries a phone, by VRU id.
+
+        Raises:
+            SimulationError: a worker or backend failed or stopped answering, or
+                :meth:`start` was not called.
+        """
+        if not self.t0_ns:
+            raise SimulationError("DistributedRfsas.start() must be called before the first step")
+        now_ns = self.t0_ns + round(t_s * NS_PER_S)
+        self.distributor.tick(now_ns)
+        has = np.array([v in phones for v in vrus.ids], dtype=bool)
+        for conn, xs, ys in self._workers.values():
+            reach2 = self.config.hear_m**2
+            near = has & (
+                (
+                    (vrus.x_m[:, None] - xs[None, :]) ** 2 + (vrus.y_m[:, None] - ys[None, :]) ** 2
+                ).min(axis=1, initial=np.inf)
+                < reach2
+            )
+            idx = np.flatnonzero(near)
+            ids = tuple(vrus.ids[i] for i in idx.tolist())
+            conn.send(
+                Snapshot(
+                    t_s,
+                    self.t0_ns,
+                    ids,
+                    tuple(phones[v] for v in ids),
+                    vrus.x_m[idx],
+                    vrus.y_m[idx],
+                    vrus.heading_deg[idx],
+                )
+            )
+        tiles = self._tiles(cars)
+        for b, conn in self._backends.items():
+            sel = [i for i, t in enumerate(tiles) if self.owner.get(t) == b]
+            conn.send(
+                VehicleStates(
+                    now_ns,
+                    tuple(cars.ids[i] for i in sel),
+                    cars.x_m[sel],
+                    cars.y_m[sel],
+                    cars.heading_deg[sel],
+                    cars.speed_mps[sel],
+                    cars.length_m[sel],
+                    cars.width_m[sel],
+                )
+            )
+            for i in sel:
+                vid = cars.ids[i]
+                for memory, name in ((self._owners, b), (self._tiles_of, tiles[i])):
+                    held = memory.setdefault(vid, {})
+                    held[name] = t_s
+                    if len(held) > 1:  # a vehicle that crossed into another tile
+                        for old in [k for k, t in held.items() if t < t_s - OWNER_MEMORY_S]:
+                            del held[old]
+        out = StepOut()
+        self._from_backends(out)
+        assert self.gateway is not None
+        self.gateway.vehicles(cars.ids)
+        for arrival in self.gateway.drain():
+            key = (arrival.message.sender_id, arrival.message.seq)
+            self._arrived[key] = arrival.t_ns
+            owned = arrival.message.sender_id in self._owners.get(arrival.vehicle_id, {})
+            out.foreign += not owned
+            lately = tuple(self._tiles_of.get(arrival.vehicle_id, {}))
+            out.arrivals.append(replace(arrival, owned=owned, tiles=lately))
+        self._match(out, now_ns)
+        out.messages = self._wait_workers(t_s)
+        self.stats.foreign += out.foreign
+        return out
+
+    def _from_backends(self, out: StepOut) -> None:
+        for b, conn in self._backends.items():
+            while conn.poll():
+                msg = conn.recv()
+                if msg[0] == "sent":
+                    for _vid, first, last, fix_ns in msg[1]:
+                        seq = first
+                        while True:
+                            self._frame_ns[(b, seq)] = fix_ns
+                            if seq == last:
+                                break
+                            seq = (seq + 1) % (1 << 32)
+                elif msg[0] == "fixes":
+                    for t_ns, emitter, x, y, sigma in msg[1]:
+                        out.fixes.append(
+                            FixRecord(
+                                (t_ns - self.t0_ns) / NS_PER_S,
+                                emitter,
+                                self._truth.get(emitter),
+                                x,
+                                y,
+                                sigma,
+                            )
+                        )
+                elif msg[0] == "error":
+                    raise SimulationError(str(msg[1]))
+
+    def _match(self, out: StepOut, now_ns: int) -> None:
+        for key in [k for k in self._arrived if k in self._frame_ns]:
+            arrived = self._arrived.pop(key)
+            # on the deployment's clock: wall seconds at time scale 1
+            out.latency_s[key] = (arrived - self._frame_ns.pop(key)) / NS_PER_S
+        old = now_ns - 5 * NS_PER_S
+        for key in [k for k, v in self._arrived.items() if v < old]:
+            del self._arrived[key]  # an advisory that carried no fix of its step
+        if len(self._frame_ns) > 200_000:  # sent but never arrived: bounded
+            for key in list(self._frame_ns)[:100_000]:
+                del self._frame_ns[key]
+
+    def _wait_workers(self, t_s: float) -> int:
+        """Wait until every worker has answered all steps but this one (a worker has the
+        time of one step to compute the next, while this process goes on); the bearing
+        messages they sent since their previous answers."""
+        messages = 0
+        for wid, (conn, _, _) in self._workers.items():
+            self._pending[wid] = self._pending.get(wid, 0) + 1
+            while self._pending[wid] > 1 or conn.poll(0):
+                if not conn.poll(STEP_TIMEOUT_S):
+                    raise SimulationError(
+                        f"{wid} did not answer step {t_s:.1f} s within {STEP_TIMEOUT_S:g} s"
+                    )
+                messages += self._answer(wid, conn.recv())
+        return messages
+
+    def _answer(self, wid: str, msg: Any) -> int:
+        """Take one answer of a worker; the bearing messages it sent since the last one."""
+        if msg[0] == "error":
+            raise SimulationError(str(msg[1]))
+        if msg[0] != "step":
+            return 0
+        self._pending[wid] -= 1
+        for emitter, vru in msg[5]:
+            self._truth[emitter] = vru
+        messages = int(msg[6]) - self._sent.get(wid, 0)
+        self._sent[wid] = int(msg[6])
+        return messages
+
+    # -- end --------------------------------------------------------------------------
+
+    def _stop(self, conns: dict[str, Connection], deadline: float) -> None:
+        """Tell the processes behind ``conns`` to stop and take their counters."""
+        for conn in conns.values():
+            with contextlib.suppress(OSError):
+                conn.send(None)
+        for name, conn in conns.items():
+            try:
+                while conn.poll(max(deadline - time.monotonic(), 0.0)):
+                    msg = conn.recv()
+                    if msg[0] == "end":
+                        if name in self._backends:
+                            self.stats.backends[name] = msg[1]
+                        else:
+                            self.stats.workers[name] = msg[1]
+                        break
+                    if msg[0] == "error":
+                        self.stats.problems.append(str(msg[1]))
+                        break
+            except (EOFError, OSError):
+                self.stats.problems.append(f"{name} ended without its counters")
+            conn.close()
+
+    def close(self) -> LiveStats:
+        """Stop every process and the broker; the counters (collected once). Idempotent."""
+        if self._closed:
+            return self.stats
+        self._closed = True
+        deadline = time.monotonic() + END_TIMEOUT_S
+        # the workers first: the backends take what they sent last before they stop
+        self._stop({w: c for w, (c, _, _) in self._workers.items()}, deadline)
+        time.sleep(DRAIN_S)
+        self._stop(dict(self._backends), deadline)
+        if self.gateway is not None:
+            time.sleep(DRAIN_S)
+            for arrival in self.gateway.drain():
+                owned = arrival.message.sender_id in self._owners.get(arrival.vehicle_id, {})
+                self.stats.foreign += not owned
+                lately = tuple(self._tiles_of.get(arrival.vehicle_id, {}))
+                self.late.append(replace(arrival, owned=owned, tiles=lately))
+        for proc in self._procs:
+            proc.join(max(deadline - time.monotonic(), 1.0))
+            if proc.is_alive():
+                proc.terminate()
+                proc.join(5)
+        if self.gateway is not None:
+            totals = self.gateway.totals()
+            self.stats.gateway = {
+                "datagrams": totals.datagrams,
+                "verified": totals.verified,
+                "unknown_vehicle": totals.unknown_vehicle,
+                "rejected": dict(totals.rejected),
+                "cpu_s": self.gateway.cpu_s,
+            }
+            self.stats.advisories_received = totals.datagrams
+            self.gateway.close()
+            self.stats.gateway["cpu_s"] = self.gateway.cpu_s
+        if self._auth_transport is not None:
+            self._auth_transport.close()
+        if self.broker is not None:
+            self.stats.broker_cpu_s = _proc_cpu_s(self.broker.pid)
+            self.broker.close()
+        for w in self.stats.workers.values():
+            self.stats.bearing_messages += w.messages
+            self.stats.problems += w.send_problems
+        for bc in self.stats.backends.values():
+            self.stats.bearing_messages_verified += bc.stats.get("link.verified", 0)
+            # what came on the bearing topics: every datagram but the nonce envelopes
+            # (taken, or refused as nonce_rejected)
+            st = bc.stats
+            self.stats.bearing_messages_received += (
+                st.get("link.datagrams", 0)
+                - st.get("link.nonces", 0)
+                - st.get("link.rejected.nonce_rejected", 0)
+            )
+            self.stats.advisories_sent += bc.advisories_sent
+            self.stats.problems += bc.problems
+        return self.stats
+
+    def __enter__(self) -> DistributedRfsas:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def _junction_groups(units: Sequence[Site]) -> tuple[tuple[str, ...], ...]:
+    """Unit ids per junction (a unit of no junction alone)."""
+    groups: dict[str, list[str]] = {}
+    for u in units:
+        groups.setdefault(u.junction or f"unit:{u.id}", []).append(u.id)
+    return tuple(tuple(ids) for ids in groups.values())
+
+
+def _boresight(u: Site) -> float:
+    return float(getattr(u, "boresight_deg", 0.0))

@@ -1,0 +1,500 @@
+"""``rfsas city run`` as a library: a district in SUMO, RF-SAS off or on, scored, logged, mapped.
+
+One run (:func:`run_city`):
+
+1. reads the net (:mod:`rfsas_hw.city.net`; the Berlin-Adlershof net of the
+   ``eclipse-sumo`` wheel by default), generates the demand
+   (:mod:`rfsas_hw.city.demand`), places the units and finds the buildings
+   (:mod:`rfsas_hw.city.placement`);
+2. starts SUMO in this process (libsumo, 0.1 s steps) and, with RF-SAS on, the
+   distributed path (:class:`~rfsas_hw.city.live.DistributedRfsas`: mosquitto,
+   nonce authority, twin workers, backends, the vehicles' receivers);
+3. steps: SUMO, everyone's state (:class:`~rfsas_hw.city.sumoio.SumoDistrict`),
+   the scorer (:class:`~rfsas_hw.city.scoring.CityScorer`), the distributed
+   path, and each vehicle's own advisories acted on in SUMO. With RF-SAS on
+   the loop is paced so that simulation time runs one step ahead of the wall
+   clock (the twin workers send each frame when its time comes); with RF-SAS
+   off it runs as fast as SUMO goes;
+4. writes the run log (JSON lines: start, one line per advisory that reached a
+   vehicle, one per simulated second, the end), the summary (JSON) and the map
+   (PNG and GeoJSON) into the output directory.
+
+Raw MACs exist only inside the twin workers: the run log, the summary and the
+map hold emitter ids (keyed hashes), SUMO ids and positions.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import math
+import resource
+import tempfile
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import IO, Any, Literal
+
+import numpy as np
+
+from rfsas_hw.bridges.config import BACKEND_PROFILES, BridgeConfig, backend_config
+from rfsas_hw.bridges.sumo import SumoControl, load_sumo, start_sumo
+from rfsas_hw.city.demand import Demand, DemandConfig, generate
+from rfsas_hw.city.live import DistributedRfsas, LiveConfig, LiveStats
+from rfsas_hw.city.net import NetInfo, district_net, read_net, sumo_home
+from rfsas_hw.city.placement import UnitSite, buildings, load_placement, place_units
+from rfsas_hw.city.scoring import Actors, CityScorer, CitySummary, ScoringConfig
+from rfsas_hw.city.sumoio import Movers, SumoDistrict
+from rfsas_hw.city.vehicles import Arrival, most_severe
+from rfsas_hw.errors import ConfigError, OutputError, SimulationError
+from rfsas_hw.geo import SiteOrigin
+from rfsas_hw.outpaths import write_text_atomic
+
+STEP_S = 0.1
+"""SUMO's step, seconds."""
+Mode = Literal["off", "on"]
+
+__all__ = ["CityRunConfig", "CityRunResult", "Progress", "Runtime", "run_city"]
+
+
+@dataclass(frozen=True)
+class CityRunConfig:
+    """What one district run is made of."""
+
+    net: Path | None = None
+    """The SUMO net (None: the Berlin-Adlershof net of the ``eclipse-sumo`` wheel)."""
+    origin: SiteOrigin | None = None
+    """Where a net without a projection lies on the globe (None: the net module's
+    default; a geo-referenced net keeps its own)."""
+    demand: DemandConfig = field(default_factory=DemandConfig)
+    """Traffic and VRUs."""
+    placement: Path | None = None
+    """Placement YAML (None: two units at every traffic-light junction)."""
+    polygons: Path | None = None
+    """SUMO polygon file with buildings (None: derived from the net's city blocks)."""
+    duration_s: float = 300.0
+    """Simulated time, seconds."""
+    seed: int = 1
+    """Seed of the demand, SUMO and the twin."""
+    live: LiveConfig = field(default_factory=LiveConfig)
+    """Layout of the distributed path."""
+    scoring: ScoringConfig = field(default_factory=ScoringConfig)
+    """Thresholds of the scorer."""
+    backend_profile: str = "urban-intersection"
+    """Named backend settings (``rfsas_hw.bridges.config.BACKEND_PROFILES``)."""
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.duration_s) and self.duration_s > 0):
+            raise ConfigError(
+                f"duration must be a positive number of seconds, not {self.duration_s}"
+            )
+        if self.backend_profile not in BACKEND_PROFILES:
+            raise ConfigError(
+                f"backend profile {self.backend_profile!r} is not known "
+                f"(known: {', '.join(sorted(BACKEND_PROFILES))})"
+            )
+
+
+@dataclass(frozen=True)
+class Progress:
+    """Where a run is, for a progress display."""
+
+    t_s: float
+    duration_s: float
+    vehicles: int
+    vrus: int
+    advisories: int
+    """Advisories that reached vehicles so far."""
+    brakes: int
+    """Of them, BRAKEs."""
+    realtime_factor: float
+    """Simulated seconds per wall second so far."""
+
+
+@dataclass
+class Runtime:
+    """What a run cost and what crossed the broker."""
+
+    mode: str
+    wall_s: float = 0.0
+    """Wall time of the stepping loop, seconds."""
+    realtime_factor: float = 0.0
+    """Simulated seconds per wall second."""
+    behind_s: float = 0.0
+    """Largest lag of a step behind its wall-clock time, seconds (RF-SAS on)."""
+    cpu_s: dict[str, float] = field(default_factory=dict)
+    """CPU seconds per component: sumo, read, scoring, path (this process's share of
+    the distributed path: snapshots, pipes, acting), vehicles (the vehicles' receivers),
+    twin-N, be-N, broker."""
+    counts: dict[str, int] = field(default_factory=dict)
+    """Messages: bearing messages sent and verified, advisories sent and received,
+    advisories from a backend that does not own the vehicle's tile, and so on."""
+    problems: list[str] = field(default_factory=list)
+
+    def cpu_share(self) -> dict[str, float]:
+        """Each component's CPU seconds per wall second (1.0 = one core)."""
+        return {k: v / self.wall_s for k, v in self.cpu_s.items()} if self.wall_s > 0 else {}
+
+
+@dataclass
+class CityRunResult:
+    """What :func:`run_city` gives."""
+
+    summary: CitySummary
+    runtime: Runtime
+    units: list[UnitSite]
+    files: dict[str, Path]
+    """What was written: ``log``, ``summary``, ``png``, ``geojson``."""
+
+
+def _actors(m: Movers, vehicles: bool) -> Actors:
+    return Actors.of(
+        m.ids,
+        ["vehicle"] * len(m) if vehicles else list(m.cls),
+        m.x_m,
+        m.y_m,
+        m.speed_mps,
+        m.heading_deg,
+        m.length_m,
+        m.width_m,
+        m.odometer_m,
+    )
+
+
+def _cpu_self_s() -> float:
+    r = resource.getrusage(resource.RUSAGE_SELF)
+    return float(r.ru_utime + r.ru_stime)
+
+
+class _Log:
+    """The run log: one JSON object per line."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+        try:
+            self.fh: IO[str] = path.open("w", encoding="utf-8")
+        except OSError as err:
+            raise OutputError(f"{path}: cannot write: {err.strerror or err}") from err
+
+    def write(self, record: dict[str, Any]) -> None:
+        try:
+            self.fh.write(json.dumps(record, allow_nan=False, default=_plain) + "\n")
+            if record["record"] != "advisory":  # a reader following the log sees each second
+                self.fh.flush()
+        except OSError as err:
+            raise OutputError(f"{self.path}: cannot write: {err.strerror or err}") from err
+
+    def close(self) -> None:
+        self.fh.close()
+
+
+def _plain(v: Any) -> Any:
+    if isinstance(v, float | np.floating):
+        return float(v) if math.isfinite(v) else None
+    if isinstance(v, Path):
+        return str(v)
+    raise TypeError(f"not JSON: {type(v).__name__}")
+
+
+def _finite(v: float) -> float | None:
+    return v if math.isfinite(v) else None
+
+
+def run_city(
+    cfg: CityRunConfig,
+    out_dir: Path,
+    mode: Mode = "on",
+    *,
+    on_progress: Callable[[Progress], None] | None = None,
+    png: bool = True,
+    work_dir: Path | None = None,
+) -> CityRunResult:
+    """Run a district once with RF-SAS ``off`` or ``on`` (see the module docstring).
+
+    Args:
+        cfg: the run.
+        out_dir: where the demand, run log, summary and map go (created); the
+            files of a mode are named ``<mode>.log.jsonl``, ``<mode>.summary.json``,
+            ``<mode>.map.png``, ``<mode>.map.geojson``.
+        mode: ``off`` (SUMO and the scorer only) or ``on`` (the distributed path).
+        on_progress: called about once a simulated second.
+        png: also draw the map as PNG (needs matplotlib).
+        work_dir: where the deployment's keys and broker files go (an empty or new
+            folder; None: a temporary folder, deleted at the end). They hold private
+            keys: keep them out of the outputs.
+
+    Raises:
+        MissingDependencyError: eclipse-sumo, libsumo, mosquitto or matplotlib is missing.
+        ConfigError: a bad net, placement, polygon file or setting.
+        SimulationError: SUMO or a process of the distributed path failed.
+        OutputError: an output cannot be written.
+    """
+    if mode not in ("off", "on"):
+        raise ConfigError(f"mode must be off or on, not {mode!r}")
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise OutputError(f"{out_dir}: cannot create: {err.strerror or err}") from err
+    net = cfg.net if cfg.net is not None else district_net()
+    info = read_net(net, cfg.origin)
+    demand = generate(net, out_dir / "demand", cfg.demand, cfg.seed)
+    placement = load_placement(cfg.placement) if cfg.placement is not None else None
+    units = place_units(info, placement)
+    houses = buildings(info, units, cfg.polygons)
+    files = {
+        "log": out_dir / f"{mode}.log.jsonl",
+        "summary": out_dir / f"{mode}.summary.json",
+        "geojson": out_dir / f"{mode}.map.geojson",
+    }
+    if png:
+        files["png"] = out_dir / f"{mode}.map.png"
+    log = _Log(files["log"])
+    try:
+        log.write(
+            {
+                "record": "start",
+                "mode": mode,
+                "net": str(net),
+                "seed": cfg.seed,
+                "duration_s": cfg.duration_s,
+                "origin": {"lat_deg": info.origin.lat_deg, "lon_deg": info.origin.lon_deg},
+                "units": [asdict(u) for u in units],
+                "demand": {
+                    "vehicles": len(demand.vehicles),
+                    "vrus": len(demand.vrus),
+                    "with_phone": sum(v.has_phone for v in demand.vrus.values()),
+                    "reckless": sum(v.reckless for v in demand.vrus.values()),
+                },
+                "live": asdict(cfg.live),
+            }
+        )
+        scorer = CityScorer(info.crossings, demand.vrus, cfg.scoring)
+        runtime = _run_loop(
+            cfg, info, demand, units, houses, scorer, log, mode, on_progress, work_dir
+        )
+        summary = scorer.summary()
+        log.write({"record": "end", "summary": summary.as_dict(), "runtime": asdict(runtime)})
+    finally:
+        log.close()
+    doc = {"summary": summary.as_dict(), "runtime": asdict(runtime)}
+    write_text_atomic(files["summary"], json.dumps(doc, indent=2, default=_plain) + "\n")
+    from rfsas_hw.city.citymap import write_map
+
+    write_map(scorer, units, info, files.get("png"), files["geojson"])
+    return CityRunResult(summary, runtime, units, files)
+
+
+def _sumo_cmd(cfg: CityRunConfig, info: NetInfo, demand: Demand) -> list[str]:
+    return [
+        "sumo",
+        "-n",
+        str(info.path),
+        "-r",
+        ",".join(str(p) for p in demand.route_files),
+        "--step-length",
+        f"{STEP_S:g}",
+        "--seed",
+        str(cfg.seed),
+        "--end",
+        f"{cfg.duration_s:g}",
+        "--collision.check-junctions",
+        "true",
+        "--collision.action",
+        "warn",
+        "--no-step-log",
+        "true",
+        "--no-warnings",
+        "true",
+        "--ignore-route-errors",
+        "true",
+    ]
+
+
+def _run_loop(
+    cfg: CityRunConfig,
+    info: NetInfo,
+    demand: Demand,
+    units: list[UnitSite],
+    houses: list[Any],
+    scorer: CityScorer,
+    log: _Log,
+    mode: Mode,
+    on_progress: Callable[[Progress], None] | None,
+    work_dir: Path | None,
+) -> Runtime:
+    import os
+
+    os.environ.setdefault("SUMO_HOME", str(sumo_home()))
+    sumo = load_sumo("libsumo")
+    phones = {v.id: v.device_model for v in demand.vrus.values() if v.has_phone and v.device_model}
+    runtime = Runtime(mode)
+    timers = dict.fromkeys(("sumo", "read", "scoring", "path"), 0.0)
+    live: DistributedRfsas | None = None
+    tmp: tempfile.TemporaryDirectory[str] | None = None
+    cpu0 = _cpu_self_s()
+    advisories = brakes = 0
+    try:
+        if mode == "on":
+            if work_dir is None:
+                tmp = tempfile.TemporaryDirectory(prefix="rfsas-city-")
+                work_dir = Path(tmp.name)
+            bridge = BridgeConfig(seed=cfg.seed, backend_profile=cfg.backend_profile)
+            live = DistributedRfsas(
+                work_dir,
+                units,
+                houses,
+                info.origin,
+                info.bounds_m,
+                bridge,
+                backend_config(bridge),
+                cfg.live,
+            )
+            log.write(
+                {
+                    "record": "tiles",
+                    "plan": {g.name: list(g.tiles) for g in live.plan.groups.values()},
+                }
+            )
+        try:
+            start_sumo(sumo, _sumo_cmd(cfg, info, demand))
+        except SimulationError as err:
+            raise SimulationError(f"{info.path}: {err}") from err
+        district = SumoDistrict(
+            sumo, info.to_frame, info.heading_to_frame, SumoControl(cfg.live.hold_s)
+        )
+        wall0 = time.monotonic()
+        if live is not None:
+            live.start()
+        steps = round(cfg.duration_s / STEP_S)
+        for k in range(1, steps + 1):
+            t = k * STEP_S
+            if live is not None:
+                # one step ahead of the wall clock: the workers send each frame on time
+                ahead = live.clock.wall_s(t - STEP_S) - (time.monotonic() - wall0)
+                if ahead > 0:
+                    time.sleep(ahead)
+                runtime.behind_s = max(runtime.behind_s, -ahead)
+            # CPU time of this thread per phase (the wall time would count other
+            # processes' turns on a busy machine)
+            w = time.thread_time()
+            sumo.simulationStep()
+            w1 = time.thread_time()
+            cars, vrus = district.read()
+            w2 = time.thread_time()
+            scorer.step(t, _actors(cars, True), _actors(vrus, False))
+            w3 = time.thread_time()
+            timers["sumo"] += w1 - w
+            timers["read"] += w2 - w1
+            timers["scoring"] += w3 - w2
+            if live is not None:
+                out = live.step(t, cars, vrus, phones)
+                scorer.messages(out.messages)
+                advised: set[str] = set()
+                for f in out.fixes:
+                    scorer.fix(f.t_s, f.emitter, f.person, f.x_m, f.y_m, f.sigma_m)
+                for a in out.arrivals:
+                    kind = most_severe(a.message)
+                    key = (a.message.sender_id, a.message.seq)
+                    latency = out.latency_s.get(key, math.nan)
+                    scorer.advisory(t, a.vehicle_id, kind, latency)
+                    district.act(t, a.vehicle_id, kind)
+                    advised.add(a.vehicle_id)
+                    advisories += 1
+                    brakes += kind == "brake"
+                    _log_arrival(log, t, a, kind, latency)
+                district.release_idle(t, advised)
+                timers["path"] += time.thread_time() - w3
+            if k % round(1.0 / STEP_S) == 0:
+                elapsed = time.monotonic() - wall0
+                log.write(
+                    {
+                        "record": "second",
+                        "t_s": round(t, 1),
+                        "wall_s": round(elapsed, 3),
+                        "vehicles": len(cars),
+                        "vrus": len(vrus),
+                        "vrus_with_phone": sum(v in phones for v in vrus.ids),
+                        "advisories": advisories,
+                        "brakes": brakes,
+                    }
+                )
+                if on_progress is not None:
+                    on_progress(
+                        Progress(
+                            t,
+                            cfg.duration_s,
+                            len(cars),
+                            len(vrus),
+                            advisories,
+                            brakes,
+                            t / max(elapsed, 1e-9),
+                        )
+                    )
+        runtime.wall_s = time.monotonic() - wall0
+        runtime.realtime_factor = cfg.duration_s / runtime.wall_s if runtime.wall_s > 0 else 0.0
+    finally:
+        with contextlib.suppress(Exception):  # libsumo raises when nothing runs
+            sumo.close()
+        stats = live.close() if live is not None else None
+        if tmp is not None:
+            tmp.cleanup()
+    for a in live.late if live is not None else ():
+        # reached its vehicle after the simulation's end: logged, not acted on
+        _log_arrival(log, cfg.duration_s, a, most_severe(a.message), math.nan)
+    _costs(runtime, timers, _cpu_self_s() - cpu0, stats)
+    return runtime
+
+
+def _log_arrival(log: _Log, t_s: float, a: Arrival, kind: str, latency_s: float) -> None:
+    log.write(
+        {
+            "record": "advisory",
+            "t_s": round(t_s, 1),
+            "vehicle": a.vehicle_id,
+            "backend": a.message.sender_id,
+            "advice": kind,
+            "emitters": [it.emitter for it in a.message.items],
+            "latency_ms": _finite(round(latency_s * 1e3, 2)),
+            "owned": a.owned,
+            "tiles": list(a.tiles),
+        }
+    )
+
+
+def _costs(
+    runtime: Runtime, timers: dict[str, float], cpu_main: float, stats: LiveStats | None
+) -> None:
+    """CPU per component: this process's main thread by phase, the vehicles' receivers
+    (their thread), the whole of this process (``main-total``: also the broker clients'
+    threads), and the other processes' own CPU times."""
+    runtime.cpu_s = {k: round(v, 3) for k, v in timers.items()}
+    if stats is None:
+        return
+    vehicles = stats.gateway.get("cpu_s", 0.0)
+    runtime.cpu_s["vehicles"] = round(float(vehicles), 3)
+    runtime.cpu_s["main-total"] = round(cpu_main, 3)
+    for name, w in stats.workers.items():
+        runtime.cpu_s[name] = round(w.cpu_s, 3)
+    for name, b in stats.backends.items():
+        runtime.cpu_s[name] = round(b.cpu_s, 3)
+    runtime.cpu_s["broker"] = round(stats.broker_cpu_s, 3)
+    runtime.counts = {
+        "bearing_messages_sent": stats.bearing_messages,
+        "bearing_messages_received": stats.bearing_messages_received,
+        "bearing_messages_verified": stats.bearing_messages_verified,
+        "advisories_sent": stats.advisories_sent,
+        "advisories_received": stats.advisories_received,
+        "advisories_verified": int(stats.gateway.get("verified", 0)),
+        "advisories_foreign": stats.foreign,
+        "frames": sum(w.frames for w in stats.workers.values()),
+        "bearings": sum(w.bearings for w in stats.workers.values()),
+        "phones": sum(w.phones for w in stats.workers.values()),
+        "vehicles_judged": sum(b.vehicles_judged for b in stats.backends.values()),
+    }
+    for b in stats.backends.values():
+        for k, v in b.stats.items():
+            if k.startswith(("link.rejected.", "link.mqtt.dropped", "link.shed")):
+                key = "bearing_messages_" + k.removeprefix("link.")
+                runtime.counts[key] = runtime.counts.get(key, 0) + v
+    runtime.problems = list(stats.problems)

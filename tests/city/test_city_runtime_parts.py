@@ -1,0 +1,204 @@
+"""The runtime's own parts without SUMO: tile plan and worker split, the deployment's clock,
+a backend judging another vehicle than its own, advisories on the vehicle's topic only,
+the gateway's broker grants, and the vehicles' gateway handing messages to their vehicles."""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+import pytest
+from cryptography.hazmat.primitives.asymmetric import ec
+
+from rfsas_hw.backend.service import BackendService
+from rfsas_hw.backend.vehicle import VehicleState
+from rfsas_hw.city.clock import SimClock
+from rfsas_hw.city.partition import plan_tiles, split_units
+from rfsas_hw.city.vehicles import VehicleGateway
+from rfsas_hw.errors import ConfigError
+from rfsas_hw.fleet.advisory import AdvisorySink
+from rfsas_hw.fleet.broker import Identity, acl_lines
+from rfsas_hw.geo import SiteOrigin
+from rfsas_hw.link.signing import Signer
+from rfsas_hw.link.topics import Route, TopicRouter
+from rfsas_hw.records import BearingBatch, Pose
+
+S = 1_000_000_000
+
+
+@dataclass(frozen=True)
+class Site:
+    id: str
+    x_m: float
+    y_m: float
+    junction: str
+    tile: str
+
+
+def test_a_junction_in_two_tiles_goes_to_one_backend_and_every_tile_has_one_owner() -> None:
+    units = [
+        Site("a0", 0, 0, "J1", "t1"),
+        Site("a1", 10, 0, "J1", "t2"),  # the same junction across a tile edge
+        Site("b0", 500, 0, "J2", "t3"),
+        Site("b1", 510, 0, "J2", "t3"),
+        Site("c0", 1000, 0, "J3", "t4"),
+    ]
+    tiles = {t: (x, 0.0) for t, x in (("t1", 0), ("t2", 10), ("t3", 505), ("t4", 1000))}
+    tiles["t5"] = (990.0, 50.0)  # no units: goes with the nearest tile that has some
+    tiles = {"1" * 15 + k[-1]: v for k, v in tiles.items()}
+    units = [Site(u.id, u.x_m, u.y_m, u.junction, "1" * 15 + u.tile[-1]) for u in units]
+    plan = plan_tiles(units, ["be-1", "be-2"], tiles)
+    owner = {t: g.name for g in plan.groups.values() for t in g.tiles}
+    assert sorted(owner) == sorted(tiles)
+    assert owner["1" * 15 + "1"] == owner["1" * 15 + "2"]
+    assert owner["1" * 15 + "5"] == owner["1" * 15 + "4"]
+    assert set(owner.values()) == {"be-1", "be-2"}
+    with pytest.raises(ConfigError):
+        plan_tiles([], ["be-1"], tiles)
+
+
+def test_workers_get_whole_junctions() -> None:
+    units = [Site(f"u{j}{k}", j * 100.0, 0.0, f"J{j}", "t") for j in range(5) for k in range(2)]
+    parts = split_units(units, 2)
+    assert len(parts) == 2 and sum(len(p) for p in parts) == 10
+    for p in parts:
+        junctions = {u.junction for u in p}
+        for j in junctions:
+            assert sum(u.junction == j for u in p) == 2
+    assert len(split_units(units[:2], 4)) == 1
+    with pytest.raises(ConfigError):
+        split_units(units, 0)
+
+
+def test_sim_clock_runs_at_its_scale() -> None:
+    wall = SimClock(time.time_ns())
+    assert abs(wall() - time.time_ns()) < 50_000_000
+    anchor = time.time_ns() - 10 * S
+    slow = SimClock(anchor, 0.5)
+    ahead = (time.time_ns() - anchor) / S
+    assert 4.5 < (slow() - anchor) / S < 0.5 * ahead + 1.0
+    assert slow.wall_s(1.0) == 2.0
+    with pytest.raises(ValueError):
+        SimClock(0, 0.0)
+
+
+def _fixed_service(now_ns: int) -> BackendService:
+    """A service with one tracked emitter at (0, 15) walking east."""
+    service = BackendService(clock=lambda: now_ns)
+    stations = {"rsu-a": Pose(-30.0, 0.0, 45.0), "rsu-b": Pose(30.0, 0.0, 315.0)}
+    for k in range(8):
+        t = now_ns - (8 - k) * S // 10
+        target = np.array([0.2 * k, 15.0])
+        for sid, pose in stations.items():
+            az = float(np.degrees(np.arctan2(target[0] - pose.x_m, target[1] - pose.y_m)) % 360)
+            batch = BearingBatch(
+                sensor_id=sid,
+                t_ns=np.array([t], np.int64),
+                azimuth_deg=np.array([az]),
+                sigma_deg=np.array([1.0]),
+                snr_db=np.array([25.0]),
+                channel=np.array([6], np.int16),
+                emitter=np.array([7], np.uint64),
+            )
+            service.on_bearings(batch, pose)
+        service.step(t)
+    return service
+
+
+def test_assess_for_judges_another_vehicle_as_the_service_judges_its_own() -> None:
+    now = 1_800_000_000 * S
+    car = VehicleState(x_m=1.0, y_m=-10.0, heading_deg=0.0, speed_mps=12.0, t_ns=now)
+    far = VehicleState(x_m=300.0, y_m=300.0, heading_deg=90.0, speed_mps=12.0, t_ns=now)
+    service = _fixed_service(now)
+    assert 7 in service.fixes
+    mine = service.assess_for(car, [7, 12345], now)
+    assert [a.emitter for a in mine] == [f"{7:016x}"]
+    service.set_vehicle(car)
+    own = service.step(now)
+    assert own[0].advisory == mine[0].advisory
+    assert own[0].p_collision == pytest.approx(mine[0].p_collision, rel=1e-9)
+    assert service.assess_for(far, [7], now)[0].advisory != "brake"
+    assert service.assess_for(car, [], now) == []
+
+
+class _Topics:
+    def __init__(self) -> None:
+        self.routes: list[str] = []
+
+    def publish(self, route: Route, datagram: bytes) -> None:
+        self.routes.append(route.topic)
+
+
+def test_an_advisory_sink_can_publish_on_the_vehicle_topic_only() -> None:
+    now = 1_800_000_000 * S
+    car = VehicleState(x_m=1.0, y_m=-10.0, heading_deg=0.0, speed_mps=12.0, t_ns=now)
+    judged = _fixed_service(now).assess_for(car, [7], now)
+    router = TopicRouter(SiteOrigin(52.43, 13.53))
+    key = ec.generate_private_key(ec.SECP256R1())
+    for tiles, want in ((True, 2), (False, 1)):
+        out = _Topics()
+        sink = AdvisorySink(
+            Signer("be-1", key), out, router, "0" * 16, vehicle_id="car-7", tile_topics=tiles
+        )
+        sink.on_results([], judged)
+        assert len(out.routes) == want
+        assert out.routes[-1] == "rfsas/v1/vehicle/car-7/advisory"
+
+
+def test_the_gateway_reads_every_vehicle_topic_and_writes_nothing() -> None:
+    lines = acl_lines(Identity("vehicles", "gateway"))
+    assert "topic read rfsas/v1/vehicle/+/advisory" in lines
+    assert not any(ln.startswith("topic write") for ln in lines)
+    assert "topic read rfsas/v1/vehicle/car-7/advisory" in acl_lines(Identity("car-7", "vehicle"))
+
+
+class _Collect:
+    def __init__(self) -> None:
+        self.datagrams: list[bytes] = []
+
+    def publish(self, route: Route, datagram: bytes) -> None:
+        self.datagrams.append(datagram)
+
+
+class _Queue:
+    def __init__(self, items: list[bytes]) -> None:
+        self.items = items
+
+    def recv(self, timeout: float | None = None) -> bytes | None:
+        return self.items.pop(0) if self.items else None
+
+    def close(self) -> None:
+        pass
+
+
+class _Keys:
+    def __init__(self, key: ec.EllipticCurvePublicKey) -> None:
+        self.key = key
+
+    def backend_key(self, backend_id: str) -> ec.EllipticCurvePublicKey | None:
+        return self.key if backend_id == "be-1" else None
+
+
+def test_the_gateway_hands_each_advisory_to_its_own_vehicle() -> None:
+    now = time.time_ns()
+    car = VehicleState(x_m=1.0, y_m=-10.0, heading_deg=0.0, speed_mps=12.0, t_ns=now)
+    judged = _fixed_service(now).assess_for(car, [7], now)
+    key = ec.generate_private_key(ec.SECP256R1())
+    sent = _Collect()
+    router = TopicRouter(SiteOrigin(52.43, 13.53))
+    for vid in ("car-1", "car-2", "gone-9"):
+        sink = AdvisorySink(
+            Signer("be-1", key), sent, router, "0" * 16, vehicle_id=vid, tile_topics=False
+        )
+        sink.on_results([], judged)
+    datagrams = [*sent.datagrams, b"RF\x01garbage"]
+    gateway = VehicleGateway(_Keys(key.public_key()), _Queue(datagrams))
+    gateway.vehicles(["car-1", "car-2"])
+    got = gateway.receive(0)
+    assert sorted(a.vehicle_id for a in got) == ["car-1", "car-2"]
+    totals = gateway.totals()
+    assert totals.unknown_vehicle == 1
+    assert sum(totals.rejected.values()) == 1
+    gateway.vehicles(["car-2"])
+    assert list(gateway.receivers) == ["car-2"]

@@ -267,6 +267,7 @@ def train(
         f"({result.steps / max(result.seconds, 1e-9):.0f} steps/s), preset {preset}: "
         f"detail {config.sensing.detail}, reward {config.reward.kind}, "
         f"scenario {config.scenario.kind}, prior {'on' if config.prior.observe else 'off'}, "
+        f"drive-on risk {'on' if config.observe_drive_on else 'off'}, "
         f"{n_envs} env(s), PPO n_steps {ppo['n_steps']}, batch {ppo['batch_size']}, "
         f"entropy {ppo['ent_coef']:g}, discount {ppo.get('gamma', 0.99):g}"
     )
@@ -319,7 +320,9 @@ def _train_seeds(
         )
     console.print(
         f"detail {config.sensing.detail}, reward {config.reward.kind}, "
-        f"prior {'on' if config.prior.observe else 'off'}, scenario {config.scenario.kind}"
+        f"prior {'on' if config.prior.observe else 'off'}, "
+        f"drive-on risk {'on' if config.observe_drive_on else 'off'}, "
+        f"scenario {config.scenario.kind}"
     )
 
 
@@ -535,11 +538,11 @@ def _check_shape(policy: Any, config: EnvConfig, what: str) -> None:
     Raises:
         ConfigError: the sizes differ (a model trained with the other --prior).
     """
-    from rfsas_hw.envs.env import OBS_SIZE
+    from rfsas_hw.envs.env import observation_size
     from rfsas_hw.errors import ConfigError
 
     shape = policy.model.observation_space.shape
-    expected = (OBS_SIZE + int(config.prior.observe),)
+    expected = (observation_size(config),)
     if shape != expected:
         raise ConfigError(
             f"{what} observes {shape}, the environment gives {expected}: "

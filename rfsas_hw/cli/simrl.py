@@ -65,9 +65,9 @@ _preset_option = click.option(
     type=click.Choice(["protocol", "method"]),
     default="protocol",
     show_default=True,
-    help="protocol: the risk-progress reward at quiet and busy corners, no prior, 8 "
-    "environments, PPO n_steps 128, batch 256, entropy 0.01 (learned at or below the rule "
-    "in the multi-seed protocol); method: method.md "
+    help="protocol: the risk-progress reward at quiet and busy corners, no prior, the "
+    "risk of driving on observed, 8 environments, PPO n_steps 128, batch 256, entropy "
+    "0.01 (learned at or below the rule in the multi-seed protocol); method: method.md "
     "§10 as written (its reward, one crosser, one environment, n_steps 64, batch 64, "
     "entropy 0). --reward, --scenario, --prior and the PPO options override it.",
 )
@@ -664,6 +664,8 @@ def render(
         if model_path is not None
         else rl.RulePolicy(config.risk_threshold)
     )
+    if model_path is not None:
+        _check_shape(policy, config, "the model")
     info = rl.record_episode(policy, output, distance_m=distance, config=config, seed=seed)
     if info["collision"]:
         outcome = f"collision at {info['impact_speed_mps'] * 3.6:.0f} km/h"

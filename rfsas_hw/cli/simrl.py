@@ -65,9 +65,9 @@ _preset_option = click.option(
     type=click.Choice(["protocol", "method"]),
     default="protocol",
     show_default=True,
-    help="protocol: the risk-progress reward at quiet and busy corners, no prior, 8 "
-    "environments, PPO n_steps 128, batch 256, entropy 0.01 (learned at or below the rule "
-    "in the multi-seed protocol); method: method.md "
+    help="protocol: the risk-progress reward at quiet and busy corners, no prior, the "
+    "risk of driving on observed, 8 environments, PPO n_steps 128, batch 256, entropy "
+    "0.01 (learned at or below the rule in the multi-seed protocol); method: method.md "
     "§10 as written (its reward, one crosser, one environment, n_steps 64, batch 64, "
     "entropy 0). --reward, --scenario, --prior and the PPO options override it.",
 )
@@ -270,6 +270,7 @@ def train(
         f"({result.steps / max(result.seconds, 1e-9):.0f} steps/s), preset {preset}: "
         f"detail {config.sensing.detail}, reward {config.reward.kind}, "
         f"scenario {config.scenario.kind}, prior {'on' if config.prior.observe else 'off'}, "
+        f"drive-on risk {'on' if config.observe_drive_on else 'off'}, "
         f"{n_envs} env(s), PPO n_steps {ppo['n_steps']}, batch {ppo['batch_size']}, "
         f"entropy {ppo['ent_coef']:g}, discount {ppo.get('gamma', 0.99):g}"
     )
@@ -333,7 +334,9 @@ def _train_seeds(
         )
     console.print(
         f"detail {config.sensing.detail}, reward {config.reward.kind}, "
-        f"prior {'on' if config.prior.observe else 'off'}, scenario {config.scenario.kind}"
+        f"prior {'on' if config.prior.observe else 'off'}, "
+        f"drive-on risk {'on' if config.observe_drive_on else 'off'}, "
+        f"scenario {config.scenario.kind}"
     )
 
 
@@ -549,11 +552,11 @@ def _check_shape(policy: Any, config: EnvConfig, what: str) -> None:
     Raises:
         ConfigError: the sizes differ (a model trained with the other --prior).
     """
-    from rfsas_hw.envs.env import OBS_SIZE
+    from rfsas_hw.envs.env import observation_size
     from rfsas_hw.errors import ConfigError
 
     shape = policy.model.observation_space.shape
-    expected = (OBS_SIZE + int(config.prior.observe),)
+    expected = (observation_size(config),)
     if shape != expected:
         raise ConfigError(
             f"{what} observes {shape}, the environment gives {expected}: "
@@ -675,6 +678,8 @@ def render(
         if model_path is not None
         else rl.RulePolicy(config.risk_threshold)
     )
+    if model_path is not None:
+        _check_shape(policy, config, "the model")
     info = rl.record_episode(policy, output, distance_m=distance, config=config, seed=seed)
     if info["collision"]:
         outcome = f"collision at {info['impact_speed_mps'] * 3.6:.0f} km/h"

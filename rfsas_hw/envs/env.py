@@ -26,6 +26,14 @@ Observation (``float32``, shape (7,), every entry in [0, 1]):
    ``1 − exp(−density/scale)`` of the expected RF-detected road users per hour
    along the next ``prior.horizon_m`` of the lane (:mod:`rfsas_hw.envs.history`)
 
+With ``observe_drive_on`` two more entries follow (after the prior, if any):
+the risk of driving on, i.e. the backend's assessment (the same
+:func:`~rfsas_hw.envs.threat.assess_risk` as entries 2–4) for the car where it
+is now but moving at the episode's initial speed, as the log-scale risk of
+entry 3 and the collision probability. A car that stopped for a warning sees
+this stay high while the crosser is still ahead of it and fall to 0 once the
+crosser has passed; its own estimated risk (entries 2–4) is 0 in both cases.
+
 Actions (``Discrete(3)``): 0 coast (a = 0), 1 brake (−4.7 m/s²),
 2 accelerate (+2 m/s²); the speed is clamped to [0, ``max_speed_mps``] and
 never goes negative.
@@ -90,12 +98,24 @@ ACTION_NAMES = ("coast", "brake", "accelerate")
 """Names of the actions, by index."""
 OBS_SIZE = 7
 """Observation entries without the prior (one more with ``prior.observe``)."""
+DRIVE_ON_SIZE = 2
+"""Entries added by ``observe_drive_on``."""
 _OPTIONS = ("reaction_distance_m", "corner", "crosser", "heard", "hour")
 _ABSENT_ARRIVAL_S = 1e6
 """Arrival time of a crosser that is not there: far beyond any episode."""
 _RISK_LOG_FLOOR = 1e-4
 _SUBSTEPS = 4
 """Collision checks per step (the car moves at most 2 m per 0.1 s step)."""
+
+
+def observation_size(config: EnvConfig) -> int:
+    """Entries of the observation under ``config`` (prior and drive-on entries included)."""
+    return OBS_SIZE + int(config.prior.observe) + DRIVE_ON_SIZE * int(config.observe_drive_on)
+
+
+def _log_risk(risk: float) -> float:
+    """A risk on the observation's log scale: 0 at 1e-4 and below, 1 at 1."""
+    return (math.log10(max(risk, _RISK_LOG_FLOOR)) + 4.0) / 4.0
 
 
 @dataclass(frozen=True, slots=True)
@@ -157,7 +177,7 @@ class IntersectionEnv(gym.Env[ObsArray, np.int64]):
         self.render_mode = render_mode
         self.metadata = {**self.metadata, "render_fps": max(1, round(1.0 / config.dt_s))}
         self.action_space = spaces.Discrete(3)
-        size = OBS_SIZE + int(config.prior.observe)
+        size = observation_size(config)
         self.observation_space = spaces.Box(0.0, 1.0, shape=(size,), dtype=np.float32)
         self._profiles: dict[str, Any] = {}
         if config.prior.observe:
@@ -181,6 +201,7 @@ class IntersectionEnv(gym.Env[ObsArray, np.int64]):
         self.episode: Episode | None = None
         self.track = ThreatTrack(self._locator, self.config.sensing)
         self.assessment: Assessment = NO_RISK
+        self.drive_on: Assessment = NO_RISK
         self.last_fix: Fix | None = None
         self.warned = False
         self.collided = False
@@ -353,7 +374,7 @@ class IntersectionEnv(gym.Env[ObsArray, np.int64]):
         if not self.warned and self.t_s + 1e-9 >= self.episode.warning_s:
             self.warned = True
         if not self.warned:
-            self.assessment = NO_RISK
+            self.assessment = self.drive_on = NO_RISK
             return
         s = self.config.sensing
         if self.t_s - self._last_frame_s >= s.frame_interval_s - 1e-9:
@@ -366,6 +387,13 @@ class IntersectionEnv(gym.Env[ObsArray, np.int64]):
         self.assessment = assess_risk(
             self.config, self.t_s, self.front_y_m, self.speed_mps, self.track
         )
+        if self.config.observe_drive_on:
+            nominal = self.episode.initial_speed_mps
+            self.drive_on = (
+                self.assessment
+                if self.speed_mps == nominal
+                else assess_risk(self.config, self.t_s, self.front_y_m, nominal, self.track)
+            )
 
     def _overlap(self, front_y: float, obstacle_x: float) -> bool:
         v = self.config.vehicle
@@ -453,7 +481,7 @@ class IntersectionEnv(gym.Env[ObsArray, np.int64]):
                 self.distance_m / c.vehicle.start_distance_m,
                 self.speed_mps / c.vehicle.max_speed_mps,
                 risk,
-                (math.log10(max(risk, _RISK_LOG_FLOOR)) + 4.0) / 4.0,
+                _log_risk(risk),
                 self.assessment.p_collision,
                 float(self.warned),
                 self.steps / c.max_steps,
@@ -462,6 +490,9 @@ class IntersectionEnv(gym.Env[ObsArray, np.int64]):
         )
         if self._profiles:
             obs = np.append(obs, np.float32(self.prior_ahead))
+        if c.observe_drive_on:
+            extra = [_log_risk(self.drive_on.risk), self.drive_on.p_collision]
+            obs = np.append(obs, np.asarray(extra, np.float32))
         return np.clip(obs, 0.0, 1.0)
 
     @property

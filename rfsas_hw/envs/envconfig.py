@@ -312,6 +312,10 @@ class EnvConfig:
     """Which episodes are drawn (one crosser, or quiet and busy corners)."""
     prior: PriorObsConfig = field(default_factory=PriorObsConfig)
     """The RF activity prior in the observation."""
+    observe_drive_on: bool = False
+    """Add the risk of driving on to the observation: the estimated collision
+    probability and risk the car would face if it drove on now at its initial
+    speed (two entries; see :mod:`rfsas_hw.envs.env`)."""
 
     def __post_init__(self) -> None:
         if self.dt_s <= 0 or self.max_steps < 1:

@@ -8,10 +8,13 @@ step budget.
 - ``protocol`` (the default): the configuration that the multi-seed protocol
   (docs/simulation.md §10) found to give learned risk at or below the rule's
   at every reaction distance: the ``risk-progress`` reward, quiet and busy
-  corners, no prior, 8 environments, PPO n_steps 128 per environment, batch
-  256, entropy 0.01.
+  corners, no prior, the risk of driving on observed (``observe_drive_on``:
+  what the backend would estimate if the car drove on now at its initial
+  speed, so that a car stopped for a warning sees when the crosser has
+  passed), 8 environments, PPO n_steps 128 per environment, batch 256,
+  entropy 0.01.
 - ``method``: method.md §10 as written: the ``method`` reward, the single
-  crosser, one environment, PPO n_steps 64, batch 64, entropy 0
+  crosser, no drive-on entries, one environment, PPO n_steps 64, batch 64, entropy 0
   (:data:`rfsas_hw.envs.rl.PPO_DEFAULTS`).
 """
 
@@ -47,6 +50,8 @@ class Preset:
     """Environment steps of one training run."""
     ppo: Mapping[str, Any] = field(default_factory=dict)
     """PPO hyper-parameters (``n_steps`` is per environment)."""
+    drive_on: bool = False
+    """Whether the risk of driving on is in the observation (``observe_drive_on``)."""
 
     def apply(self, config: EnvConfig) -> EnvConfig:
         """``config`` with this preset's reward, scenario and prior."""
@@ -55,6 +60,7 @@ class Preset:
             reward=dataclasses.replace(config.reward, kind=self.reward),
             scenario=dataclasses.replace(config.scenario, kind=self.scenario),
             prior=dataclasses.replace(config.prior, observe=self.prior),
+            observe_drive_on=self.drive_on,
         )
 
 
@@ -67,6 +73,7 @@ PRESETS: dict[str, Preset] = {
         n_envs=8,
         steps=150_000,
         ppo={**PPO_DEFAULTS, "n_steps": 128, "batch_size": 256, "ent_coef": 0.01},
+        drive_on=True,
     ),
     "method": Preset(
         name="method",

@@ -206,6 +206,10 @@ def test_cli_evaluate_and_render(
     out_csv = tmp_path / "eval.csv"
     out_png = tmp_path / "eval.png"
     args = ["sim", "evaluate", "--model", str(model), "--distances", "40,80", "--episodes", "3"]
+    # the model was trained with --preset method: the default preset observes more
+    code, output = rfsas(*args)
+    assert code == 2 and "--preset" in output
+    args += ["--preset", "method", "--scenario", "corners"]
     code, output = rfsas(*args, "--csv", str(out_csv), "--plot", str(out_png))
     assert code == 0, output
     assert "risk reduction" in output and "paired" in output and "difference" in output
@@ -229,7 +233,10 @@ def test_cli_evaluate_and_render(
     assert code == 0, output
     assert "return" in output and "risk-progress" in output
     gif = tmp_path / "ep.gif"
-    code, output = rfsas("sim", "render", "--model", str(model), "--distance", "60", "-o", str(gif))
+    render = ["sim", "render", "--model", str(model), "--distance", "60", "-o", str(gif)]
+    code, output = rfsas(*render)
+    assert code == 2 and "--preset" in output and not gif.exists()
+    code, output = rfsas(*render, "--preset", "method")
     assert code == 0, output
     assert "learned policy" in output and gif.is_file()
 

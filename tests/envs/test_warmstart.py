@@ -24,7 +24,11 @@ THRESHOLD = CONFIG.risk_threshold
 def _obs(speed: float, risk: float, warned: float = 1.0) -> np.ndarray:
     """An observation 50 m out at ``speed`` (fraction of the limit) with estimated ``risk``."""
     log_risk = (np.log10(max(risk, 1e-4)) + 4.0) / 4.0
-    return np.array([0.5, speed, risk, log_risk, min(risk * 10, 1.0), warned, 0.2], np.float32)
+    p_collision = min(risk * 10, 1.0)
+    obs = [0.5, speed, risk, log_risk, p_collision, warned, 0.2]
+    if CONFIG.observe_drive_on:  # driving on: the same risk as at the car's speed
+        obs += [log_risk, p_collision]
+    return np.array(obs, np.float32)
 
 
 def test_the_resuming_rule_drives_on_after_a_stop_and_brakes_like_the_rule() -> None:

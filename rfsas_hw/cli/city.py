@@ -13,6 +13,7 @@ from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
 from rfsas_hw.cli.exitcodes import WorkFailed
+from rfsas_hw.cli.outopts import OutputPath
 
 if TYPE_CHECKING:
     from rfsas_hw.city.run import CityRunResult
@@ -46,7 +47,7 @@ def _fmt(x: Any, digits: int = 2) -> str:
 @click.option(
     "--out",
     "out_dir",
-    type=click.Path(file_okay=False, path_type=Path),
+    type=OutputPath("dir"),
     required=True,
     help="Output directory: demand, run logs, summaries, maps.",
 )

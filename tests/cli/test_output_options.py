@@ -10,6 +10,7 @@ ends with one clear line and a non-zero exit code, never a traceback or a 0.
 from __future__ import annotations
 
 import shutil
+import subprocess
 from pathlib import Path
 
 import click
@@ -105,6 +106,12 @@ def workdir(tmp_path_factory: pytest.TempPathFactory) -> Path:
                        str(d / "sumo" / "fcd.xml")])  # fmt: skip
     except SystemExit as exc:
         assert exc.code in (0, None)
+    # a small signalised grid, the input of ``city run``
+    from rfsas_hw.city.net import sumo_binary, sumo_env
+
+    netgen = [str(sumo_binary("netgenerate")), "--grid", "--grid.number=2", "--sidewalks.guess"]
+    netgen += ["--default.junctions.type=traffic_light", "-o", str(d / "grid.net.xml")]
+    subprocess.run(netgen, env=sumo_env(), check=True, capture_output=True, timeout=60)
     return d
 
 
@@ -120,6 +127,10 @@ INVOCATIONS: dict[tuple[str, str], tuple[list[str], list[str]]] = {
     ("aoa emulate bleiq", "--calibration-out"): (["aoa", "emulate", "bleiq", "--packets", "5",
                                                   "-o", "iq.btsnoop", "--calibration-out",
                                                   "{out}"], []),
+    ("city run", "--out"): (["city", "run", "--net", "grid.net.xml", "--origin", "52.43,13.53",
+                             "--duration", "2", "--vehicles", "2", "--pedestrians", "2",
+                             "--bicycles", "1", "--rfsas", "off", "--no-png", "--out", "{out}"],
+                            ["grid.net.xml"]),
     ("ncap", "--out"): (["ncap", "--scenarios", "CPNA", "--speeds", "20", "--controllers",
                          "los", "--deployments", "car", "--devices", "phone-active", "--seeds",
                          "1", "--workers", "0", "--no-plots", "--out", "{out}"], []),

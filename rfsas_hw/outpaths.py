@@ -202,15 +202,42 @@ def write_text_atomic(path: str | Path, text: str | bytes) -> None:
         ConfigError: the file cannot be created (no such directory, no permission).
         OutputError: writing it failed (disk full, I/O error); the target is unchanged.
     """
+    if isinstance(text, bytes):
+        write_chunks_atomic(path, (text,))
+    else:
+        write_chunks_atomic(path, (text,), binary=False)
+
+
+def write_chunks_atomic(
+    path: str | Path, chunks: Iterable[str] | Iterable[bytes], *, binary: bool = True
+) -> None:
+    """Write ``chunks`` to ``path`` through :class:`AtomicFile` as they come.
+
+    The chunks are written one by one, so a long output (an export of a large
+    run log) never needs to be in memory at once. An exception raised by
+    ``chunks`` itself (the producer: an unreadable input) passes unchanged, and
+    like any failure it leaves the target as it was.
+
+    Raises:
+        ConfigError: the file cannot be created (no such directory, no permission).
+        OutputError: writing it failed (disk full, I/O error); the target is unchanged.
+    """
     try:
-        out = AtomicFile(path, newline=None, binary=isinstance(text, bytes))
+        out = AtomicFile(path, newline=None, binary=binary)
     except OSError as err:
         raise ConfigError(f"{path}: cannot write: {err.strerror or err}") from err
     try:
-        with out:
-            out.stream.write(text)
-    except OSError as err:
-        raise OutputError(f"{path}: write failed: {err.strerror or err}") from err
+        for chunk in chunks:
+            try:
+                out.stream.write(chunk)
+            except OSError as err:
+                raise OutputError(f"{path}: write failed: {err.strerror or err}") from err
+        try:
+            out.commit()
+        except OSError as err:
+            raise OutputError(f"{path}: write failed: {err.strerror or err}") from err
+    finally:
+        out.discard()  # after a commit: nothing left to remove
 
 
 def save_figure(fig: Any, path: str | Path, **options: Any) -> Path:

@@ -24,10 +24,10 @@ def export_map(runs: tuple[Path, ...], out: Path, fmt: str, opts: dict[str, Any]
     if len(runs) != 1:
         raise ConfigError(f"--to {fmt} exports one run log at a time, got {len(runs)}")
     origin = parse_origin(opts["origin"]) if opts.get("origin") else None
-    path, scene, run = export_run(
+    path, drawn, run = export_run(
         runs[0], fmt, out, origin=origin, flagged=bool(opts.get("flagged"))
     )
-    if not (scene.fixes or scene.bearings or scene.tracks):
+    if not (drawn.fixes or drawn.bearings or drawn.tracks):
         skipped = sum(run.skipped.values())
         raise WorkFailed(
             f"{runs[0]}: nothing to export (0 fixes, 0 bearings; {skipped} line(s) skipped"
@@ -35,10 +35,10 @@ def export_map(runs: tuple[Path, ...], out: Path, fmt: str, opts: dict[str, Any]
             + "); give a run log of rfsas backend --out, or bearings with poses"
         )
     lines = [
-        f"wrote {path}: {len(scene.fixes)} fixes, {len(scene.bearings)} bearings, "
-        f"{len(scene.tracks)} tracks, {len(scene.sensors)} sensors"
+        f"wrote {path}: {drawn.fixes} fixes, {drawn.bearings} bearings, "
+        f"{drawn.tracks} tracks, {drawn.sensors} sensors"
     ]
-    if not scene.bearings:
+    if not drawn.bearings:
         lines.append("no bearings in the log (run the backend with --out to record them)")
     for reason, n in sorted(run.skipped.items()):
         lines.append(f"skipped {n} line(s): {reason}")

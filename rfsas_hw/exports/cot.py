@@ -25,13 +25,15 @@ datagram or, over TCP, one after the other.
 from __future__ import annotations
 
 import math
+from collections.abc import Iterator
 from pathlib import Path
 from xml.etree import ElementTree as ET
 
-from rfsas_hw.exports.scene import Scene
+from rfsas_hw.exports.scene import BearingMark, FixMark, SceneStream
 from rfsas_hw.exports.shapes import ELLIPSE_SIGMA, Ellipse, ellipse_of, iso_utc
+from rfsas_hw.exports.spill import ExternalSort
 from rfsas_hw.geo import SiteOrigin
-from rfsas_hw.outpaths import write_text_atomic
+from rfsas_hw.outpaths import write_chunks_atomic
 from rfsas_hw.records import Assessment, Fix
 
 UNKNOWN = "9999999"
@@ -43,8 +45,8 @@ NS = 1_000_000_000
 __all__ = [
     "STALE_S",
     "bearing_event",
+    "cot_chunks",
     "fix_event",
-    "scene_to_cot",
     "sensor_event",
     "track_event",
     "write_cot",
@@ -217,58 +219,66 @@ def track_event_local(
     )
 
 
-def scene_to_cot(scene: Scene) -> list[bytes]:
-    """Every sensor, fix, bearing and track point of the scene as CoT events, in time order."""
+def _bearing_event(b: BearingMark, hae_m: float) -> ET.Element:
+    bl = b.bearing
+    return bearing_event(
+        bl.sensor_id,
+        bl.emitter,
+        bl.t_ns,
+        b.start_deg,
+        b.end_deg,
+        hae_m,
+        bl.azimuth_deg,
+        bl.sigma_deg,
+    )
+
+
+def cot_chunks(scene: SceneStream) -> Iterator[bytes]:
+    """Every sensor, fix, bearing and track point of the scene as CoT event lines, in
+    time order (at one time: sensors, fixes, bearings, track points, each in log order).
+
+    The events are put in time order by an
+    :class:`~rfsas_hw.exports.spill.ExternalSort`, so a long run is sorted in
+    bounded memory.
+
+    Raises:
+        OutputError: a temporary file cannot be written.
+    """
     hae = scene.origin.height_m
-    timed: list[tuple[int, ET.Element]] = []
-    for s in scene.sensors:
-        timed.append((s.t_ns, sensor_event(s.sensor_id, s.t_ns, s.lat_deg, s.lon_deg, hae)))
-    for m in scene.fixes:
-        timed.append((m.fix.t_ns, fix_event(m.fix, m.lat_deg, m.lon_deg, hae, m.ellipse)))
-    for b in scene.bearings:
-        bl = b.bearing
-        timed.append(
-            (
-                bl.t_ns,
-                bearing_event(
-                    bl.sensor_id,
-                    bl.emitter,
-                    bl.t_ns,
-                    b.start_deg,
-                    b.end_deg,
-                    hae,
-                    bl.azimuth_deg,
-                    bl.sigma_deg,
-                ),
-            )
-        )
-    for t in scene.tracks:
-        for i in range(len(t.t_ns)):
-            timed.append(
-                (
+    with ExternalSort() as events:
+
+        def add(t_ns: int, kind: int, event: ET.Element) -> None:
+            events.add((t_ns, kind), ET.tostring(event, encoding="utf-8") + b"\n")
+
+        for m in scene.marks():
+            if isinstance(m, FixMark):
+                add(m.fix.t_ns, 1, fix_event(m.fix, m.lat_deg, m.lon_deg, hae, m.ellipse))
+            else:
+                add(m.bearing.t_ns, 2, _bearing_event(m, hae))
+        for s in scene.sensors():
+            add(s.t_ns, 0, sensor_event(s.sensor_id, s.t_ns, s.lat_deg, s.lon_deg, hae))
+        for t in scene.tracks():
+            for i in range(len(t.t_ns)):
+                event = track_event(
+                    t.emitter,
                     int(t.t_ns[i]),
-                    track_event(
-                        t.emitter,
-                        int(t.t_ns[i]),
-                        float(t.lat_deg[i]),
-                        float(t.lon_deg[i]),
-                        hae,
-                        float(t.course_deg[i]),
-                        float(t.speed_mps[i]),
-                    ),
+                    float(t.lat_deg[i]),
+                    float(t.lon_deg[i]),
+                    hae,
+                    float(t.course_deg[i]),
+                    float(t.speed_mps[i]),
                 )
-            )
-    timed.sort(key=lambda item: item[0])
-    return [ET.tostring(ev, encoding="utf-8") for _, ev in timed]
+                add(int(t.t_ns[i]), 3, event)
+        yield from events.sorted()
 
 
-def write_cot(scene: Scene, path: str | Path) -> Path:
-    """Write the scene's CoT events to ``path``, one event per line.
+def write_cot(scene: SceneStream, path: str | Path) -> Path:
+    """Write the scene's CoT events to ``path``, one event per line, as it is read.
 
     Raises:
         ConfigError: the file cannot be created.
         OutputError: writing it failed (disk full); the target is unchanged.
     """
     p = Path(path)
-    write_text_atomic(p, b"".join(event + b"\n" for event in scene_to_cot(scene)))
+    write_chunks_atomic(p, cot_chunks(scene))
     return p

@@ -6,6 +6,9 @@ WGS-84), ``bearing`` (with the sensor's pose), ``fix``, ``assessment`` and
 not JSON or not a known record is skipped and counted, with its line number
 in :attr:`RunLog.errors`: a corrupted line costs only that line (a number out
 of range, a time before 1970 or after 2038, nesting too deep for the parser).
+
+The log is read line by line (:meth:`RunLog.records`): an export holds the
+record it is on, not the file, whatever the log's length.
 """
 
 from __future__ import annotations
@@ -26,16 +29,24 @@ from rfsas_hw.records import Assessment, Fix
 
 T = TypeVar("T")
 
-__all__ = ["BearingLine", "RunLog", "RunRecord", "SiteLine", "iter_records", "read_run"]
+__all__ = [
+    "BearingLine",
+    "LoadedRun",
+    "RunLog",
+    "RunRecord",
+    "SiteLine",
+    "iter_records",
+    "read_run",
+]
 
 MAX_ABS = 1.0e9
 """A number of a record beyond this (metres, degrees, dB, m²) is corrupt, not data."""
 MAX_T_NS = (2**31 - 1) * 1_000_000_000
 """The last time a record may carry: ROS 2 time counts seconds in 32 bits (2038)."""
 MAX_ERRORS_KEPT = 20
+"""Messages of skipped lines kept for the user (all are counted)."""
 _EMITTER = re.compile(r"[0-9a-fA-F]{1,16}")
 """A hashed emitter id as written: a 64-bit number in hex."""
-"""Messages of skipped lines kept for the user (all are counted)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -82,34 +93,112 @@ RunRecord = BearingLine | Fix | Assessment | SiteLine
 
 @dataclass
 class RunLog:
-    """What a run log holds, in file order per kind."""
+    """A run log read record by record: its site origin and what was skipped so far.
+
+    :meth:`records` streams the file (nothing but the current line is kept),
+    so a log of any length is read in bounded memory; the skip counters fill
+    as it goes.
+    """
 
     source: str
     """File name, for messages."""
     origin: SiteOrigin | None = None
-    """The site origin the log carries (None: the log has no ``site`` line)."""
-
-    def origin_or(self, origin: SiteOrigin | None) -> SiteOrigin:
-        """``origin`` when given, else the log's own site origin.
-
-        Raises:
-            ExportError: neither is there.
-        """
-        where = origin or self.origin
-        if where is None:
-            raise ExportError(
-                f"{self.source}: the log has no site origin; give --origin LAT,LON[,HEIGHT] "
-                "(or run the backend with a site origin)"
-            )
-        return where
-
-    bearings: list[BearingLine] = field(default_factory=list)
-    fixes: list[Fix] = field(default_factory=list)
-    assessments: list[Assessment] = field(default_factory=list)
+    """The site origin the log carries (None: no ``site`` line read so far)."""
     skipped: Counter[str] = field(default_factory=Counter)
     """Skipped lines by reason."""
     errors: list[str] = field(default_factory=list)
     """The first few skipped lines, with line numbers."""
+    origin_read: bool = False
+    """True once every ``site`` line was seen (:meth:`records` or :meth:`scan_origin` ran)."""
+
+    def origin_or(self, origin: SiteOrigin | None) -> SiteOrigin:
+        """``origin`` when given, else the log's own site origin (found by
+        :meth:`scan_origin` if the log was not read yet).
+
+        Raises:
+            ExportError: neither is there, the file cannot be read, or a
+                ``site`` line is invalid.
+        """
+        if origin is not None:
+            return origin
+        if not self.origin_read:
+            self.scan_origin()
+        if self.origin is None:
+            raise ExportError(
+                f"{self.source}: the log has no site origin; give --origin LAT,LON[,HEIGHT] "
+                "(or run the backend with a site origin)"
+            )
+        return self.origin
+
+    def _site(self, line: SiteLine) -> SiteOrigin:
+        try:
+            return site_origin_from_mapping(line.origin, f"{line.where}: origin")
+        except ConfigError as err:
+            raise ExportError(str(err)) from err
+
+    def scan_origin(self) -> SiteOrigin | None:
+        """Find the log's site origin (the last ``site`` line's) ahead of :meth:`records`.
+
+        A first pass that parses only the lines that can be ``site`` records
+        (their text names it, or has a JSON escape); it counts nothing: the
+        skipped lines are counted once, by :meth:`records`.
+
+        Raises:
+            ExportError: the file cannot be read, or a ``site`` line is invalid.
+        """
+        p = Path(self.source)
+        try:
+            f = p.open("r", encoding="utf-8", errors="replace")
+        except OSError as err:
+            raise ExportError(f"{p}: cannot read: {err.strerror or err}") from err
+        with f:
+            for lineno, line in enumerate(f, 1):
+                if "site" not in line and "\\u" not in line:
+                    continue
+                try:
+                    data = json.loads(line)
+                except (ValueError, RecursionError):
+                    continue
+                if isinstance(data, dict) and data.get("record") == "site":
+                    self.origin = self._site(
+                        SiteLine(f"{p}: line {lineno}", data.get("origin", {}))
+                    )
+        self.origin_read = True
+        return self.origin
+
+    def records(self) -> Iterator[BearingLine | Fix | Assessment]:
+        """The log's bearings, fixes and assessments in file order, read as they are taken.
+
+        A ``site`` line sets :attr:`origin`; a bad line is counted in
+        :attr:`skipped` and :attr:`errors`. A bearings file of replay/live
+        (lines without a ``record`` key) is read as bearings.
+
+        Raises:
+            ExportError: the file cannot be read, or a ``site`` line is invalid.
+        """
+        try:
+            for record in iter_records(
+                self.source, self.skipped, self.errors, default_record="bearing"
+            ):
+                if isinstance(record, SiteLine):
+                    self.origin = self._site(record)
+                else:
+                    yield record
+        except DataFormatError as err:
+            raise ExportError(str(err)) from err
+        self.origin_read = True
+
+
+@dataclass
+class LoadedRun(RunLog):
+    """A run log read whole (:func:`read_run`): its records in file order per kind.
+
+    Small logs and tests only; the exports stream :meth:`RunLog.records`.
+    """
+
+    bearings: list[BearingLine] = field(default_factory=list)
+    fixes: list[Fix] = field(default_factory=list)
+    assessments: list[Assessment] = field(default_factory=list)
 
 
 def _num(data: Mapping[str, Any], key: str, where: str) -> float:
@@ -249,27 +338,18 @@ def iter_records(
             yield record
 
 
-def read_run(path: str | Path) -> RunLog:
-    """Read a run log (see the module docstring).
+def read_run(path: str | Path) -> LoadedRun:
+    """Read a whole run log into memory (see the module docstring).
 
     Raises:
         ExportError: the file cannot be read, or its ``site`` line is invalid.
     """
-    run = RunLog(source=str(Path(path)))
-    try:
-        # a bearings file of replay/live has no record key: its lines are bearings
-        for record in iter_records(path, run.skipped, run.errors, default_record="bearing"):
-            if isinstance(record, BearingLine):
-                run.bearings.append(record)
-            elif isinstance(record, Fix):
-                run.fixes.append(record)
-            elif isinstance(record, Assessment):
-                run.assessments.append(record)
-            else:
-                try:
-                    run.origin = site_origin_from_mapping(record.origin, f"{record.where}: origin")
-                except ConfigError as err:
-                    raise ExportError(str(err)) from err
-    except DataFormatError as err:
-        raise ExportError(str(err)) from err
+    run = LoadedRun(source=str(Path(path)))
+    for record in run.records():
+        if isinstance(record, BearingLine):
+            run.bearings.append(record)
+        elif isinstance(record, Fix):
+            run.fixes.append(record)
+        else:
+            run.assessments.append(record)
     return run

@@ -14,11 +14,16 @@ one step. Events of all inputs are merged in time order and go through the
 same :class:`~rfsas_hw.ros2.sink.BackendScene` as a live run, so an export
 and a live recording of one run carry the same messages. A line that is not
 JSON or not a valid record is skipped and counted with its line number.
+
+The inputs are read record by record and the events put in time order by an
+:class:`~rfsas_hw.exports.spill.ExternalSort` (sorted runs in temporary files,
+merged), so memory holds the sort's budget and the open batch, not the logs.
 """
 
 from __future__ import annotations
 
 import math
+import pickle
 from collections import Counter
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
@@ -29,6 +34,7 @@ import numpy as np
 
 from rfsas_hw.errors import ConfigError
 from rfsas_hw.exports.run import BearingLine, iter_records
+from rfsas_hw.exports.spill import ExternalSort
 from rfsas_hw.records import Assessment, BearingBatch, Fix, Pose
 from rfsas_hw.ros2.bag import RecordFormat, open_recording
 from rfsas_hw.ros2.scene import BEARING_ARRAY_SPAN_NS, SceneBuilder, SceneConfig
@@ -84,10 +90,6 @@ def _batch(rows: list[BearingLine]) -> BearingBatch:
         emitter=np.array([int(r.emitter, 16) for r in rows], np.uint64),
         relative_deg=np.array([r.relative_deg for r in rows]),
     )
-
-
-Event = tuple[int, int, Any]
-"""(time ns, order of reading, a (BearingBatch, pose) pair or a _Step)."""
 
 
 def read_events(
@@ -167,6 +169,7 @@ def export_runs(
         ConfigError: ``out`` is an input, the rosbag2 directory exists, or the
             output cannot be written.
         MissingDependencyError: the ros2 extra is not installed.
+        OutputError: a temporary file of the time sort cannot be written.
     """
     poses = dict(poses or {})
     target = Path(out).resolve()
@@ -174,16 +177,29 @@ def export_runs(
         if Path(path).resolve() == target:
             raise ConfigError(f"{out} is also an input; refusing to write over it")
     result = ExportResult()
-    events: list[Event] = []
-    for path in runs:
-        for t_ns, item in read_events(path, poses, result):
-            events.append((t_ns, len(events), item))
-    events.sort(key=lambda e: (e[0], e[1]))
+    with ExternalSort() as events:
+        for path in runs:
+            for t_ns, item in read_events(path, poses, result):
+                events.add((t_ns,), pickle.dumps(item, protocol=pickle.HIGHEST_PROTOCOL))
+        _record(events, out, fmt, storage, scene, result)
+    return result
+
+
+def _record(
+    events: ExternalSort,
+    out: str | Path,
+    fmt: RecordFormat,
+    storage: str,
+    scene: SceneConfig | None,
+    result: ExportResult,
+) -> None:
+    """Write the sorted events through the live run's scene into the recording."""
     sink = SceneSink([open_recording(out, fmt, storage=storage)], SceneBuilder(scene))
     stations: dict[str, Pose] = {}
     backend = BackendScene(sink, stations=lambda: stations)
     try:
-        for _, _, item in events:
+        for data in events.sorted():
+            item = pickle.loads(data)  # our own events from our own file
             if isinstance(item, _Step):
                 backend.on_results(item.fixes, item.assessments)
                 result.fixes += len(item.fixes)
@@ -200,4 +216,3 @@ def export_runs(
         sink.close()
     result.counts = dict(sink.counts)
     result.messages = sum(sink.counts.values())
-    return result

@@ -15,6 +15,7 @@ CPM or the BTP-B header and the CPM; :func:`split_datagram` reads all three form
 from __future__ import annotations
 
 import struct
+from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import BinaryIO
@@ -126,13 +127,16 @@ def ethernet_frame(
 
 def write_pcap(
     stream: BinaryIO,
-    frames: list[tuple[int, bytes]],
+    frames: Iterable[tuple[int, bytes]],
 ) -> int:
-    """Write ``(t_ns, Ethernet frame)`` pairs as a pcap file; returns the frames written."""
+    """Write ``(t_ns, Ethernet frame)`` pairs as a pcap file, each as it comes; returns
+    the frames written."""
     writer = PcapWriter(stream, linktype=LINKTYPE_ETHERNET)
+    n = 0
     for t_ns, frame in frames:
         writer.write(t_ns, frame)
-    return len(frames)
+        n += 1
+    return n
 
 
 def _from_geonet(packet: bytes, where: str) -> bytes:

@@ -91,7 +91,8 @@ def test_run_log_carries_origin_bearings_fixes_and_tracks(run_path: Path) -> Non
 def test_geojson_is_rfc7946_and_round_trips_within_a_centimetre(
     run_path: Path, tmp_path: Path
 ) -> None:
-    path, _, run = export_run(run_path, "geojson", tmp_path / "run.geojson")
+    path, _, _ = export_run(run_path, "geojson", tmp_path / "run.geojson")
+    run = read_run(run_path)  # the export streams the log; its records are read here
     doc = json.loads(path.read_text())
     jsonschema.validate(doc, SCHEMA)
     kinds = [f["properties"]["kind"] for f in doc["features"]]
@@ -139,7 +140,8 @@ def _iso(t_ns: int) -> str:
 
 
 def test_kml_has_the_expected_structure(run_path: Path, tmp_path: Path) -> None:
-    path, _, run = export_run(run_path, "kml", tmp_path / "run.kml")
+    path, _, _ = export_run(run_path, "kml", tmp_path / "run.kml")
+    run = read_run(run_path)  # the export streams the log; its records are read here
     root = ET.parse(path).getroot()
     assert root.tag == f"{{{KML_NS}}}kml"
     doc = root.find("k:Document", K)
@@ -174,7 +176,8 @@ def test_kml_has_the_expected_structure(run_path: Path, tmp_path: Path) -> None:
 
 
 def test_cot_events_parse_back(run_path: Path, tmp_path: Path) -> None:
-    path, _, run = export_run(run_path, "cot", tmp_path / "run.cot")
+    path, _, _ = export_run(run_path, "cot", tmp_path / "run.cot")
+    run = read_run(run_path)  # the export streams the log; its records are read here
     events = [ET.fromstring(line) for line in path.read_bytes().splitlines()]
     times = [e.get("time") or "" for e in events]
     assert times == sorted(times)

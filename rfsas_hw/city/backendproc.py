@@ -26,7 +26,6 @@ from __future__ import annotations
 
 import logging
 import math
-import resource
 import time
 from dataclasses import dataclass, field
 from multiprocessing.connection import Connection
@@ -40,7 +39,7 @@ from rfsas_hw.backend.encounter import assess_encounters
 from rfsas_hw.backend.service import BackendConfig
 from rfsas_hw.backend.triangulation import triangulate_batch
 from rfsas_hw.backend.vehicle import VehicleState
-from rfsas_hw.city.clock import SimClock
+from rfsas_hw.city.clock import SimClock, cpu_s
 from rfsas_hw.fleet.advisory import AdvisorySink
 from rfsas_hw.fleet.advisory_limits import AdvisoryLimits
 from rfsas_hw.geo import SiteOrigin
@@ -312,11 +311,6 @@ class CityBackend:
         return self.counters
 
 
-def _cpu_s() -> float:
-    r = resource.getrusage(resource.RUSAGE_SELF)
-    return float(r.ru_utime + r.ru_stime)
-
-
 def backend_main(work: BackendWork, conn: Connection) -> None:
     """The body of a backend process: build, answer ``("ready",)``, run until ``None``,
     answer ``("end", counters)``; a failure is answered ``("error", message)``."""
@@ -328,7 +322,7 @@ def backend_main(work: BackendWork, conn: Connection) -> None:
         backend.run(conn)
         counters = backend.close()
         backend = None
-        counters.cpu_s = _cpu_s()
+        counters.cpu_s = cpu_s()
         conn.send(("end", counters))
     except Exception as err:  # reported to the main process, which ends the run
         log.debug("backend %s failed", work.backend_id, exc_info=True)

@@ -13,10 +13,17 @@ simulated seconds; wall-time figures (latency) are then the clock's divided by
 
 from __future__ import annotations
 
+import resource
 import time
 from dataclasses import dataclass
 
-__all__ = ["SimClock"]
+__all__ = ["SimClock", "cpu_s"]
+
+
+def cpu_s() -> float:
+    """CPU time this process has used so far (user + system), seconds."""
+    r = resource.getrusage(resource.RUSAGE_SELF)
+    return float(r.ru_utime + r.ru_stime)
 
 
 @dataclass(frozen=True)

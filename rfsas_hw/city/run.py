@@ -28,7 +28,6 @@ from __future__ import annotations
 import contextlib
 import json
 import math
-import resource
 import tempfile
 import time
 from collections.abc import Callable
@@ -40,6 +39,7 @@ import numpy as np
 
 from rfsas_hw.bridges.config import BACKEND_PROFILES, BridgeConfig, backend_config
 from rfsas_hw.bridges.sumo import SumoControl, load_sumo, start_sumo
+from rfsas_hw.city.clock import cpu_s
 from rfsas_hw.city.demand import Demand, DemandConfig, generate
 from rfsas_hw.city.live import DistributedRfsas, LiveConfig, LiveStats
 from rfsas_hw.city.net import NetInfo, district_net, read_net, sumo_home
@@ -160,11 +160,6 @@ def _actors(m: Movers, vehicles: bool) -> Actors:
         m.width_m,
         m.odometer_m,
     )
-
-
-def _cpu_self_s() -> float:
-    r = resource.getrusage(resource.RUSAGE_SELF)
-    return float(r.ru_utime + r.ru_stime)
 
 
 class _Log:
@@ -332,7 +327,7 @@ def _run_loop(
     timers = dict.fromkeys(("sumo", "read", "scoring", "path"), 0.0)
     live: DistributedRfsas | None = None
     tmp: tempfile.TemporaryDirectory[str] | None = None
-    cpu0 = _cpu_self_s()
+    cpu0 = cpu_s()
     advisories = brakes = 0
     try:
         if mode == "on":
@@ -442,7 +437,7 @@ def _run_loop(
     for a in live.late if live is not None else ():
         # reached its vehicle after the simulation's end: logged, not acted on
         _log_arrival(log, cfg.duration_s, a, most_severe(a.message), math.nan)
-    _costs(runtime, timers, _cpu_self_s() - cpu0, stats)
+    _costs(runtime, timers, cpu_s() - cpu0, stats)
     return runtime
 
 

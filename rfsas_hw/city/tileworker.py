@@ -41,7 +41,6 @@ from __future__ import annotations
 
 import datetime as dt
 import logging
-import resource
 import time
 from dataclasses import dataclass, field
 from multiprocessing.connection import Connection
@@ -52,7 +51,7 @@ import numpy as np
 
 from rfsas_hw.bridges.bridge import device_mac
 from rfsas_hw.bridges.config import BridgeConfig, UnitSpec
-from rfsas_hw.city.clock import SimClock
+from rfsas_hw.city.clock import SimClock, cpu_s
 from rfsas_hw.df.calibration import Calibration
 from rfsas_hw.link.distribution import NonceInbox
 from rfsas_hw.link.keys import KeyStore
@@ -432,11 +431,6 @@ class TwinWorker:
         return self.counters
 
 
-def _cpu_s() -> float:
-    r = resource.getrusage(resource.RUSAGE_SELF)
-    return float(r.ru_utime + r.ru_stime)
-
-
 def worker_main(work: TileWork, conn: Connection) -> None:
     """The body of a twin worker process: build, answer ``("ready",)``, then step on every
     :class:`Snapshot` received until ``None``; answer ``("end", counters)``. A failure
@@ -457,7 +451,7 @@ def worker_main(work: TileWork, conn: Connection) -> None:
             worker.send_due(work.clock)
         counters = worker.close()
         worker = None
-        counters.cpu_s = _cpu_s()
+        counters.cpu_s = cpu_s()
         conn.send(("end", counters))
     except Exception as err:  # reported to the main process, which ends the run
         log.debug("worker %s failed", work.worker_id, exc_info=True)

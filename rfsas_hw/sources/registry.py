@@ -24,7 +24,7 @@ _LAZY: dict[str, str] = {
     "csi": "rfsas_hw.sources.csi:CsiSource",
     "bleiq": "rfsas_hw.sources.ble_iq_source:BleIqSource",
     "bleiq+zephyr": "rfsas_hw.sources.ble_iq_zephyr_source:BleIqZephyrSource",
-    "bleiq+mqtt": "rfsas_hw.sources.ble_iq_mqtt:BleIqMqttSource",
+    "bleiq+mqtt": "rfsas_hw.link.bleiq_mqtt:BleIqMqttSource",
 }
 _LOADED: dict[str, type[Source[Any]]] = {}
 

@@ -18,7 +18,7 @@ from rfsas_hw.df.arraycal import ArrayCalibration, ElementCalibration
 from rfsas_hw.errors import SimulationError
 from rfsas_hw.sources import open_source
 from rfsas_hw.sources.ble_iq import ble_channel_mhz
-from rfsas_hw.twin.bleiq_writer import BleArray, write_sensor_bleiq
+from rfsas_hw.sources.twin_bleiq import BleArray, write_sensor_bleiq
 from rfsas_hw.twin.scenario import scenario_from_mapping
 from rfsas_hw.twin.world import World
 

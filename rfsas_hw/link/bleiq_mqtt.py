@@ -16,7 +16,8 @@ locator was set; the host's default is 1), ``connect_s`` (how long opening
 waits for the broker, default 5 s), ``queue`` (messages held between reads,
 default 65536; the oldest go first when it is full).
 
-The MQTT client is the package's own (the link's, :mod:`rfsas_hw.link.mqtt`):
+The MQTT client is the package's own (:mod:`rfsas_hw.link.mqtt`; this source lives in
+the link package because it reads through it):
 it reconnects with backoff after a lost broker and bounds its queue. Plain
 MQTT only; run the source next to the broker or tunnel it.
 """
@@ -28,6 +29,7 @@ from collections.abc import Callable
 from typing import Any
 
 from rfsas_hw.errors import CaptureFormatError, LinkError, SourceError
+from rfsas_hw.link.mqtt import MqttEndpoint, MqttTransport
 from rfsas_hw.records import ObservationBatch
 from rfsas_hw.sources.base import Source
 from rfsas_hw.sources.ble_iq import ble_channel_mhz
@@ -104,9 +106,6 @@ class BleIqMqttSource(IqReportSource):
         self.clock = clock
         self.locator: str | None = None
         """The locator this source reads (the first heard)."""
-        # imported here: the link's MQTT client, not a second one for the sources
-        from rfsas_hw.link.mqtt import MqttEndpoint, MqttTransport
-
         endpoint = MqttEndpoint(
             host, port, subscriptions=(flt,), connect_s=float(connect_s), queue=queue
         )

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import click
 import pytest
-from clihelp import REPO, run, write_calibration, write_capture
+from clihelp import REPO, STILL, run, write_calibration, write_capture
 
 from rfsas_hw.cli import main as cli_main
 from rfsas_hw.cli.exitcodes import BAD_INPUT, FAILED
@@ -150,10 +150,10 @@ INVOCATIONS: dict[tuple[str, str], tuple[list[str], list[str]]] = {
                                   ["keys/rsu-1/identity.yaml"]),
     ("keys new", "--out"): (["keys", "new", "--role", "sensor", "-o", "{out}"], []),
     ("live", "--out"): (["live", "pcap:cap.pcap", "--calibration", "cal.yaml", "--out", "{out}",
-                         "--format", "csv"], ["cap.pcap", "cal.yaml"]),
+                         "--format", "csv", *STILL], ["cap.pcap", "cal.yaml"]),
     ("nonces secret", "--out"): (["nonces", "secret", "-o", "{out}"], []),
     ("replay", "--out"): (["replay", "cap.pcap", "--calibration", "cal.yaml", "--out", "{out}",
-                           "--format", "jsonl"], ["cap.pcap", "cal.yaml"]),
+                           "--format", "jsonl", *STILL], ["cap.pcap", "cal.yaml"]),
     ("sim braking", "--plot"): (["sim", "braking", "--plot", "{out}"], []),
     ("sim capture", "--out"): (["sim", "capture", "scene.yaml", "-o", "{out}"], ["scene.yaml"]),
     ("sim cueing", "--demo"): (["sim", "cueing", "--demo", "{out}"], []),

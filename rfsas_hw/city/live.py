@@ -73,6 +73,7 @@ from rfsas_hw.link.distribution import NonceDistributor
 from rfsas_hw.link.mqtt import open_mqtt
 from rfsas_hw.link.topics import ROOT, TopicRouter, quadkey
 from rfsas_hw.privacy.epochs import EpochSchedule
+from rfsas_hw.records import Assessment, Fix
 from rfsas_hw.twin.scenario import BuildingSpec, PoseSpec
 
 NS_PER_S = 1_000_000_000
@@ -123,6 +124,9 @@ class LiveConfig:
     time_scale: float = 1.0
     """Simulated seconds per wall second the deployment's clock runs at (1: real time;
     below 1 for a machine that cannot keep up, see :mod:`rfsas_hw.city.clock`)."""
+    dashboard: bool = False
+    """The backends also report their fixes and tracks every step, for a live
+    dashboard (:attr:`StepOut.dashboard`)."""
 
     def __post_init__(self) -> None:
         if not 0.0 < self.time_scale <= 1.0:
@@ -189,6 +193,9 @@ class StepOut:
     """Arrivals signed by a backend that does not own the vehicle's tile."""
     messages: int = 0
     """Signed bearing messages the workers published since the previous step."""
+    dashboard: list[tuple[str, list[Fix], list[Assessment]]] = field(default_factory=list)
+    """With :attr:`LiveConfig.dashboard`: per backend report since the previous step,
+    (backend id, fixes made since its last report, its current assessments)."""
 
 
 @dataclass
@@ -359,6 +366,7 @@ class DistributedRfsas:
                 near_m=self.config.near_m,
                 repeat_s=self.config.repeat_s,
                 clock=self.clock,
+                dashboard=self.config.dashboard,
             )
             parent, child = ctx.Pipe()
             proc = ctx.Process(target=backend_main, args=(work, child), name=b, daemon=True)
@@ -538,6 +546,8 @@ class DistributedRfsas:
                                 sigma,
                             )
                         )
+                elif msg[0] == "dashboard":
+                    out.dashboard.append((b, msg[1], msg[2]))
                 elif msg[0] == "error":
                     raise SimulationError(str(msg[1]))
 

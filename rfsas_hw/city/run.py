@@ -31,9 +31,9 @@ import math
 import tempfile
 import time
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
-from typing import IO, Any, Literal
+from typing import IO, TYPE_CHECKING, Any, Literal
 
 import numpy as np
 
@@ -52,6 +52,9 @@ from rfsas_hw.errors import ConfigError, OutputError, SimulationError
 from rfsas_hw.geo import SiteOrigin
 from rfsas_hw.outpaths import write_text_atomic
 from rfsas_hw.twin.scenario import BuildingSpec
+
+if TYPE_CHECKING:
+    from rfsas_hw.city.dashboard import CityDashboard
 
 STEP_S = 0.1
 """SUMO's step, seconds."""
@@ -272,6 +275,7 @@ def run_city(
     png: bool = True,
     work_dir: Path | None = None,
     broker: BrokerAccess | None = None,
+    dashboard: CityDashboard | None = None,
 ) -> CityRunResult:
     """Run a district once with RF-SAS ``off`` or ``on`` (see the module docstring).
 
@@ -289,6 +293,8 @@ def run_city(
             an earlier run wrote; None: a temporary folder, deleted at the end). They
             hold private keys: keep them out of the outputs.
         broker: a running broker to use (None: mosquitto is started on loopback).
+        dashboard: a live dashboard to show the run with RF-SAS on (its units, the
+            backends' fixes and tracks); the caller starts and closes it.
 
     Raises:
         MissingDependencyError: eclipse-sumo, libsumo, mosquitto or matplotlib is missing.
@@ -339,6 +345,7 @@ def run_city(
             on_progress,
             work_dir,
             broker,
+            dashboard,
         )
         summary = scorer.summary()
         log.write({"record": "end", "summary": summary.as_dict(), "runtime": asdict(runtime)})
@@ -387,6 +394,7 @@ def _run_loop(
     on_progress: Callable[[Progress], None] | None,
     work_dir: Path | None,
     broker: BrokerAccess | None,
+    dashboard: CityDashboard | None,
 ) -> Runtime:
     info, demand, units = district.info, district.demand, district.units
     import os
@@ -414,9 +422,11 @@ def _run_loop(
                 info.bounds_m,
                 bridge,
                 backend_config(bridge),
-                cfg.live,
+                replace(cfg.live, dashboard=dashboard is not None),
                 broker=broker,
             )
+            if dashboard is not None:
+                dashboard.use_clock(live.clock)
             log.write(
                 {
                     "record": "tiles",
@@ -454,6 +464,8 @@ def _run_loop(
             timers["scoring"] += w3 - w2
             if live is not None:
                 out = live.step(t, cars, vrus, phones)
+                if dashboard is not None:
+                    dashboard.take(out)
                 scorer.messages(out.messages)
                 advised: set[str] = set()
                 for f in out.fixes:

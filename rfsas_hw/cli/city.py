@@ -16,7 +16,9 @@ from rfsas_hw.cli.exitcodes import WorkFailed
 from rfsas_hw.cli.outopts import OutputPath
 
 if TYPE_CHECKING:
-    from rfsas_hw.city.run import CityRunResult
+    from rfsas_hw.city.dashboard import CityDashboard
+    from rfsas_hw.city.deploy import BrokerAccess
+    from rfsas_hw.city.run import CityRunConfig, CityRunResult, District
 
 
 @click.group()
@@ -226,6 +228,19 @@ def keys(
     help="Folder with <id>.crt and <id>.key of every party, as rfsas broker config "
     "writes them (default: the folder of --broker's cert=).",
 )
+@click.option(
+    "--web",
+    metavar="[HOST:]PORT",
+    default=None,
+    help="Serve the live dashboard of the run with RF-SAS on here: every unit, every "
+    "backend's fixes and tracks (default host 127.0.0.1; needs the web extra).",
+)
+@click.option(
+    "--web-token",
+    envvar="RFSAS_WEB_TOKEN",
+    default=None,
+    help="Token other hosts must give the dashboard [default: random when not on loopback].",
+)
 @click.option("--no-png", is_flag=True, help="Write the map as GeoJSON only.")
 def run(
     net: Path | None,
@@ -250,6 +265,8 @@ def run(
     work_dir: Path | None,
     broker: str | None,
     broker_certs: Path | None,
+    web: str | None,
+    web_token: str | None,
     no_png: bool,
 ) -> None:
     """Run a district: demand from SUMO's randomTrips, units at the traffic lights, and,
@@ -259,7 +276,7 @@ def run(
     from rfsas_hw.city.demand import DemandConfig
     from rfsas_hw.city.deploy import BrokerAccess
     from rfsas_hw.city.live import LiveConfig, prestart
-    from rfsas_hw.city.run import CityRunConfig, prepare_district, run_city
+    from rfsas_hw.city.run import CityRunConfig, prepare_district
 
     if broker_certs is not None and broker is None:
         raise click.UsageError("--broker-certs goes with --broker")
@@ -292,6 +309,41 @@ def run(
     if modes != "off":
         prestart()
     district = prepare_district(cfg, out_dir)
+    dashboard = None
+    if web is not None and modes != "off":
+        from rfsas_hw.city.dashboard import CityDashboard
+
+        dashboard = CityDashboard(district.units, district.info.origin, web, web_token)
+        click.echo(f"dashboard at {dashboard.url}", err=True)
+    try:
+        results = _runs(
+            cfg, out_dir, district, modes, console, not no_png, work_dir, access, dashboard
+        )
+    finally:
+        if dashboard is not None:
+            dashboard.close()
+    console.print(_table(results))
+    for mode, res in results.items():
+        click.echo(f"{mode}: " + ", ".join(str(p) for p in res.files.values()))
+    problems = [p for r in results.values() for p in r.runtime.problems]
+    if problems:
+        raise WorkFailed("; ".join(problems[:5]))
+
+
+def _runs(
+    cfg: CityRunConfig,
+    out_dir: Path,
+    district: District,
+    modes: str,
+    console: Console,
+    png: bool,
+    work_dir: Path | None,
+    access: BrokerAccess | None,
+    dashboard: CityDashboard | None,
+) -> dict[str, CityRunResult]:
+    """The runs ``--rfsas`` asks for, each with a progress bar."""
+    from rfsas_hw.city.run import run_city
+
     results: dict[str, CityRunResult] = {}
     for mode in ("off", "on") if modes == "both" else (modes,):
         columns = (
@@ -301,7 +353,7 @@ def run(
             TimeElapsedColumn(),
         )
         with Progress(*columns, console=console, transient=True) as bar:
-            task = bar.add_task("run", total=duration_s, info="starting")
+            task = bar.add_task("run", total=cfg.duration_s, info="starting")
 
             def show(p: Any, task: Any = task, bar: Any = bar) -> None:
                 bar.update(
@@ -317,16 +369,12 @@ def run(
                 mode,
                 district=district,
                 on_progress=show,
-                png=not no_png,
+                png=png,
                 work_dir=work_dir,
                 broker=access,
+                dashboard=dashboard,
             )
-    console.print(_table(results))
-    for mode, res in results.items():
-        click.echo(f"{mode}: " + ", ".join(str(p) for p in res.files.values()))
-    problems = [p for r in results.values() for p in r.runtime.problems]
-    if problems:
-        raise WorkFailed("; ".join(problems[:5]))
+    return results
 
 
 def _table(results: dict[str, CityRunResult]) -> Table:

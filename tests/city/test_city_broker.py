@@ -5,12 +5,19 @@ broker config`` makes the broker's certificates and ACL from them (with the vehi
 gateway), mosquitto runs with those files (started here on loopback, as the fleet tests
 start theirs), and ``rfsas city run --broker URL --work DIR`` uses it: every party with
 its own certificate, the command's own broker start never called.
+
+The same run serves its live dashboard (``--web``): read over loopback while the run
+goes, it shows every unit of the district and the backends' fixes and tracks, refuses
+a request from another origin (the dashboard server's own check) and holds no MAC.
 """
 
 from __future__ import annotations
 
 import getpass
 import json
+import threading
+import urllib.error
+import urllib.request
 from pathlib import Path
 from typing import Any
 
@@ -19,6 +26,8 @@ from click.testing import CliRunner
 
 pytest.importorskip("libsumo", reason="needs the city extra: pip install 'rfsas-hw[city]'")
 
+from rfsas_hw.bridges.bridge import device_mac
+from rfsas_hw.bridges.config import BridgeConfig
 from rfsas_hw.city.deploy import (
     GATEWAY_ID,
     BrokerAccess,
@@ -31,6 +40,7 @@ from rfsas_hw.cli.broker import broker
 from rfsas_hw.cli.city import city
 from rfsas_hw.errors import ConfigError, LinkError, MissingDependencyError
 from rfsas_hw.fleet.broker import BrokerFiles
+from rfsas_hw.records import int_to_mac
 
 
 def _url(broker_dir: Path, port: int, **extra: str) -> str:
@@ -42,6 +52,42 @@ def _url(broker_dir: Path, port: int, **extra: str) -> str:
         **extra,
     }
     return f"mqtts://127.0.0.1:{port}?" + "&".join(f"{k}={v}" for k, v in query.items())
+
+
+class _Page:
+    """Reads the dashboard's state over loopback every 0.5 s while the run goes."""
+
+    def __init__(self, port: int) -> None:
+        self.url = f"http://127.0.0.1:{port}/api/state"
+        self.states: list[str] = []
+        self.foreign_origin: int | None = None
+        """The status a request with another site's Origin got."""
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._poll, daemon=True)
+
+    def __enter__(self) -> _Page:
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._stop.set()
+        self._thread.join(10)
+
+    def _poll(self) -> None:
+        while not self._stop.wait(0.5):
+            try:
+                with urllib.request.urlopen(self.url, timeout=5) as reply:
+                    self.states.append(reply.read().decode())
+            except OSError:
+                continue  # not serving yet
+            if self.foreign_origin is None:
+                ask = urllib.request.Request(self.url, headers={"Origin": "http://example.com"})
+                try:
+                    with urllib.request.urlopen(ask, timeout=5) as reply:
+                        self.foreign_origin = reply.status
+                except urllib.error.HTTPError as err:
+                    self.foreign_origin = err.code
+                    err.close()
 
 
 def _no_broker_of_its_own(*_: Any, **__: Any) -> None:
@@ -69,12 +115,13 @@ def test_city_run_uses_a_running_broker(
 
     files = BrokerFiles(broker_dir, "127.0.0.1", port, ())
     monkeypatch.setattr("rfsas_hw.city.live.LocalBroker", _no_broker_of_its_own)
-    with LocalBroker(files, tmp_path / "mosquitto.log"):
+    web = free_port()
+    with LocalBroker(files, tmp_path / "mosquitto.log"), _Page(web) as page:
         args = ["run", "--net", str(grid_net), "--out", str(out), "--work", str(work)]
         args += ["--broker", _url(broker_dir, port), "--rfsas", "on", "--duration", "4"]
         args += ["--vehicles", "20", "--pedestrians", "30", "--bicycles", "0"]
         args += ["--phones", "1", "--active-share", "1", "--time-scale", "0.5", "--no-png"]
-        res = runner.invoke(city, args)
+        res = runner.invoke(city, [*args, "--web", f"127.0.0.1:{web}"])
     assert res.exit_code == 0, (res.output, res.exception)
 
     doc = json.loads((out / "on.summary.json").read_text())
@@ -86,6 +133,20 @@ def test_city_run_uses_a_running_broker(
     # no broker of its own: no broker files, no broker log, no broker CPU reading
     assert "broker" not in cpu
     assert not (work / "broker").exists() and not (work / "mosquitto.log").exists()
+
+    # the dashboard: every unit, the backends' fixes and tracks, another origin refused
+    start = json.loads((out / "on.log.jsonl").read_text().splitlines()[0])
+    units = {u["id"] for u in start["units"]}
+    states = [json.loads(text) for text in page.states]
+    assert states, "the dashboard never answered"
+    assert {u["id"] for u in states[-1]["sensors"]} == units
+    assert any(st["fixes"] for st in states) and any(st["tracks"] for st in states)
+    assert page.foreign_origin == 403
+    vrus = [ln.split(",")[0] for ln in (out / "demand" / "vrus.csv").read_text().splitlines()[1:]]
+    macs = [int_to_mac(device_mac(BridgeConfig(seed=1), v, r) + bump).lower()
+            for v in vrus for r in range(3) for bump in range(2)]  # fmt: skip
+    text = "".join(page.states).lower()
+    assert not any(m in text or m.replace(":", "") in text for m in macs)
 
 
 def test_a_running_broker_without_the_districts_certificates_is_refused(

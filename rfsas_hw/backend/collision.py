@@ -104,10 +104,11 @@ def heading_covariance(
             f"position sigmas must be ≥ 0 m, got along {sigma_along_m}, across {sigma_across_m}"
         )
     a = compass_to_math_rad(float(heading_deg))
-    u = np.array([math.cos(a), math.sin(a)])
-    n = np.array([-u[1], u[0]])
-    return np.asarray(
-        sigma_along_m**2 * np.outer(u, u) + sigma_across_m**2 * np.outer(n, n), np.float64
+    c, s = math.cos(a), math.sin(a)  # u = (c, s) along, n = (−s, c) across
+    along, across = sigma_along_m**2, sigma_across_m**2
+    xy = along * (c * s) + across * (-s * c)
+    return np.array(
+        [[along * (c * c) + across * (s * s), xy], [xy, along * (s * s) + across * (c * c)]]
     )
 
 

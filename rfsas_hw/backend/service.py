@@ -437,7 +437,7 @@ class BackendService:
 
     def _vehicle_at(self, now: int) -> VehicleState | None:
         v = self.vehicle
-        if v is None or v.t_ns == 0:
+        if v is None or v.t_ns in (0, now):  # unknown time, or the state is of now
             return v
         dt = max(now - v.t_ns, 0) / NS_PER_S
         # position + velocity·dt, element by element in floats (the same operations)

@@ -218,12 +218,13 @@ def collision_probability_batch(
     st = _per_pair(threat_size, "threat_size", B, (2,))
     cv = _per_pair(vehicle_cov, "vehicle_cov", B, (2, 2))
     ct = _per_pair(threat_cov, "threat_cov", B, (2, 2))
-    row, why, hh, tt, sign = k.edge_terms(mv, mt, av, at, sv, st, cv, ct)
+    row, why, hh, slope, share, sign = k.edge_terms(mv, mt, av, at, sv, st, cv, ct)
     if why:
         raise BackendError(f"{_PAIR_ERRORS[why]} (row {row})")
-    g = np.arctan2(tt, hh) / (2 * np.pi) - owens_t(hh, tt / hh)
-    mass = np.sum(sign * (g[:, 8:] - g[:, :8]), axis=1)
-    return np.asarray(np.clip(mass, 0.0, 1.0), np.float64)
+    g = share - owens_t(hh, slope)
+    mass = (sign * (g[:, 8:] - g[:, :8])).sum(axis=1)
+    p: Array = np.minimum(np.maximum(mass, 0.0), 1.0)
+    return p
 
 
 _PAIR_ERRORS = {

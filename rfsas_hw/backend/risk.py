@@ -31,7 +31,9 @@ __all__ = [
     "AdvisoryThresholds",
     "advise",
     "fatality_risk",
+    "fatality_risk_of",
     "impact_speed",
+    "impact_speed_of",
     "stopping_distance",
 ]
 
@@ -113,10 +115,18 @@ def impact_speed(
     _check(u, decel_mps2, reaction_s)
     if not np.isfinite(x).all():
         raise BackendError(f"distance must be finite, got {distance_m}")
-    x_b = np.maximum(x - u * reaction_s, 0.0)
-    v = np.sqrt(np.maximum(u * u - 2 * decel_mps2 * x_b, 0.0))
     kind = distance_m if isinstance(distance_m, np.ndarray) else speed_mps
-    return _same_kind(kind, v)  # type: ignore[no-any-return]
+    return _same_kind(kind, impact_speed_of(u, x, decel_mps2, reaction_s))  # type: ignore[no-any-return]
+
+
+def impact_speed_of(
+    speed_mps: Any, distance_m: Array, decel_mps2: float, reaction_s: float
+) -> Array:
+    """:func:`impact_speed` of inputs already known to be valid (the caller checked
+    them), as an array: the computation without the checks."""
+    x_b = np.maximum(distance_m - speed_mps * reaction_s, 0.0)
+    v: Array = np.sqrt(np.maximum(speed_mps * speed_mps - 2 * decel_mps2 * x_b, 0.0))
+    return v
 
 
 @overload
@@ -135,8 +145,14 @@ def fatality_risk(speed_mps: float | Array) -> float | Array:
     u = np.asarray(speed_mps, np.float64)
     if not ((u >= 0) & (u < math.inf)).all():  # NaN fails both
         raise BackendError(f"impact speed must be ≥ 0 m/s and finite, got {speed_mps}")
-    v_kmh = u * 3.6
-    return _same_kind(speed_mps, 1.0 / (1.0 + np.exp(ROSEN_A - ROSEN_B * v_kmh)))  # type: ignore[no-any-return]
+    return _same_kind(speed_mps, fatality_risk_of(u))  # type: ignore[no-any-return]
+
+
+def fatality_risk_of(speed_mps: Array) -> Array:
+    """:func:`fatality_risk` of speeds already known to be ≥ 0 and finite, as an
+    array: the computation without the checks."""
+    v_kmh = speed_mps * 3.6
+    return 1.0 / (1.0 + np.exp(ROSEN_A - ROSEN_B * v_kmh))
 
 
 class Advisory(enum.StrEnum):

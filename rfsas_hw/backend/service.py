@@ -493,6 +493,12 @@ class BackendService:
         # plain floats once for all rows (the same values float() gives one by one)
         state_rows = states.tolist()
         cov_rows = covs[:, :2, :2].reshape(-1, 4).tolist()
+        th = self.config.encounter.thresholds
+        unjudged = Advisory.CLEAR.value
+        if vehicle is None:
+            unjudged = "none"
+        elif th.caution_on_bad_fix or (alarm and th.caution_on_link_alarm):
+            unjudged = Advisory.CAUTION.value
         out = []
         for i, (_, fix) in enumerate(fixes):
             track = tracks[i]
@@ -503,35 +509,24 @@ class BackendService:
             else:
                 age_s = (now - fix.t_ns) / NS_PER_S
                 sensors = fix.sensors
-            risk: dict[str, Any] = {
-                "p_collision": nan,
-                "t_closest_s": nan,
-                "distance_to_contact_m": nan,
-                "impact_speed_mps": nan,
-                "fatality_risk": nan,
-                "risk": nan,
-                "advisory": "none",
-                "reasons": ("no vehicle state",),
-            }
             enc = encounters.get(i)
             if enc is not None:
-                risk = {
-                    "p_collision": enc.p_collision,
-                    "t_closest_s": enc.t_closest_s,
-                    "distance_to_contact_m": enc.distance_to_contact_m,
-                    "impact_speed_mps": enc.impact_speed_mps,
-                    "fatality_risk": enc.fatality_risk,
-                    "risk": enc.risk,
-                    "advisory": enc.advisory.value,
-                    "reasons": enc.reasons,
-                }
-            elif vehicle is not None:
-                th = self.config.encounter.thresholds
-                unlocated = ("emitter not located: " + fix.reason,)
-                caution = th.caution_on_bad_fix or (alarm and th.caution_on_link_alarm)
-                risk["advisory"] = (Advisory.CAUTION if caution else Advisory.CLEAR).value
-                risk["reasons"] = unlocated + (("link latency alarm",) if alarm else ())
-            self.stats.assessments[risk["advisory"]] += 1
+                p_coll, t_closest, contact = (
+                    enc.p_collision,
+                    enc.t_closest_s,
+                    enc.distance_to_contact_m,
+                )
+                impact, fatal, risk = enc.impact_speed_mps, enc.fatality_risk, enc.risk
+                advisory, reasons = enc.advisory.value, enc.reasons
+            else:
+                p_coll = t_closest = contact = impact = fatal = risk = nan
+                advisory = unjudged
+                if vehicle is None:
+                    reasons = ("no vehicle state",)
+                else:
+                    unlocated = ("emitter not located: " + fix.reason,)
+                    reasons = unlocated + (("link latency alarm",) if alarm else ())
+            self.stats.assessments[advisory] += 1
             out.append(
                 Assessment(
                     t_ns=now,
@@ -548,7 +543,14 @@ class BackendService:
                     fix_ok=fix.ok,
                     fix_reason=fix.reason,
                     link_alarm=alarm,
-                    **risk,
+                    p_collision=p_coll,
+                    t_closest_s=t_closest,
+                    distance_to_contact_m=contact,
+                    impact_speed_mps=impact,
+                    fatality_risk=fatal,
+                    risk=risk,
+                    advisory=advisory,
+                    reasons=reasons,
                 )
             )
         out.sort(key=lambda a: -a.risk if math.isfinite(a.risk) else 1.0)

@@ -473,10 +473,13 @@ class BackendService:
         tracks = [self.tracker.tracks.get(emitter) for emitter, _ in fixes]
         live = [(i, t) for i, t in enumerate(tracks) if t is not None]
         tracked = [i for i, _ in live]
-        states = np.full((len(fixes), 4), nan)
-        covs = np.full((len(fixes), 4, 4), nan)
-        if live:
-            states[tracked], covs[tracked] = predict_tracks([t for _, t in live], now, accel)
+        if len(live) == len(fixes):  # every emitter tracked (the usual case): no NaN rows
+            states, covs = predict_tracks([t for _, t in live], now, accel)
+        else:
+            states = np.full((len(fixes), 4), nan)
+            covs = np.full((len(fixes), 4, 4), nan)
+            if live:
+                states[tracked], covs[tracked] = predict_tracks([t for _, t in live], now, accel)
         encounters: dict[int, Encounter] = {}
         if vehicle is not None and tracked:
             updates = [t.updates for _, t in live]
@@ -569,10 +572,11 @@ class BackendService:
         """The encounter of each tracked emitter (``rows``, whose tracks took ``updates``
         fixes since they started) with the vehicle."""
         cfg = self.config.encounter
+        every = len(rows) == len(states)  # rows are then 0, 1, …: no copy
         return assess_encounters(
             vehicle,
-            states[rows],
-            covs[rows],
+            states if every else states[rows],
+            covs if every else covs[rows],
             cfg,
             fix_ok=[fixes[i][1].ok for i in rows],
             fix_reason=[fixes[i][1].reason for i in rows],

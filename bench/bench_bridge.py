@@ -23,6 +23,12 @@ machine with nothing else running (load average 0.7): bundled crossing
 about 0.12 ms more per extra entity; over six runs in the same minute
 1.73–1.89 ms and 13.0–14.6 ms, both goals met. docs/simulators.md §6 has
 the table and what a step costs.
+
+The ``backend ms`` column is the part of the bridge's CPU time spent in the
+backend's bearing intake and step (association, triangulation, tracking,
+assessment), median per step: on a loaded machine (load average 3–4) 0.43–0.66
+ms of 2.0–2.8 ms for the bundled crossing, 4.0–4.4 ms of 11.4–13.3 ms at +100
+entities.
 """
 
 from __future__ import annotations

@@ -29,7 +29,11 @@ Deployment = Literal["car", "car+rsu"]
 DEPLOYMENTS: tuple[Deployment, ...] = ("car", "car+rsu")
 DEVICES: tuple[str, ...] = ("phone-active", "phone-idle")
 RSU_POSE = PoseSpec(x_m=PATH_X_M + 4.0, y_m=7.0, heading_deg=200.0)
-"""The roadside unit's pose (see the module docstring)."""
+"""The roadside unit's pose (see the module docstring). Its lines of bearing cross the VUT
+unit's steeply, so fixes are accepted from about 20 m; a unit on the kerb looking along it
+meets the VUT's lines almost parallel and its fixes are refused; its mirror image on the
+nearside moves the nuisance brakes to the VUT's other side (docs/ncap.md, "Where the
+roadside unit stands")."""
 SITE_FLOOR_DEG = 3.0
 """Environment floor of both units' bearings on the test track, degrees: the angle
 error beyond the calibration's σ model, measured as ``calibrate --check`` does

@@ -37,29 +37,48 @@ def segment_crossings(p0: Array, p1: Array, rects: Array) -> npt.NDArray[np.bool
     ``p0`` and ``p1`` are ``(n, 2)`` end points, ``rects`` an ``(m, ≥4)``
     array of x_min, x_max, y_min, y_max. A segment crosses a rectangle when
     any part of it lies strictly inside (slab clipping, Liang–Barsky); a
-    segment that only grazes an edge does not count.
+    segment that only grazes an edge does not count, nor does one with a NaN
+    end. Rectangles outside the box around all the segments are not tested
+    (no segment can enter them), so a district's buildings cost what the few
+    near the segments cost.
     """
     n, m = len(p0), len(rects)
+    out = np.zeros((n, m), dtype=bool)
     if n == 0 or m == 0:
-        return np.zeros((n, m), dtype=bool)
-    d = (p1 - p0)[:, None, :]
-    o = p0[:, None, :]
-    lo = rects[None, :, 0:3:2]  # (1, m, 2): x_min, y_min
-    hi = rects[None, :, 1:4:2]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t1 = (lo - o) / d
-        t2 = (hi - o) / d
-    parallel = d == 0
-    if parallel.any():
-        inside_slab = (o > lo) & (o < hi)
-        t_near = np.where(parallel, np.where(inside_slab, -np.inf, np.inf), np.minimum(t1, t2))
-        t_far = np.where(parallel, np.where(inside_slab, np.inf, -np.inf), np.maximum(t1, t2))
-    else:  # no segment along an axis (the usual case): no slab test to substitute
+        return out
+    valid = ~(np.isnan(p0).any(axis=1) | np.isnan(p1).any(axis=1))
+    if not valid.any():
+        return out
+    ends = np.concatenate([p0[valid], p1[valid]])
+    x0, y0 = ends.min(axis=0).tolist()
+    x1, y1 = ends.max(axis=0).tolist()
+    near = np.flatnonzero(
+        (rects[:, 0] < x1) & (rects[:, 1] > x0) & (rects[:, 2] < y1) & (rects[:, 3] > y0)
+    )
+    if not len(near):
+        return out
+    r = rects[near]
+    enter = np.zeros((n, len(near)))
+    leave = np.ones((n, len(near)))
+    for axis in (0, 1):
+        o = p0[:, axis, None]
+        d = p1[:, axis, None] - o
+        lo, hi = r[None, :, 2 * axis], r[None, :, 2 * axis + 1]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t1 = (lo - o) / d
+            t2 = (hi - o) / d
         t_near = np.minimum(t1, t2)
         t_far = np.maximum(t1, t2)
-    enter = np.maximum(t_near.max(axis=-1), 0.0)
-    leave = np.minimum(t_far.min(axis=-1), 1.0)
-    return np.asarray(leave - enter > 1e-9, dtype=bool)
+        parallel = (d == 0)[:, 0]
+        if parallel.any():
+            # along this axis: inside the slab for all t, or never
+            inside = (o[parallel] > lo) & (o[parallel] < hi)
+            t_near[parallel] = np.where(inside, -np.inf, np.inf)
+            t_far[parallel] = np.where(inside, np.inf, -np.inf)
+        np.maximum(enter, t_near, out=enter)
+        np.minimum(leave, t_far, out=leave)
+    out[:, near] = leave - enter > 1e-9
+    return out
 
 
 def blockage_db(p0: Array, p1: Array, rects: Array) -> tuple[Array, npt.NDArray[np.bool_]]:

@@ -38,46 +38,45 @@ def segment_crossings(p0: Array, p1: Array, rects: Array) -> npt.NDArray[np.bool
     array of x_min, x_max, y_min, y_max. A segment crosses a rectangle when
     any part of it lies strictly inside (slab clipping, Liang–Barsky); a
     segment that only grazes an edge does not count, nor does one with a NaN
-    end. Rectangles outside the box around all the segments are not tested
-    (no segment can enter them), so a district's buildings cost what the few
-    near the segments cost.
+    end. Only the pairs whose boxes overlap are clipped (a segment cannot
+    enter a rectangle its box does not overlap), so a district's buildings
+    cost what the few near each segment cost.
     """
     n, m = len(p0), len(rects)
     out = np.zeros((n, m), dtype=bool)
     if n == 0 or m == 0:
         return out
-    valid = ~(np.isnan(p0).any(axis=1) | np.isnan(p1).any(axis=1))
-    if not valid.any():
-        return out
-    ends = np.concatenate([p0[valid], p1[valid]])
-    x0, y0 = ends.min(axis=0).tolist()
-    x1, y1 = ends.max(axis=0).tolist()
-    near = np.flatnonzero(
-        (rects[:, 0] < x1) & (rects[:, 1] > x0) & (rects[:, 2] < y1) & (rects[:, 3] > y0)
+    box_lo = np.minimum(p0, p1)
+    box_hi = np.maximum(p0, p1)
+    # NaN ends compare False everywhere: such a segment overlaps nothing
+    seg, rect = np.nonzero(
+        (rects[None, :, 0] < box_hi[:, None, 0])
+        & (rects[None, :, 1] > box_lo[:, None, 0])
+        & (rects[None, :, 2] < box_hi[:, None, 1])
+        & (rects[None, :, 3] > box_lo[:, None, 1])
     )
-    if not len(near):
+    if not len(seg):
         return out
-    r = rects[near]
-    enter = np.zeros((n, len(near)))
-    leave = np.ones((n, len(near)))
+    enter = np.zeros(len(seg))
+    leave = np.ones(len(seg))
     for axis in (0, 1):
-        o = p0[:, axis, None]
-        d = p1[:, axis, None] - o
-        lo, hi = r[None, :, 2 * axis], r[None, :, 2 * axis + 1]
+        o = p0[seg, axis]
+        d = p1[seg, axis] - o
+        lo, hi = rects[rect, 2 * axis], rects[rect, 2 * axis + 1]
         with np.errstate(divide="ignore", invalid="ignore"):
             t1 = (lo - o) / d
             t2 = (hi - o) / d
         t_near = np.minimum(t1, t2)
         t_far = np.maximum(t1, t2)
-        parallel = (d == 0)[:, 0]
+        parallel = d == 0
         if parallel.any():
             # along this axis: inside the slab for all t, or never
-            inside = (o[parallel] > lo) & (o[parallel] < hi)
+            inside = (o[parallel] > lo[parallel]) & (o[parallel] < hi[parallel])
             t_near[parallel] = np.where(inside, -np.inf, np.inf)
             t_far[parallel] = np.where(inside, np.inf, -np.inf)
         np.maximum(enter, t_near, out=enter)
         np.minimum(leave, t_far, out=leave)
-    out[:, near] = leave - enter > 1e-9
+    out[seg, rect] = leave - enter > 1e-9
     return out
 
 

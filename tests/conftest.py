@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import importlib.util
 import os
+import sys
 from pathlib import Path
 
 import pytest
@@ -12,6 +13,10 @@ from rfsas_hw.optional import EXTRAS
 
 DATA = Path(__file__).resolve().parent / "data"
 REPO = Path(__file__).resolve().parent.parent
+
+# pytest runs with --import-mode=importlib, which does not put test folders on sys.path;
+# modules shared by tests of several folders (bytefuzz) live here.
+sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 SLOW_TIMEOUT_S = 1200
 """Time limit of a test marked ``slow`` without a timeout of its own, seconds (the

@@ -67,10 +67,14 @@ class SensorAppConfig:
     """Sensor position (metres east, north) and boresight (compass degrees)."""
     min_snr_db: float | None = None
     """Reject frames whose stronger antenna is below this SNR, dB."""
-    prove_motion_deg: float = 0.0
-    """Fixed mount: an emitter's bearings count once its bearing has swept this far,
-    degrees (static emitters never count; 0: at once). See
-    :class:`~rfsas_hw.df.fovguard.FovGuard`."""
+    moving_mount: bool = False
+    """The sensor moves (a vehicle, a robot): no motion rule by default (an emitter on a
+    collision course keeps its bearing). See :meth:`~rfsas_hw.df.fovguard.FovGuard.for_mount`."""
+    prove_motion_deg: float | None = None
+    """An emitter's bearings count once its bearing has swept this far, degrees (static
+    emitters never count; 0: at once; None: the mount's default,
+    :data:`~rfsas_hw.df.fovguard.PROVE_MOTION_DEG` on a fixed mount, 0 on a moving one).
+    See :class:`~rfsas_hw.df.fovguard.FovGuard`."""
     epoch_s: float = DEFAULT_EPOCH_S
     """Nonce epoch length of the deployment, seconds."""
     nonce_secret: Path | None = None
@@ -129,11 +133,14 @@ def build_pipeline(
     nonces: NonceProvider | None = None,
     nonce_secret: Path | None = None,
     epoch_s: float = DEFAULT_EPOCH_S,
-    prove_motion_deg: float = 0.0,
+    prove_motion_deg: float | None = None,
+    moving_mount: bool = False,
 ) -> SensorPipeline:
     """The pipeline hashing with ``nonces`` (the deployment's epoch nonces), with
     nonces derived from the secret in ``nonce_secret``, or by default with a
-    per-run random key (ids unlinkable across runs).
+    per-run random key (ids unlinkable across runs); its field-of-view guard is the
+    one for the mount (``moving_mount``, ``prove_motion_deg``: see
+    :meth:`FovGuard.for_mount`).
 
     Raises:
         CalibrationError / ConfigError: the calibration file is unusable.
@@ -147,7 +154,7 @@ def build_pipeline(
     if nonce_secret is not None:
         nonces = DerivedNonces.from_file(nonce_secret)
     hasher = MacHasher(nonces if nonces is not None else FixedNonce(os.urandom(32)), epoch_s)
-    guard = FovGuard(prove_motion_deg=prove_motion_deg)
+    guard = FovGuard.for_mount(moving_mount, prove_motion_deg)
     return SensorPipeline(
         calibration, hasher, sensor_id, pose, min_snr_db=min_snr_db, fov_guard=guard
     )
@@ -323,6 +330,7 @@ class SensorApp:
             nonce_secret=cfg.nonce_secret,
             epoch_s=cfg.epoch_s,
             prove_motion_deg=cfg.prove_motion_deg,
+            moving_mount=cfg.moving_mount,
         )
         if inbox is not None:
             pipeline.end_wait_s = 10.0  # a short input may end before the first envelope

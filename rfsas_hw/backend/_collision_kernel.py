@@ -170,15 +170,18 @@ def edge_terms(
         cov_v, cov_t: position covariances, (B, 2, 2) or (1, 2, 2) for all.
 
     Returns:
-        :func:`pair_error`'s ``(row, why)``, then ``h`` (B, 16), ``t`` (B, 16) and
-        ``sign`` (B, 8): edge ``k`` contributes ``sign·(g(h[k+8], t[k+8]) − g(h[k], t[k]))``
-        with ``g(h, t) = arctan2(t, h)/(2π) − T(h, t/h)``; an edge through the origin
-        or of no length has sign 0 (and ``h`` 1, ``t`` 0). Nothing is computed
-        after a bad row (the arrays are then empty).
+        :func:`pair_error`'s ``(row, why)``, then per right triangle the leg ``h``
+        (B, 16), the slope ``a = t/h`` (B, 16) and its angle's share of the plane
+        ``arctan2(t, h)/(2π)`` (B, 16), and ``sign`` (B, 8): with
+        ``g = arctan2(t, h)/(2π) − T(h, a)``, edge ``k`` contributes
+        ``sign·(g[k+8] − g[k])``; an edge through the origin or of no length has
+        sign 0 (and ``h`` 1, ``t`` 0). Nothing is computed after a bad row (the
+        arrays are then empty).
     """
     row, why = pair_error(mv, mt, angle_v, angle_t, size_v, size_t, cov_v, cov_t)
     if why:
-        return row, why, np.ones((0, 16)), np.zeros((0, 16)), np.zeros((0, 8))
+        empty = np.zeros((0, 16))
+        return row, why, empty, empty, empty, np.zeros((0, 8))
     B = mv.shape[0]
     hh = np.ones((B, 16))
     tt = np.zeros((B, 16))
@@ -220,4 +223,9 @@ def edge_terms(
             tt[b, k] = q1x * ux + q1y * uy
             tt[b, k + 8] = q2x * ux + q2y * uy
             sign[b, k] = 1.0 if h > 0 else -1.0
-    return row, why, hh, tt, sign
+    slope = tt / hh
+    share = np.empty((B, 16))
+    for b in range(B):
+        for k in range(16):
+            share[b, k] = math.atan2(tt[b, k], hh[b, k]) / (2 * math.pi)
+    return row, why, hh, slope, share, sign

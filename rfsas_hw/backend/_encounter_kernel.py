@@ -1,4 +1,4 @@
-"""The compiled closest-approach geometry of :func:`rfsas_hw.backend.encounter.assess_encounters`.
+"""The compiled per-threat geometry of :func:`rfsas_hw.backend.encounter.assess_encounters`.
 
 Vehicle and threat move at constant velocity. The closest approach is at
 ``t* = −r·w/|w|²`` (relative position ``r``, relative velocity ``w``) clipped to
@@ -6,7 +6,15 @@ Vehicle and threat move at constant velocity. The closest approach is at
 ``J = [I, t*·I]``. The threat's box lies along its velocity (north when it moves
 slower than the moving speed); the along-track gap from the vehicle's front to
 the near side of that box is the distance to contact (inf when the box is
-behind the vehicle's front). Metres, seconds, m/s.
+behind the vehicle's front).
+
+The path test of a brake: with ``n`` the unit normal left of the vehicle's
+heading, the threat's lateral offset is ``d = (x − p_v)·n``, its speed towards
+the path's centre line ``w = −(v·n)·sign(d)`` with one-sigma ``σ_w = √(nᵀ P_v n)``
+(``P_v`` its velocity covariance), and the gap to the path ``|d| − h`` with ``h``
+the sum of the two half-widths (the threat's larger side). The threat is in the
+path when the gap is ≤ 0, and shows evidence of entering it when
+``w − k·σ_w > 0`` and ``gap ≤ (w − k·σ_w)·t*``. Metres, seconds, m/s, radians.
 """
 
 from __future__ import annotations
@@ -23,7 +31,7 @@ Array = npt.NDArray[np.float64]
 
 
 @kernel
-def closest_approach(
+def encounter_geometry(
     x: Array,
     P: Array,
     pv: Array,
@@ -31,21 +39,48 @@ def closest_approach(
     u_hat: Array,
     horizon_s: float,
     vehicle_length_m: float,
+    vehicle_width_m: float,
     threat_length_m: float,
     threat_width_m: float,
     moving_mps: float,
+    path_sigmas: float,
 ) -> tuple[Any, ...]:
     """Per threat (states ``x`` (B, 4), covariances ``P`` (B, 4, 4)) against the vehicle
-    at ``pv`` moving at ``vv`` along the unit vector ``u_hat``: ``t*`` (B,), the
-    position covariance at ``t*`` (B, 2, 2, symmetrised), the threat's position at
-    ``t*`` (B, 2), whether it moves (B,) and the distance to contact (B,)."""
+    at ``pv`` moving at ``vv`` along the unit vector ``u_hat``.
+
+    Returns:
+        The first row whose state or covariance is not finite (−1: none; the other
+        outputs are then meaningless from that row on), then per threat: ``t*`` (B,),
+        the position covariance at ``t*`` (B, 2, 2, symmetrised), the vehicle's and
+        the threat's positions at ``t*`` (B, 2 each), whether the threat moves (B,),
+        the math angle of its velocity (B, π/2 when not moving), the distance to
+        contact (B,), the gap to the vehicle's path (B,), the speed towards it and
+        that speed's one-sigma (B each), and whether it is in the path or shows
+        evidence of entering it with ``path_sigmas`` (B,).
+    """
     B = x.shape[0]
+    bad = -1
     t_star = np.empty(B)
     cov = np.empty((B, 2, 2))
+    vehicle_at = np.empty((B, 2))
     where = np.empty((B, 2))
     moving = np.empty(B, np.bool_)
+    heading = np.empty(B)
     contact = np.empty(B)
+    gap = np.empty(B)
+    towards = np.empty(B)
+    towards_sigma = np.empty(B)
+    path = np.empty(B, np.bool_)
+    nx, ny = -u_hat[1], u_hat[0]
+    half_widths = vehicle_width_m / 2 + max(threat_length_m, threat_width_m) / 2
     for b in range(B):
+        if bad < 0:
+            for i in range(4):
+                finite = math.isfinite(x[b, i])
+                for j in range(4):
+                    finite = finite and math.isfinite(P[b, i, j])
+                if not finite:
+                    bad = b
         rx, ry = x[b, 0] - pv[0], x[b, 1] - pv[1]
         wx, wy = x[b, 2] - vv[0], x[b, 3] - vv[1]
         ww = wx * wx + wy * wy
@@ -58,10 +93,12 @@ def closest_approach(
                 )
         off = (cov[b, 0, 1] + cov[b, 1, 0]) / 2
         cov[b, 0, 1] = cov[b, 1, 0] = off
+        vehicle_at[b, 0], vehicle_at[b, 1] = pv[0] + t * vv[0], pv[1] + t * vv[1]
         tx, ty = x[b, 0] + t * x[b, 2], x[b, 1] + t * x[b, 3]
         where[b, 0], where[b, 1] = tx, ty
         speed = math.hypot(x[b, 2], x[b, 3])
         moving[b] = speed > moving_mps
+        heading[b] = math.atan2(x[b, 3], x[b, 2]) if moving[b] else math.pi / 2
         ux, uy = (x[b, 2] / speed, x[b, 3] / speed) if moving[b] else (0.0, 1.0)
         reach = (
             vehicle_length_m / 2
@@ -70,4 +107,26 @@ def closest_approach(
         )
         along = (tx - pv[0]) * u_hat[0] + (ty - pv[1]) * u_hat[1]
         contact[b] = max(along - reach, 0.0) if along + reach >= 0 else math.inf
-    return t_star, cov, where, moving, contact
+        d = rx * nx + ry * ny
+        side = 1.0 if d >= 0 else -1.0
+        w = -(x[b, 2] * nx + x[b, 3] * ny) * side
+        var_w = nx * (P[b, 2, 2] * nx + P[b, 2, 3] * ny) + ny * (P[b, 3, 2] * nx + P[b, 3, 3] * ny)
+        sigma_w = math.sqrt(max(var_w, 0.0))
+        g = abs(d) - half_widths
+        w_low = w - path_sigmas * sigma_w
+        gap[b], towards[b], towards_sigma[b] = g, w, sigma_w
+        path[b] = g <= 0 or (w_low > 0 and g <= w_low * max(t, 0.0))
+    return (
+        bad,
+        t_star,
+        cov,
+        vehicle_at,
+        where,
+        moving,
+        heading,
+        contact,
+        gap,
+        towards,
+        towards_sigma,
+        path,
+    )

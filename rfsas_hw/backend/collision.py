@@ -104,10 +104,11 @@ def heading_covariance(
             f"position sigmas must be ≥ 0 m, got along {sigma_along_m}, across {sigma_across_m}"
         )
     a = compass_to_math_rad(float(heading_deg))
-    u = np.array([math.cos(a), math.sin(a)])
-    n = np.array([-u[1], u[0]])
-    return np.asarray(
-        sigma_along_m**2 * np.outer(u, u) + sigma_across_m**2 * np.outer(n, n), np.float64
+    c, s = math.cos(a), math.sin(a)  # u = (c, s) along, n = (−s, c) across
+    along, across = sigma_along_m**2, sigma_across_m**2
+    xy = along * (c * s) + across * (-s * c)
+    return np.array(
+        [[along * (c * c) + across * (s * s), xy], [xy, along * (s * s) + across * (c * c)]]
     )
 
 
@@ -217,12 +218,13 @@ def collision_probability_batch(
     st = _per_pair(threat_size, "threat_size", B, (2,))
     cv = _per_pair(vehicle_cov, "vehicle_cov", B, (2, 2))
     ct = _per_pair(threat_cov, "threat_cov", B, (2, 2))
-    row, why, hh, tt, sign = k.edge_terms(mv, mt, av, at, sv, st, cv, ct)
+    row, why, hh, slope, share, sign = k.edge_terms(mv, mt, av, at, sv, st, cv, ct)
     if why:
         raise BackendError(f"{_PAIR_ERRORS[why]} (row {row})")
-    g = np.arctan2(tt, hh) / (2 * np.pi) - owens_t(hh, tt / hh)
-    mass = np.sum(sign * (g[:, 8:] - g[:, :8]), axis=1)
-    return np.asarray(np.clip(mass, 0.0, 1.0), np.float64)
+    g = share - owens_t(hh, slope)
+    mass = (sign * (g[:, 8:] - g[:, :8])).sum(axis=1)
+    p: Array = np.minimum(np.maximum(mass, 0.0), 1.0)
+    return p
 
 
 _PAIR_ERRORS = {

@@ -40,8 +40,8 @@ from rfsas_hw.backend.risk import (
     Advisory,
     AdvisoryThresholds,
     advise,
-    fatality_risk,
-    impact_speed,
+    fatality_risk_of,
+    impact_speed_of,
     stopping_distance,
 )
 from rfsas_hw.backend.vehicle import VehicleState
@@ -203,50 +203,62 @@ def assess_encounters(
         )
     if B == 0:
         return []
-    finite = np.isfinite(x).all(axis=1) & np.isfinite(P).all(axis=(1, 2))
-    if not finite.all():
-        bad = int(np.flatnonzero(~finite)[0])
-        raise BackendError(f"threat {bad}: state and covariance must be finite")
     from rfsas_hw.backend import _encounter_kernel as k
 
     u_hat = vehicle.direction
-    pv, vv = vehicle.position, u_hat * vehicle.speed_mps
     size_t = cfg.threat_size
-    t_star, cov, threat_xy, moving, contact = k.closest_approach(
+    (
+        bad,
+        t_star,
+        cov,
+        vehicle_xy,
+        threat_xy,
+        moving,
+        heading_rad,
+        contact,
+        gap,
+        towards,
+        towards_sigma,
+        path,
+    ) = k.encounter_geometry(
         np.ascontiguousarray(x),
         np.ascontiguousarray(P),
-        pv,
-        vv,
+        np.array([vehicle.x_m, vehicle.y_m]),
+        u_hat * vehicle.speed_mps,
         u_hat,
         cfg.horizon_s,
         vehicle.length_m,
+        vehicle.width_m,
         size_t[0],
         size_t[1],
         MOVING_MPS,
+        cfg.thresholds.brake_path_sigmas,
     )
-    threat_heading = np.where(moving, math_rad_to_compass(np.arctan2(x[:, 3], x[:, 2])), 0.0)
+    if bad >= 0:
+        raise BackendError(f"threat {bad}: state and covariance must be finite")
     p_coll = collision_probability_batch(
-        pv + t_star[:, None] * vv,
+        vehicle_xy,
         vehicle.heading_deg,
         vehicle.covariance,
         vehicle.size,
         threat_xy,
-        threat_heading,
+        np.where(moving, math_rad_to_compass(heading_rad), 0.0),
         cov,
         size_t,
     )
     d_stop = stopping_distance(vehicle.speed_mps, cfg.decel_mps2, cfg.reaction_s)
+    # the inputs are valid by construction (vehicle state, config, kernel): no checks
     ahead = contact < np.inf
     v_imp = np.where(
         ahead,
-        impact_speed(
+        impact_speed_of(
             vehicle.speed_mps, np.where(ahead, contact, 0.0), cfg.decel_mps2, cfg.reaction_s
         ),
         0.0,
     )
-    p_f = fatality_risk(v_imp)
+    p_f = fatality_risk_of(v_imp)
     risk = p_coll * p_f
-    held = _brake_held(vehicle, x, P, t_star, cfg, fixes)
+    held = _brake_held(cfg, fixes, path, gap, towards, towards_sigma)
     out = []
     for i, (pc, rk, ct, t_i, v_i, pf_i) in enumerate(
         zip(
@@ -287,36 +299,31 @@ def assess_encounters(
 
 
 def _brake_held(
-    vehicle: VehicleState,
-    x: Array,
-    P: Array,
-    t_star: Array,
     cfg: EncounterConfig,
     fixes: list[int] | None,
+    path: npt.NDArray[np.bool_],
+    gap: Array,
+    towards: Array,
+    towards_sigma: Array,
 ) -> list[str]:
-    """Per threat, why a brake is not supported (empty: it is); see the module docstring."""
+    """Per threat, why a brake is not supported (empty: it is); see the module docstring.
+
+    ``path`` says per threat whether it is in the vehicle's path or shows evidence
+    of entering it; ``gap`` (m), ``towards`` (m/s) and ``towards_sigma`` (m/s) are
+    the numbers that decided it.
+    """
     th = cfg.thresholds
-    held = [""] * len(x)
+    held = [""] * len(path)
     if fixes is not None and th.brake_min_fixes > 1:
         for i, n in enumerate(fixes):
             if n < th.brake_min_fixes:
                 held[i] = f"track has {n} fix(es) since it started, < {th.brake_min_fixes}"
     if not th.brake_needs_path:
         return held
-    u = vehicle.direction
-    normal = np.array([-u[1], u[0]])
-    d = (x[:, :2] - vehicle.position) @ normal
-    side = np.where(d >= 0, 1.0, -1.0)
-    w = -(x[:, 2:] @ normal) * side
-    sigma_w = np.sqrt(np.maximum(np.einsum("i,bij,j->b", normal, P[:, 2:, 2:], normal), 0.0))
-    gap = np.abs(d) - (vehicle.width_m / 2 + max(cfg.threat_size) / 2)
-    w_low = w - th.brake_path_sigmas * sigma_w
-    in_path = gap <= 0
-    entering = (w_low > 0) & (gap <= w_low * np.maximum(t_star, 0.0))
-    for i in np.flatnonzero(~(in_path | entering)).tolist():
+    for i in np.flatnonzero(~path).tolist():
         why = (
-            f"{gap[i]:.1f} m beside the path, moving towards it at {w[i]:.2f} ± "
-            f"{sigma_w[i]:.2f} m/s (needs {th.brake_path_sigmas:g} sigma to reach it)"
+            f"{gap[i]:.1f} m beside the path, moving towards it at {towards[i]:.2f} ± "
+            f"{towards_sigma[i]:.2f} m/s (needs {th.brake_path_sigmas:g} sigma to reach it)"
         )
         held[i] = f"{held[i]}; {why}" if held[i] else why
     return held

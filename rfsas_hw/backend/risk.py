@@ -31,7 +31,9 @@ __all__ = [
     "AdvisoryThresholds",
     "advise",
     "fatality_risk",
+    "fatality_risk_of",
     "impact_speed",
+    "impact_speed_of",
     "stopping_distance",
 ]
 
@@ -50,7 +52,7 @@ def _same_kind(value: Any, result: Any) -> Any:
 
 
 def _check(speed: Array, decel: float, reaction_s: float) -> None:
-    if not np.all(speed >= 0):
+    if not (speed >= 0).all():
         raise BackendError(f"speed must be ≥ 0 m/s and finite, got {speed}")
     if not (decel > 0 and math.isfinite(decel)):
         raise BackendError(f"braking deceleration must be > 0 m/s², got {decel}")
@@ -111,12 +113,20 @@ def impact_speed(
     u = np.asarray(speed_mps, np.float64)
     x = np.asarray(distance_m, np.float64)
     _check(u, decel_mps2, reaction_s)
-    if not np.all(np.isfinite(x)):
+    if not np.isfinite(x).all():
         raise BackendError(f"distance must be finite, got {distance_m}")
-    x_b = np.maximum(x - u * reaction_s, 0.0)
-    v = np.sqrt(np.maximum(u * u - 2 * decel_mps2 * x_b, 0.0))
     kind = distance_m if isinstance(distance_m, np.ndarray) else speed_mps
-    return _same_kind(kind, v)  # type: ignore[no-any-return]
+    return _same_kind(kind, impact_speed_of(u, x, decel_mps2, reaction_s))  # type: ignore[no-any-return]
+
+
+def impact_speed_of(
+    speed_mps: Any, distance_m: Array, decel_mps2: float, reaction_s: float
+) -> Array:
+    """:func:`impact_speed` of inputs already known to be valid (the caller checked
+    them), as an array: the computation without the checks."""
+    x_b = np.maximum(distance_m - speed_mps * reaction_s, 0.0)
+    v: Array = np.sqrt(np.maximum(speed_mps * speed_mps - 2 * decel_mps2 * x_b, 0.0))
+    return v
 
 
 @overload
@@ -133,10 +143,16 @@ def fatality_risk(speed_mps: float | Array) -> float | Array:
         BackendError: a negative or non-finite speed.
     """
     u = np.asarray(speed_mps, np.float64)
-    if not np.all(u >= 0) or not np.all(np.isfinite(u)):
+    if not ((u >= 0) & (u < math.inf)).all():  # NaN fails both
         raise BackendError(f"impact speed must be ≥ 0 m/s and finite, got {speed_mps}")
-    v_kmh = u * 3.6
-    return _same_kind(speed_mps, 1.0 / (1.0 + np.exp(ROSEN_A - ROSEN_B * v_kmh)))  # type: ignore[no-any-return]
+    return _same_kind(speed_mps, fatality_risk_of(u))  # type: ignore[no-any-return]
+
+
+def fatality_risk_of(speed_mps: Array) -> Array:
+    """:func:`fatality_risk` of speeds already known to be ≥ 0 and finite, as an
+    array: the computation without the checks."""
+    v_kmh = speed_mps * 3.6
+    return 1.0 / (1.0 + np.exp(ROSEN_A - ROSEN_B * v_kmh))
 
 
 class Advisory(enum.StrEnum):

@@ -437,7 +437,7 @@ class BackendService:
 
     def _vehicle_at(self, now: int) -> VehicleState | None:
         v = self.vehicle
-        if v is None or v.t_ns == 0:
+        if v is None or v.t_ns in (0, now):  # unknown time, or the state is of now
             return v
         dt = max(now - v.t_ns, 0) / NS_PER_S
         # position + velocity·dt, element by element in floats (the same operations)
@@ -473,10 +473,13 @@ class BackendService:
         tracks = [self.tracker.tracks.get(emitter) for emitter, _ in fixes]
         live = [(i, t) for i, t in enumerate(tracks) if t is not None]
         tracked = [i for i, _ in live]
-        states = np.full((len(fixes), 4), nan)
-        covs = np.full((len(fixes), 4, 4), nan)
-        if live:
-            states[tracked], covs[tracked] = predict_tracks([t for _, t in live], now, accel)
+        if len(live) == len(fixes):  # every emitter tracked (the usual case): no NaN rows
+            states, covs = predict_tracks([t for _, t in live], now, accel)
+        else:
+            states = np.full((len(fixes), 4), nan)
+            covs = np.full((len(fixes), 4, 4), nan)
+            if live:
+                states[tracked], covs[tracked] = predict_tracks([t for _, t in live], now, accel)
         encounters: dict[int, Encounter] = {}
         if vehicle is not None and tracked:
             updates = [t.updates for _, t in live]
@@ -493,6 +496,12 @@ class BackendService:
         # plain floats once for all rows (the same values float() gives one by one)
         state_rows = states.tolist()
         cov_rows = covs[:, :2, :2].reshape(-1, 4).tolist()
+        th = self.config.encounter.thresholds
+        unjudged = Advisory.CLEAR.value
+        if vehicle is None:
+            unjudged = "none"
+        elif th.caution_on_bad_fix or (alarm and th.caution_on_link_alarm):
+            unjudged = Advisory.CAUTION.value
         out = []
         for i, (_, fix) in enumerate(fixes):
             track = tracks[i]
@@ -503,35 +512,24 @@ class BackendService:
             else:
                 age_s = (now - fix.t_ns) / NS_PER_S
                 sensors = fix.sensors
-            risk: dict[str, Any] = {
-                "p_collision": nan,
-                "t_closest_s": nan,
-                "distance_to_contact_m": nan,
-                "impact_speed_mps": nan,
-                "fatality_risk": nan,
-                "risk": nan,
-                "advisory": "none",
-                "reasons": ("no vehicle state",),
-            }
             enc = encounters.get(i)
             if enc is not None:
-                risk = {
-                    "p_collision": enc.p_collision,
-                    "t_closest_s": enc.t_closest_s,
-                    "distance_to_contact_m": enc.distance_to_contact_m,
-                    "impact_speed_mps": enc.impact_speed_mps,
-                    "fatality_risk": enc.fatality_risk,
-                    "risk": enc.risk,
-                    "advisory": enc.advisory.value,
-                    "reasons": enc.reasons,
-                }
-            elif vehicle is not None:
-                th = self.config.encounter.thresholds
-                unlocated = ("emitter not located: " + fix.reason,)
-                caution = th.caution_on_bad_fix or (alarm and th.caution_on_link_alarm)
-                risk["advisory"] = (Advisory.CAUTION if caution else Advisory.CLEAR).value
-                risk["reasons"] = unlocated + (("link latency alarm",) if alarm else ())
-            self.stats.assessments[risk["advisory"]] += 1
+                p_coll, t_closest, contact = (
+                    enc.p_collision,
+                    enc.t_closest_s,
+                    enc.distance_to_contact_m,
+                )
+                impact, fatal, risk = enc.impact_speed_mps, enc.fatality_risk, enc.risk
+                advisory, reasons = enc.advisory.value, enc.reasons
+            else:
+                p_coll = t_closest = contact = impact = fatal = risk = nan
+                advisory = unjudged
+                if vehicle is None:
+                    reasons = ("no vehicle state",)
+                else:
+                    unlocated = ("emitter not located: " + fix.reason,)
+                    reasons = unlocated + (("link latency alarm",) if alarm else ())
+            self.stats.assessments[advisory] += 1
             out.append(
                 Assessment(
                     t_ns=now,
@@ -548,7 +546,14 @@ class BackendService:
                     fix_ok=fix.ok,
                     fix_reason=fix.reason,
                     link_alarm=alarm,
-                    **risk,
+                    p_collision=p_coll,
+                    t_closest_s=t_closest,
+                    distance_to_contact_m=contact,
+                    impact_speed_mps=impact,
+                    fatality_risk=fatal,
+                    risk=risk,
+                    advisory=advisory,
+                    reasons=reasons,
                 )
             )
         out.sort(key=lambda a: -a.risk if math.isfinite(a.risk) else 1.0)
@@ -567,10 +572,11 @@ class BackendService:
         """The encounter of each tracked emitter (``rows``, whose tracks took ``updates``
         fixes since they started) with the vehicle."""
         cfg = self.config.encounter
+        every = len(rows) == len(states)  # rows are then 0, 1, …: no copy
         return assess_encounters(
             vehicle,
-            states[rows],
-            covs[rows],
+            states if every else states[rows],
+            covs if every else covs[rows],
             cfg,
             fix_ok=[fixes[i][1].ok for i in rows],
             fix_reason=[fixes[i][1].reason for i in rows],

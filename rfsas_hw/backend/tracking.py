@@ -203,8 +203,8 @@ class Tracker:
             for i, e in enumerate(emitters):
                 self.update_many([e], [t_ns[i]], z[i : i + 1], R[i : i + 1], [sensors[i]])
             return
-        finite = np.isfinite(z).all(axis=1) & np.isfinite(R).all(axis=(1, 2))
-        if not finite.all():
+        if not (np.isfinite(z).all() and np.isfinite(R).all()):
+            finite = np.isfinite(z).all(axis=1) & np.isfinite(R).all(axis=(1, 2))
             bad = emitters[int(np.flatnonzero(~finite)[0])]
             raise BackendError(f"fix of emitter {bad:016x} is not a finite position/covariance")
         rows: list[int] = []

@@ -79,6 +79,9 @@ class BackendWork:
     """Unchanged advice about an emitter goes to a vehicle again after this long, seconds."""
     clock: SimClock = field(default_factory=lambda: SimClock(0))
     """The deployment's clock."""
+    dashboard: bool = False
+    """Also report, every 0.1 s step, the service's fixes made since the last report and
+    its assessments (tracks), for a live dashboard of the district."""
 
 
 @dataclass(frozen=True)
@@ -144,6 +147,8 @@ class CityBackend:
         self.vehicles: VehicleStates | None = None
         self.counters = BackendCounters()
         self._seen: dict[int, Any] = {}
+        self._shown: dict[int, Any] = {}
+        """The fixes as they were at the last dashboard report."""
         self._stepped: dict[int, Any] = {}
         """The fixes as they were after the previous step (to find this step's new ones)."""
 
@@ -290,6 +295,8 @@ class CityBackend:
             if now >= next_ns:
                 next_ns += step_ns * max(1, math.ceil((now - next_ns) / step_ns))
                 sent = self.judge(now)
+                if self.work.dashboard:
+                    self._report_dashboard(conn)
             elif got and now - last_ns >= quick_ns:
                 sent = self.judge(now, fresh_only=True)
             else:
@@ -300,6 +307,13 @@ class CityBackend:
             fixes = self.new_fixes()
             if fixes:
                 conn.send(("fixes", fixes))
+
+    def _report_dashboard(self, conn: Connection) -> None:
+        """Send the fixes made since the last report and every current assessment."""
+        service = self.app.service
+        fixes = [f for e, f in service.fixes.items() if self._shown.get(e) is not f]
+        self._shown = dict(service.fixes)
+        conn.send(("dashboard", fixes, list(service.assessments.values())))
 
     def close(self) -> BackendCounters:
         """Close the advisory transport and the app; the counters. Idempotent."""

@@ -43,6 +43,7 @@ import subprocess
 import sys
 import xml.etree.ElementTree as ET
 from collections.abc import Iterable
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
@@ -291,12 +292,23 @@ def generate(net: str | Path, out_dir: str | Path, cfg: DemandConfig, seed: int)
     vrus: dict[str, VruRecord] = {}
     weights = sorted(cfg.device_mix.items())
     total = sum(w for _, w in weights)
-    for name, count, args, tag in plans:
-        if count == 0:
-            continue
+    plans = [p for p in plans if p[1] > 0]
+    # the classes' trips are independent runs of SUMO's tools: side by side
+    with ThreadPoolExecutor(max_workers=len(plans) or 1) as pool:
+        runs = [
+            pool.submit(
+                _run_trips,
+                netp,
+                out / f"{name}.rou.xml",
+                [*common, "-p", f"{window / count:.6f}", *args],
+                int(stream(seed, "city-demand", name).integers(0, 2**31 - 1)),
+            )
+            for name, count, args, _ in plans
+        ]
+        for run in runs:
+            run.result()
+    for name, _count, _args, tag in plans:
         path = out / f"{name}.rou.xml"
-        class_seed = int(stream(seed, "city-demand", name).integers(0, 2**31 - 1))
-        _run_trips(netp, path, [*common, "-p", f"{window / count:.6f}", *args], class_seed)
         if name == "vehicles":
             vehicles = tuple(_retype(path, tag, {False: "car", True: "car"}, {}))
             route_files.append(path)

@@ -4,7 +4,8 @@
 this machine:
 
 - the identities and broker files (:mod:`rfsas_hw.city.deploy`) and mosquitto
-  with mutual TLS on a loopback port, unless a running broker's files are given;
+  with mutual TLS on a loopback port, unless a running broker is given
+  (:class:`~rfsas_hw.city.deploy.BrokerAccess`);
 - the nonce authority, in this process, publishing every receiver's retained
   envelopes per epoch (:class:`~rfsas_hw.link.distribution.NonceDistributor`);
 - the twin workers (:mod:`rfsas_hw.city.tileworker`), each a process with the
@@ -46,7 +47,14 @@ from rfsas_hw.bridges.bridge import fitted_calibration
 from rfsas_hw.bridges.config import BridgeConfig, UnitSpec
 from rfsas_hw.city.backendproc import BackendCounters, BackendWork, VehicleStates, backend_main
 from rfsas_hw.city.clock import SimClock
-from rfsas_hw.city.deploy import AUTHORITY_ID, GATEWAY_ID, Deployment, LocalBroker, make_deployment
+from rfsas_hw.city.deploy import (
+    AUTHORITY_ID,
+    GATEWAY_ID,
+    BrokerAccess,
+    Deployment,
+    LocalBroker,
+    make_deployment,
+)
 from rfsas_hw.city.partition import Site, district_tiles, plan_tiles, split_units
 from rfsas_hw.city.sumoio import Movers
 from rfsas_hw.city.tileworker import (
@@ -58,12 +66,14 @@ from rfsas_hw.city.tileworker import (
 )
 from rfsas_hw.city.vehicles import Arrival, VehicleGateway
 from rfsas_hw.errors import SimulationError
+from rfsas_hw.fleet.broker import BrokerFiles
 from rfsas_hw.fleet.tiles import TilePlan
 from rfsas_hw.geo import SiteOrigin
 from rfsas_hw.link.distribution import NonceDistributor
 from rfsas_hw.link.mqtt import open_mqtt
 from rfsas_hw.link.topics import ROOT, TopicRouter, quadkey
 from rfsas_hw.privacy.epochs import EpochSchedule
+from rfsas_hw.records import Assessment, Fix
 from rfsas_hw.twin.scenario import BuildingSpec, PoseSpec
 
 NS_PER_S = 1_000_000_000
@@ -79,7 +89,15 @@ OWNER_MEMORY_S = 1.0
 """An advisory from the backend of the tile a vehicle left this long ago still counts
 as its owner's (it was judged there and is on its way), seconds."""
 
-__all__ = ["DistributedRfsas", "FixRecord", "LiveConfig", "LiveStats", "StepOut"]
+__all__ = [
+    "DistributedRfsas",
+    "FixRecord",
+    "LiveConfig",
+    "LiveStats",
+    "StepOut",
+    "backend_names",
+    "prestart",
+]
 
 log = logging.getLogger(__name__)
 
@@ -106,6 +124,9 @@ class LiveConfig:
     time_scale: float = 1.0
     """Simulated seconds per wall second the deployment's clock runs at (1: real time;
     below 1 for a machine that cannot keep up, see :mod:`rfsas_hw.city.clock`)."""
+    dashboard: bool = False
+    """The backends also report their fixes and tracks every step, for a live
+    dashboard (:attr:`StepOut.dashboard`)."""
 
     def __post_init__(self) -> None:
         if not 0.0 < self.time_scale <= 1.0:
@@ -114,6 +135,31 @@ class LiveConfig:
             raise ValueError("backends and workers must be at least 1")
         if not self.epoch_s > 0 or not self.hear_m > 0 or not self.near_m > 0:
             raise ValueError("epoch_s, hear_m and near_m must be positive")
+
+
+def _context() -> Any:
+    """The multiprocessing context of the workers and backends: they fork from one
+    server that imported their modules once (spawning each would import them again,
+    seconds on a busy machine)."""
+    ctx = mp.get_context("forkserver")
+    # numba: the backends' kernels (imported when first needed, so not by backendproc)
+    ctx.set_forkserver_preload(["rfsas_hw.city.tileworker", "rfsas_hw.city.backendproc", "numba"])
+    return ctx
+
+
+def prestart() -> None:
+    """Start the server the workers and backends fork from now, so that its imports
+    overlap other work (preparing the demand, a run with RF-SAS off) instead of
+    delaying the start of the distributed path."""
+    from multiprocessing import forkserver
+
+    _context()
+    forkserver.ensure_running()
+
+
+def backend_names(count: int) -> list[str]:
+    """The ids of a district's ``count`` backends: ``be-1`` … ``be-<count>``."""
+    return [f"be-{i + 1}" for i in range(count)]
 
 
 @dataclass(frozen=True, slots=True)
@@ -147,6 +193,9 @@ class StepOut:
     """Arrivals signed by a backend that does not own the vehicle's tile."""
     messages: int = 0
     """Signed bearing messages the workers published since the previous step."""
+    dashboard: list[tuple[str, list[Fix], list[Assessment]]] = field(default_factory=list)
+    """With :attr:`LiveConfig.dashboard`: per backend report since the previous step,
+    (backend id, fixes made since its last report, its current assessments)."""
 
 
 @dataclass
@@ -156,7 +205,8 @@ class LiveStats:
     workers: dict[str, WorkerCounters] = field(default_factory=dict)
     backends: dict[str, BackendCounters] = field(default_factory=dict)
     gateway: dict[str, Any] = field(default_factory=dict)
-    broker_cpu_s: float = 0.0
+    broker_cpu_s: float | None = None
+    """CPU seconds of the broker the run started (None: a broker it did not start)."""
     bearing_messages: int = 0
     """Signed bearing messages the workers published."""
     bearing_messages_received: int = 0
@@ -206,9 +256,12 @@ class DistributedRfsas:
         bridge: radio settings, seed, device models and MAC policy.
         settings: the backends' service settings.
         config: the layout.
+        broker: a running broker to use (None: mosquitto is started on loopback with
+            the deployment's own files).
 
     Raises:
-        MissingDependencyError: mosquitto is not installed.
+        MissingDependencyError: mosquitto is not installed (and no ``broker``).
+        ConfigError: with ``broker``, a party has no certificate.
         LinkError / SimulationError: a process or the broker did not start.
     """
 
@@ -222,6 +275,8 @@ class DistributedRfsas:
         bridge: BridgeConfig,
         settings: BackendConfig,
         config: LiveConfig | None = None,
+        *,
+        broker: BrokerAccess | None = None,
     ) -> None:
         self.config = cfg = config or LiveConfig()
         self.origin = origin
@@ -230,12 +285,14 @@ class DistributedRfsas:
         """The deployment's clock (the wall clock at time scale 1)."""
         self.t0_ns = 0
         """UTC of simulation time 0 on :attr:`clock`, ns (set by :meth:`start`)."""
-        backend_ids = [f"be-{i + 1}" for i in range(cfg.backends)]
+        backend_ids = backend_names(cfg.backends)
         self.plan: TilePlan = plan_tiles(units, backend_ids, district_tiles(self.router, bounds_m))
         # fewer groups of tiles than backends asked for: the others would own nothing
         backend_ids = [b for b in backend_ids if b in self.plan.groups]
         self.owner = {t: g.name for g in self.plan.groups.values() for t in g.tiles}
-        self.deployment = make_deployment(work_dir, [u.id for u in units], backend_ids)
+        self.deployment = make_deployment(
+            work_dir, [u.id for u in units], backend_ids, broker=broker
+        )
         self.stats = LiveStats()
         self._procs: list[Any] = []
         self._workers: dict[str, tuple[Connection, np.ndarray, np.ndarray]] = {}
@@ -257,9 +314,10 @@ class DistributedRfsas:
         self.late: list[Arrival] = []
         """Advisories that reached vehicles after the last step (taken by :meth:`close`)."""
         try:
-            self.broker = LocalBroker(self.deployment.files, work_dir / "mosquitto.log")
+            if isinstance(self.deployment.files, BrokerFiles):
+                self.broker = LocalBroker(self.deployment.files, work_dir / "mosquitto.log")
             self._start_authority()
-            ctx = mp.get_context("spawn")
+            ctx = _context()
             self._start_backends(ctx, backend_ids, settings)
             self._start_workers(ctx, units, buildings, bridge)
             self._wait_ready()
@@ -308,6 +366,7 @@ class DistributedRfsas:
                 near_m=self.config.near_m,
                 repeat_s=self.config.repeat_s,
                 clock=self.clock,
+                dashboard=self.config.dashboard,
             )
             parent, child = ctx.Pipe()
             proc = ctx.Process(target=backend_main, args=(work, child), name=b, daemon=True)
@@ -487,6 +546,8 @@ class DistributedRfsas:
                                 sigma,
                             )
                         )
+                elif msg[0] == "dashboard":
+                    out.dashboard.append((b, msg[1], msg[2]))
                 elif msg[0] == "error":
                     raise SimulationError(str(msg[1]))
 

@@ -31,9 +31,9 @@ import math
 import tempfile
 import time
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
-from typing import IO, Any, Literal
+from typing import IO, TYPE_CHECKING, Any, Literal
 
 import numpy as np
 
@@ -41,7 +41,8 @@ from rfsas_hw.bridges.config import BACKEND_PROFILES, BridgeConfig, backend_conf
 from rfsas_hw.bridges.sumo import SumoControl, load_sumo, start_sumo
 from rfsas_hw.city.clock import cpu_s
 from rfsas_hw.city.demand import Demand, DemandConfig, generate
-from rfsas_hw.city.live import DistributedRfsas, LiveConfig, LiveStats
+from rfsas_hw.city.deploy import AUTHORITY_ID, BrokerAccess, make_identities
+from rfsas_hw.city.live import DistributedRfsas, LiveConfig, LiveStats, backend_names
 from rfsas_hw.city.net import NetInfo, district_net, read_net, sumo_home
 from rfsas_hw.city.placement import UnitSite, buildings, load_placement, place_units
 from rfsas_hw.city.scoring import Actors, CityScorer, CitySummary, ScoringConfig
@@ -50,12 +51,25 @@ from rfsas_hw.city.vehicles import Arrival, most_severe
 from rfsas_hw.errors import ConfigError, OutputError, SimulationError
 from rfsas_hw.geo import SiteOrigin
 from rfsas_hw.outpaths import write_text_atomic
+from rfsas_hw.twin.scenario import BuildingSpec
+
+if TYPE_CHECKING:
+    from rfsas_hw.city.dashboard import CityDashboard
 
 STEP_S = 0.1
 """SUMO's step, seconds."""
 Mode = Literal["off", "on"]
 
-__all__ = ["CityRunConfig", "CityRunResult", "Progress", "Runtime", "run_city"]
+__all__ = [
+    "CityRunConfig",
+    "CityRunResult",
+    "District",
+    "Progress",
+    "Runtime",
+    "prepare_district",
+    "run_city",
+    "write_identities",
+]
 
 
 @dataclass(frozen=True)
@@ -196,14 +210,72 @@ def _finite(v: float) -> float | None:
     return v if math.isfinite(v) else None
 
 
+@dataclass(frozen=True)
+class District:
+    """What the runs of one configuration share: the net, its demand, the units and the
+    buildings (:func:`prepare_district`; the off and on runs of one seed take the same)."""
+
+    net: Path
+    """The SUMO net file."""
+    info: NetInfo
+    demand: Demand
+    units: list[UnitSite]
+    buildings: list[BuildingSpec]
+
+
+def prepare_district(cfg: CityRunConfig, out_dir: Path) -> District:
+    """Read the net, generate the demand into ``out_dir/demand``, place the units and
+    find the buildings.
+
+    Raises:
+        MissingDependencyError: eclipse-sumo is missing.
+        ConfigError: a bad net, placement or polygon file.
+        SimulationError: SUMO's demand tools failed.
+        OutputError: ``out_dir`` cannot be created.
+    """
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise OutputError(f"{out_dir}: cannot create: {err.strerror or err}") from err
+    net = cfg.net if cfg.net is not None else district_net()
+    info = read_net(net, cfg.origin)
+    demand = generate(net, out_dir / "demand", cfg.demand, cfg.seed)
+    placement = load_placement(cfg.placement) if cfg.placement is not None else None
+    units = place_units(info, placement)
+    return District(net, info, demand, units, buildings(info, units, cfg.polygons))
+
+
+def write_identities(cfg: CityRunConfig, root: Path) -> list[str]:
+    """The identities of ``cfg``'s district in ``root/keys``
+    (:func:`~rfsas_hw.city.deploy.make_identities`: one sensor per unit of the placement,
+    one backend per ``cfg.live.backends``, the nonce authority; those found kept), for a
+    broker of its own (``rfsas broker config``) before ``run_city(broker=…)``; their ids.
+
+    Raises:
+        MissingDependencyError: eclipse-sumo is missing.
+        ConfigError: a bad net or placement, or identities found that are not these.
+        KeyStoreError: a key directory cannot be read or written.
+    """
+    net = cfg.net if cfg.net is not None else district_net()
+    info = read_net(net, cfg.origin)
+    placement = load_placement(cfg.placement) if cfg.placement is not None else None
+    units = [u.id for u in place_units(info, placement)]
+    backends = backend_names(cfg.live.backends)
+    make_identities(root, units, backends)
+    return [*units, *backends, AUTHORITY_ID]
+
+
 def run_city(
     cfg: CityRunConfig,
     out_dir: Path,
     mode: Mode = "on",
     *,
+    district: District | None = None,
     on_progress: Callable[[Progress], None] | None = None,
     png: bool = True,
     work_dir: Path | None = None,
+    broker: BrokerAccess | None = None,
+    dashboard: CityDashboard | None = None,
 ) -> CityRunResult:
     """Run a district once with RF-SAS ``off`` or ``on`` (see the module docstring).
 
@@ -215,28 +287,27 @@ def run_city(
         mode: ``off`` (SUMO and the scorer only) or ``on`` (the distributed path).
         on_progress: called about once a simulated second.
         png: also draw the map as PNG (needs matplotlib).
-        work_dir: where the deployment's keys and broker files go (an empty or new
-            folder; None: a temporary folder, deleted at the end). They hold private
-            keys: keep them out of the outputs.
+        district: the net, demand, units and buildings (:func:`prepare_district`; None:
+            prepared here). The off and on runs of one configuration share one.
+        work_dir: where the deployment's keys and broker files go (a new folder, or one
+            an earlier run wrote; None: a temporary folder, deleted at the end). They
+            hold private keys: keep them out of the outputs.
+        broker: a running broker to use (None: mosquitto is started on loopback).
+        dashboard: a live dashboard to show the run with RF-SAS on (its units, the
+            backends' fixes and tracks); the caller starts and closes it.
 
     Raises:
         MissingDependencyError: eclipse-sumo, libsumo, mosquitto or matplotlib is missing.
-        ConfigError: a bad net, placement, polygon file or setting.
+        ConfigError: a bad net, placement, polygon file or setting; with ``broker``, a
+            party without its certificate.
         SimulationError: SUMO or a process of the distributed path failed.
         OutputError: an output cannot be written.
     """
     if mode not in ("off", "on"):
         raise ConfigError(f"mode must be off or on, not {mode!r}")
-    try:
-        out_dir.mkdir(parents=True, exist_ok=True)
-    except OSError as err:
-        raise OutputError(f"{out_dir}: cannot create: {err.strerror or err}") from err
-    net = cfg.net if cfg.net is not None else district_net()
-    info = read_net(net, cfg.origin)
-    demand = generate(net, out_dir / "demand", cfg.demand, cfg.seed)
-    placement = load_placement(cfg.placement) if cfg.placement is not None else None
-    units = place_units(info, placement)
-    houses = buildings(info, units, cfg.polygons)
+    if district is None:
+        district = prepare_district(cfg, out_dir)
+    net, info, demand, units = district.net, district.info, district.demand, district.units
     files = {
         "log": out_dir / f"{mode}.log.jsonl",
         "summary": out_dir / f"{mode}.summary.json",
@@ -266,7 +337,15 @@ def run_city(
         )
         scorer = CityScorer(info.crossings, demand.vrus, cfg.scoring)
         runtime = _run_loop(
-            cfg, info, demand, units, houses, scorer, log, mode, on_progress, work_dir
+            cfg,
+            district,
+            scorer,
+            log,
+            mode,
+            on_progress,
+            work_dir,
+            broker,
+            dashboard,
         )
         summary = scorer.summary()
         log.write({"record": "end", "summary": summary.as_dict(), "runtime": asdict(runtime)})
@@ -308,16 +387,16 @@ def _sumo_cmd(cfg: CityRunConfig, info: NetInfo, demand: Demand) -> list[str]:
 
 def _run_loop(
     cfg: CityRunConfig,
-    info: NetInfo,
-    demand: Demand,
-    units: list[UnitSite],
-    houses: list[Any],
+    district: District,
     scorer: CityScorer,
     log: _Log,
     mode: Mode,
     on_progress: Callable[[Progress], None] | None,
     work_dir: Path | None,
+    broker: BrokerAccess | None,
+    dashboard: CityDashboard | None,
 ) -> Runtime:
+    info, demand, units = district.info, district.demand, district.units
     import os
 
     os.environ.setdefault("SUMO_HOME", str(sumo_home()))
@@ -338,13 +417,16 @@ def _run_loop(
             live = DistributedRfsas(
                 work_dir,
                 units,
-                houses,
+                district.buildings,
                 info.origin,
                 info.bounds_m,
                 bridge,
                 backend_config(bridge),
-                cfg.live,
+                replace(cfg.live, dashboard=dashboard is not None),
+                broker=broker,
             )
+            if dashboard is not None:
+                dashboard.use_clock(live.clock)
             log.write(
                 {
                     "record": "tiles",
@@ -355,9 +437,7 @@ def _run_loop(
             start_sumo(sumo, _sumo_cmd(cfg, info, demand))
         except SimulationError as err:
             raise SimulationError(f"{info.path}: {err}") from err
-        district = SumoDistrict(
-            sumo, info.to_frame, info.heading_to_frame, SumoControl(cfg.live.hold_s)
-        )
+        sim = SumoDistrict(sumo, info.to_frame, info.heading_to_frame, SumoControl(cfg.live.hold_s))
         wall0 = time.monotonic()
         if live is not None:
             live.start()
@@ -375,7 +455,7 @@ def _run_loop(
             w = time.thread_time()
             sumo.simulationStep()
             w1 = time.thread_time()
-            cars, vrus = district.read()
+            cars, vrus = sim.read()
             w2 = time.thread_time()
             scorer.step(t, _actors(cars, True), _actors(vrus, False))
             w3 = time.thread_time()
@@ -384,6 +464,8 @@ def _run_loop(
             timers["scoring"] += w3 - w2
             if live is not None:
                 out = live.step(t, cars, vrus, phones)
+                if dashboard is not None:
+                    dashboard.take(out)
                 scorer.messages(out.messages)
                 advised: set[str] = set()
                 for f in out.fixes:
@@ -393,12 +475,12 @@ def _run_loop(
                     key = (a.message.sender_id, a.message.seq)
                     latency = out.latency_s.get(key, math.nan)
                     scorer.advisory(t, a.vehicle_id, kind, latency)
-                    district.act(t, a.vehicle_id, kind)
+                    sim.act(t, a.vehicle_id, kind)
                     advised.add(a.vehicle_id)
                     advisories += 1
                     brakes += kind == "brake"
                     _log_arrival(log, t, a, kind, latency)
-                district.release_idle(t, advised)
+                sim.release_idle(t, advised)
                 timers["path"] += time.thread_time() - w3
             if k % round(1.0 / STEP_S) == 0:
                 elapsed = time.monotonic() - wall0
@@ -473,7 +555,8 @@ def _costs(
         runtime.cpu_s[name] = round(w.cpu_s, 3)
     for name, b in stats.backends.items():
         runtime.cpu_s[name] = round(b.cpu_s, 3)
-    runtime.cpu_s["broker"] = round(stats.broker_cpu_s, 3)
+    if stats.broker_cpu_s is not None:  # a broker this run started
+        runtime.cpu_s["broker"] = round(stats.broker_cpu_s, 3)
     runtime.counts = {
         "bearing_messages_sent": stats.bearing_messages,
         "bearing_messages_received": stats.bearing_messages_received,

@@ -40,6 +40,14 @@ def broker() -> None:
     "--vehicle", "vehicles", multiple=True, metavar="ID", help="Admit a vehicle (repeatable)."
 )
 @click.option(
+    "--gateway",
+    "gateways",
+    multiple=True,
+    metavar="ID",
+    help="Admit a vehicle gateway: reads every vehicle's advisories, for the vehicles "
+    "behind it (repeatable; rfsas city run's is 'vehicles').",
+)
+@click.option(
     "--run-as",
     default="mosquitto",
     show_default=True,
@@ -52,6 +60,7 @@ def config(
     host: str,
     port: int,
     vehicles: tuple[str, ...],
+    gateways: tuple[str, ...],
     run_as: str,
     days: int,
 ) -> None:
@@ -60,7 +69,14 @@ def config(
     and set_tcp_nodelay, and an ACL that lets each sensor write only its own
     bearing topics and read only its own nonce topic."""
     files = write_broker_config(
-        keys_dir, out, host=host, port=port, vehicles=vehicles, run_as=run_as, days=days
+        keys_dir,
+        out,
+        host=host,
+        port=port,
+        vehicles=vehicles,
+        gateways=gateways,
+        run_as=run_as,
+        days=days,
     )
     for ident in sorted(files.identities, key=lambda i: (i.role, i.id)):
         state = "new certificate" if ident.id in files.issued else "kept"

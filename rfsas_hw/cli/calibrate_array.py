@@ -109,15 +109,12 @@ def run_array(
         click.UsageError: missing or conflicting options.
         ConfigError, CalibrationError, SourceError, DataFormatError: bad inputs.
     """
-    from rfsas_hw.records import Pose
-    from rfsas_hw.sources.csi_calibration import known_angle_deg, phase_frames
+    from rfsas_hw.cli.calibrate_reference import reference_frames
 
     if len(inputs) != 1 or output is None:
         raise click.UsageError("--array takes the amplitude CAL.yaml as INPUT and -o OUT.yaml")
     if geometry is None:
         raise click.UsageError("--array needs --geometry (ula:…, uca:…, ura:… or a CSV)")
-    if (angles_path is None) == (known_position is None):
-        raise click.UsageError("--array needs --angles LOG.csv or --known-position X,Y (one)")
     array = parse_geometry(geometry)
     fov = None
     if array_fov is not None:
@@ -126,18 +123,14 @@ def run_array(
             raise ConfigError(f"--array-fov {array_fov!r}: LO < HI within ±180°")
         fov = (lo, hi)
     amplitude = load_calibration(inputs[0])
-    known = None
-    if known_position is not None:
-        x, y = comma_numbers(known_position, 2, "--known-position")
-        px, py, heading = comma_numbers(pose, 3, "--pose")
-        known = known_angle_deg(Pose(px, py, heading % 360.0), x, y)
-        console.print(f"known transmitter at {known:+.2f}° from boresight")
-    obs, true_deg, join = phase_frames(
-        array_capture, emitter=emitter, angles_path=angles_path, known_deg=known
-    )
-    console.print(
-        f"{join.used} frames with a known angle ({join.frames} in the recording, "
-        f"{join.emitter_frames} from the reference, {join.outside_log} outside the angle log)"
+    obs, true_deg = reference_frames(
+        console,
+        array_capture,
+        flag="--array",
+        emitter=emitter,
+        angles_path=angles_path,
+        known_position=known_position,
+        pose=pose,
     )
     cal = fit_array_calibration(array, obs, true_deg, fov)
     save_calibration(dataclasses.replace(amplitude, array=cal), output)

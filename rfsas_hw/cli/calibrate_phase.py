@@ -85,33 +85,26 @@ def run_phase(
         click.UsageError: missing or conflicting options.
         ConfigError, CalibrationError, SourceError, DataFormatError: bad inputs.
     """
-    from rfsas_hw.records import Pose
-    from rfsas_hw.sources.csi_calibration import known_angle_deg, phase_frames
+    from rfsas_hw.cli.calibrate_reference import reference_frames
 
     if len(inputs) != 1 or output is None:
         raise click.UsageError("--phase takes the amplitude CAL.yaml as INPUT and -o OUT.yaml")
     if baseline_m is None or not 0 < baseline_m < 100:
         raise click.UsageError("--phase needs --baseline METRES (> 0)")
-    if (angles_path is None) == (known_position is None):
-        raise click.UsageError("--phase needs --angles LOG.csv or --known-position X,Y (one)")
     a_f, b_f = comma_numbers(pair, 2, "--pair")
     if not (a_f.is_integer() and b_f.is_integer() and 0 <= a_f < 8 and 0 <= b_f < 8 and a_f != b_f):
         raise ConfigError(f"--pair {pair!r}: two different antenna numbers 0–7, e.g. 0,1")
     a, b = int(a_f), int(b_f)
     lo, hi = comma_numbers(phase_fov, 2, "--phase-fov")
     amplitude = load_calibration(inputs[0])
-    known = None
-    if known_position is not None:
-        x, y = comma_numbers(known_position, 2, "--known-position")
-        px, py, heading = comma_numbers(phase_pose, 3, "--pose")
-        known = known_angle_deg(Pose(px, py, heading % 360.0), x, y)
-        console.print(f"known transmitter at {known:+.2f}° from boresight")
-    obs, true_deg, join = phase_frames(
-        phase_capture, emitter=emitter, angles_path=angles_path, known_deg=known
-    )
-    console.print(
-        f"{join.used} frames with a known angle ({join.frames} in the capture, "
-        f"{join.emitter_frames} from the reference, {join.outside_log} outside the angle log)"
+    obs, true_deg = reference_frames(
+        console,
+        phase_capture,
+        flag="--phase",
+        emitter=emitter,
+        angles_path=angles_path,
+        known_position=known_position,
+        pose=phase_pose,
     )
     assert obs.csi is not None
     fitted = fit_phase_pair(

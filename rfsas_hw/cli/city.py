@@ -16,7 +16,9 @@ from rfsas_hw.cli.exitcodes import WorkFailed
 from rfsas_hw.cli.outopts import OutputPath
 
 if TYPE_CHECKING:
-    from rfsas_hw.city.run import CityRunResult
+    from rfsas_hw.city.dashboard import CityDashboard
+    from rfsas_hw.city.deploy import BrokerAccess
+    from rfsas_hw.city.run import CityRunConfig, CityRunResult, District
 
 
 @click.group()
@@ -30,20 +32,79 @@ def _fmt(x: Any, digits: int = 2) -> str:
     return f"{x:.{digits}f}" if isinstance(x, float) else str(x)
 
 
-@city.command("run")
-@click.option(
+NET_OPTION = click.option(
     "--net",
     type=click.Path(exists=True, dir_okay=False, path_type=Path),
     default=None,
     help="SUMO net (default: Berlin-Adlershof from the eclipse-sumo wheel).",
 )
-@click.option(
+ORIGIN_OPTION = click.option(
     "--origin",
     metavar="LAT,LON",
     default=None,
     help="Where a net without a projection (a generated grid) lies on the globe "
     "(default: Adlershof's centre); a geo-referenced net keeps its own.",
 )
+PLACEMENT_OPTION = click.option(
+    "--placement",
+    type=click.Path(exists=True, dir_okay=False, path_type=Path),
+    default=None,
+    help="Placement YAML (default: two units per traffic light).",
+)
+BACKENDS_OPTION = click.option(
+    "--backends",
+    type=click.IntRange(1, 16),
+    default=2,
+    show_default=True,
+    help="Backend processes (each owns a group of tiles).",
+)
+
+
+@city.command("keys")
+@NET_OPTION
+@ORIGIN_OPTION
+@PLACEMENT_OPTION
+@BACKENDS_OPTION
+@click.option(
+    "--out",
+    "work_dir",
+    type=OutputPath("dir"),
+    required=True,
+    help="Work folder (give it to rfsas city run --work): the identities go to its keys/.",
+)
+def keys(
+    net: Path | None, origin: str | None, placement: Path | None, backends: int, work_dir: Path
+) -> None:
+    """Write the district's identities (one sensor per unit, the backends, the nonce
+    authority; those already there are kept), so that a broker of your own can be given
+    their certificates and ACL before rfsas city run --broker."""
+    from rfsas_hw.backend.site import parse_origin
+    from rfsas_hw.city.deploy import AUTHORITY_ID, GATEWAY_ID
+    from rfsas_hw.city.live import LiveConfig
+    from rfsas_hw.city.run import CityRunConfig, write_identities
+
+    cfg = CityRunConfig(
+        net=net,
+        origin=None if origin is None else parse_origin(origin),
+        placement=placement,
+        live=replace(LiveConfig(), backends=backends),
+    )
+    ids = write_identities(cfg, work_dir)
+    click.echo(f"{len(ids)} identities in {work_dir / 'keys'}")
+    click.echo(
+        f"broker files: rfsas broker config --keys {work_dir / 'keys' / AUTHORITY_ID} "
+        f"--out BROKER --host HOST --port PORT --gateway {GATEWAY_ID}"
+    )
+    click.echo(
+        f"then: rfsas city run --work {work_dir} --broker "
+        f'"mqtts://HOST:PORT?ca=BROKER/ca/ca.crt&cert=BROKER/clients/{GATEWAY_ID}.crt'
+        f'&key=BROKER/clients/{GATEWAY_ID}.key" …'
+    )
+
+
+@city.command("run")
+@NET_OPTION
+@ORIGIN_OPTION
 @click.option(
     "--out",
     "out_dir",
@@ -96,12 +157,7 @@ def _fmt(x: Any, digits: int = 2) -> str:
     show_default=True,
     help="Share of VRUs crossing against the light.",
 )
-@click.option(
-    "--placement",
-    type=click.Path(exists=True, dir_okay=False, path_type=Path),
-    default=None,
-    help="Placement YAML (default: two units per traffic light).",
-)
+@PLACEMENT_OPTION
 @click.option(
     "--polygons",
     type=click.Path(exists=True, dir_okay=False, path_type=Path),
@@ -116,13 +172,7 @@ def _fmt(x: Any, digits: int = 2) -> str:
     show_default=True,
     help="Run without RF-SAS, with it, or both on the same seed.",
 )
-@click.option(
-    "--backends",
-    type=click.IntRange(1, 16),
-    default=2,
-    show_default=True,
-    help="Backend processes (each owns a group of tiles).",
-)
+@BACKENDS_OPTION
 @click.option(
     "--workers",
     type=click.IntRange(1, 16),
@@ -154,6 +204,43 @@ def _fmt(x: Any, digits: int = 2) -> str:
     help="Simulated seconds per wall second of the deployment's clock (below 1 "
     "for a machine that cannot keep up; real time only at 1).",
 )
+@click.option(
+    "--work",
+    "work_dir",
+    type=OutputPath("dir"),
+    default=None,
+    help="Where the deployment's identities (private keys: keep them out of --out) and, "
+    "when the command starts mosquitto, the broker's files go; identities found there "
+    "are kept (default: a temporary folder, deleted at the end).",
+)
+@click.option(
+    "--broker",
+    metavar="mqtts://HOST:PORT?ca=…&cert=…&key=…",
+    default=None,
+    help="Use this running broker instead of starting mosquitto: cert= and key= are the "
+    "vehicles' gateway's; every other party's <id>.crt and <id>.key are taken from "
+    "--broker-certs (see rfsas city keys and docs/city.md).",
+)
+@click.option(
+    "--broker-certs",
+    type=click.Path(exists=True, file_okay=False, path_type=Path),
+    default=None,
+    help="Folder with <id>.crt and <id>.key of every party, as rfsas broker config "
+    "writes them (default: the folder of --broker's cert=).",
+)
+@click.option(
+    "--web",
+    metavar="[HOST:]PORT",
+    default=None,
+    help="Serve the live dashboard of the run with RF-SAS on here: every unit, every "
+    "backend's fixes and tracks (default host 127.0.0.1; needs the web extra).",
+)
+@click.option(
+    "--web-token",
+    envvar="RFSAS_WEB_TOKEN",
+    default=None,
+    help="Token other hosts must give the dashboard [default: random when not on loopback].",
+)
 @click.option("--no-png", is_flag=True, help="Write the map as GeoJSON only.")
 def run(
     net: Path | None,
@@ -175,6 +262,11 @@ def run(
     epoch_s: float,
     active_share: float,
     time_scale: float,
+    work_dir: Path | None,
+    broker: str | None,
+    broker_certs: Path | None,
+    web: str | None,
+    web_token: str | None,
     no_png: bool,
 ) -> None:
     """Run a district: demand from SUMO's randomTrips, units at the traffic lights, and,
@@ -182,8 +274,13 @@ def run(
     workers and tile-owning backends as processes, each car advised on its own topic
     and braking for its own BRAKE. Writes per mode a run log, a summary and a map."""
     from rfsas_hw.city.demand import DemandConfig
-    from rfsas_hw.city.live import LiveConfig
-    from rfsas_hw.city.run import CityRunConfig, run_city
+    from rfsas_hw.city.deploy import BrokerAccess
+    from rfsas_hw.city.live import LiveConfig, prestart
+    from rfsas_hw.city.run import CityRunConfig, prepare_district
+
+    if broker_certs is not None and broker is None:
+        raise click.UsageError("--broker-certs goes with --broker")
+    access = None if broker is None else BrokerAccess.from_url(broker, broker_certs)
 
     demand = DemandConfig(
         vehicles=vehicles,
@@ -209,6 +306,44 @@ def run(
         ),
     )
     console = Console(stderr=True)
+    if modes != "off":
+        prestart()
+    district = prepare_district(cfg, out_dir)
+    dashboard = None
+    if web is not None and modes != "off":
+        from rfsas_hw.city.dashboard import CityDashboard
+
+        dashboard = CityDashboard(district.units, district.info.origin, web, web_token)
+        click.echo(f"dashboard at {dashboard.url}", err=True)
+    try:
+        results = _runs(
+            cfg, out_dir, district, modes, console, not no_png, work_dir, access, dashboard
+        )
+    finally:
+        if dashboard is not None:
+            dashboard.close()
+    console.print(_table(results))
+    for mode, res in results.items():
+        click.echo(f"{mode}: " + ", ".join(str(p) for p in res.files.values()))
+    problems = [p for r in results.values() for p in r.runtime.problems]
+    if problems:
+        raise WorkFailed("; ".join(problems[:5]))
+
+
+def _runs(
+    cfg: CityRunConfig,
+    out_dir: Path,
+    district: District,
+    modes: str,
+    console: Console,
+    png: bool,
+    work_dir: Path | None,
+    access: BrokerAccess | None,
+    dashboard: CityDashboard | None,
+) -> dict[str, CityRunResult]:
+    """The runs ``--rfsas`` asks for, each with a progress bar."""
+    from rfsas_hw.city.run import run_city
+
     results: dict[str, CityRunResult] = {}
     for mode in ("off", "on") if modes == "both" else (modes,):
         columns = (
@@ -218,7 +353,7 @@ def run(
             TimeElapsedColumn(),
         )
         with Progress(*columns, console=console, transient=True) as bar:
-            task = bar.add_task("run", total=duration_s, info="starting")
+            task = bar.add_task("run", total=cfg.duration_s, info="starting")
 
             def show(p: Any, task: Any = task, bar: Any = bar) -> None:
                 bar.update(
@@ -232,15 +367,14 @@ def run(
                 cfg,
                 out_dir,
                 mode,
+                district=district,
                 on_progress=show,
-                png=not no_png,
+                png=png,
+                work_dir=work_dir,
+                broker=access,
+                dashboard=dashboard,
             )
-    console.print(_table(results))
-    for mode, res in results.items():
-        click.echo(f"{mode}: " + ", ".join(str(p) for p in res.files.values()))
-    problems = [p for r in results.values() for p in r.runtime.problems]
-    if problems:
-        raise WorkFailed("; ".join(problems[:5]))
+    return results
 
 
 def _table(results: dict[str, CityRunResult]) -> Table:

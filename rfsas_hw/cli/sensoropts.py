@@ -25,6 +25,7 @@ from rfsas_hw.cli.exitcodes import Interrupted, WorkFailed
 from rfsas_hw.cli.linkopts import kept_link_options, send_options, split_urls
 from rfsas_hw.cli.options import json_option, out_option
 from rfsas_hw.cli.ros2opts import ros2_config
+from rfsas_hw.df.fovguard import PROVE_MOTION_DEG
 from rfsas_hw.errors import ConfigError
 from rfsas_hw.outpaths import STDIO
 from rfsas_hw.privacy.epochs import DEFAULT_EPOCH_S
@@ -128,11 +129,18 @@ def sensor_options(func: F) -> F:
             "--prove-motion",
             "prove_motion_deg",
             type=click.FloatRange(min=0.0, max=90.0),
-            default=0.0,
+            default=None,
             metavar="DEG",
-            help="Fixed mount: an emitter's bearings count once its bearing has swept this "
-            "far (3 is a good value); a static emitter, behind or in front, never counts. "
-            "0: off.",
+            help="An emitter's bearings count once its bearing has swept this far, so that "
+            "a static emitter behind or beside a fixed sensor gives none (nor one in "
+            f"front). Default: {PROVE_MOTION_DEG:g} on a fixed mount, off with "
+            "--moving-mount; 0: off.",
+        ),
+        click.option(
+            "--moving-mount",
+            is_flag=True,
+            help="The sensor moves (a vehicle, a robot): no motion rule unless "
+            "--prove-motion asks for it (an emitter on a collision course keeps its bearing).",
         ),
         click.option(
             "--errors",
@@ -172,7 +180,8 @@ def sensor_config(
     min_snr_db: float | None,
     nonce_secret: Path | None,
     send: str | None,
-    prove_motion_deg: float = 0.0,
+    prove_motion_deg: float | None = None,
+    moving_mount: bool = False,
     keys_dir: Path | None,
     ros2: dict[str, Any],
     **specific: Any,
@@ -193,6 +202,7 @@ def sensor_config(
         pose=parse_pose(pose, origin),
         min_snr_db=min_snr_db,
         prove_motion_deg=prove_motion_deg,
+        moving_mount=moving_mount,
         epoch_s=epoch_s,
         nonce_secret=nonce_secret,
         keys_dir=keys_dir,
@@ -286,6 +296,9 @@ _HINTS = {
     "nonce_unavailable": "no nonce arrived from the authority (check --nonces, --keys, "
     "--epoch and that the authority runs)",
     "hold_overflow": "frames waited for a nonce until the hold queue overflowed",
+    "may_be_outside": "every bearing may come from outside the field of view; on a fixed "
+    "mount an emitter counts once its bearing has swept, so emitters that stand still give "
+    "none (replay such a capture with --prove-motion 0; a sensor that moves: --moving-mount)",
 }
 
 

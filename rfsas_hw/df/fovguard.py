@@ -5,8 +5,9 @@
 :class:`FovGuard` keeps that reference per emitter in time: the brightest
 boresight-equivalent level of the emitter, decaying by ``decay_db_per_s``
 so that an emitter walking away is not refused for its path loss; on a
-fixed mount it can also require each emitter to prove by its bearing's
-sweep that it has been in front (``prove_motion_deg``). It is keyed by
+fixed mount it also requires each emitter to prove by its bearing's
+sweep that it has been in front (``prove_motion_deg``; :meth:`FovGuard.for_mount`
+turns that on for a fixed mount and off for a moving one). It is keyed by
 whatever identifies an emitter inside the sensor process (the raw MAC); its
 state never leaves the process.
 """
@@ -45,7 +46,8 @@ MAX_EMITTERS = 65_536
 PROVE_MOTION_DEG = 3.0
 """For a fixed mount: how far an emitter's smoothed bearing must have moved before its
 bearings count, degrees (at least; :data:`PROVE_SPREADS` times the spread noise alone
-gives that average, when that is more).
+gives that average, when that is more). The default of :meth:`FovGuard.for_mount` for
+a fixed mount.
 
 Behind a fixed two-antenna sensor both chains sit on the back-lobe floor: the
 ratio, and the bearing, stay put (near boresight) however the emitter moves
@@ -54,8 +56,13 @@ judged by. An emitter whose bearing has swept this far has crossed the main
 lobes, so it has shown its front. A static emitter never does: in front or
 behind, a two-antenna pair cannot tell, so its bearings are refused. The
 price: a passing emitter's bearings count only once it has swept this far
-(in the bundled crossing, half of the phone's bearings at ``rsu-nw``), so
-the rule is off unless asked for (``FovGuard(prove_motion_deg=…)``).
+(in the bundled crossing, half of the phone's bearings at ``rsu-nw``), and an
+emitter walking straight at or away from the sensor never counts.
+
+Not for a moving mount: an emitter on a collision course with it keeps a
+constant bearing while it closes in, the one emitter that must not be refused
+(in the bundled crossing the phone's bearing from the car stays within a few
+degrees until the car is upon it; the rule refuses all of the car's bearings).
 """
 
 MOTION_SMOOTH_S = 1.0
@@ -162,11 +169,32 @@ class FovGuard:
         prove_motion_deg: bearings of an emitter count once its bearing, averaged over
             :data:`MOTION_SMOOTH_S`, has swept this far and :data:`PROVE_SPREADS` times
             the spread noise gives that average, and it has been heard for three such
-            times (degrees; 0, the default: at once). An emitter that stands still
-            before a fixed sensor then never counts (:data:`PROVE_MOTION_DEG` is the
-            value for a fixed mount); a turning sensor proves every emitter in its
+            times (degrees; 0: at once). An emitter that stands still before a fixed
+            sensor then never counts (:data:`PROVE_MOTION_DEG` is the value for a fixed
+            mount, see :meth:`for_mount`); a turning sensor proves every emitter in its
             first turn.
+
+    Raises:
+        ValueError: a non-positive margin, or a negative rate, time or sweep.
     """
+
+    @classmethod
+    def for_mount(
+        cls, moving: bool, prove_motion_deg: float | None = None, **settings: Any
+    ) -> FovGuard:
+        """The guard for a sensor's mount: with the motion rule (``prove_motion_deg``,
+        by default :data:`PROVE_MOTION_DEG`) on a fixed mount, without it (0) on a
+        moving one, where an emitter on a collision course keeps a constant bearing.
+
+        ``prove_motion_deg`` given (degrees) overrides the mount's default, 0 turning
+        the rule off; ``settings``: the other arguments of the class.
+
+        Raises:
+            ValueError: as the class.
+        """
+        if prove_motion_deg is None:
+            prove_motion_deg = 0.0 if moving else PROVE_MOTION_DEG
+        return cls(prove_motion_deg=prove_motion_deg, **settings)
 
     def __init__(
         self,

@@ -29,12 +29,13 @@ and the error can be 100° or more. Three rules keep such bearings out:
    with the same emitter's bearing on another channel moments earlier is
    refused; outside the FoV the folds differ from channel to channel.
 
-4. **Motion rule** (fixed mounts, opt-in: ``FovGuard(prove_motion_deg=…)``):
+4. **Motion rule** (fixed mounts: ``FovGuard.for_mount(moving=False)``):
    an emitter that never shows its front (static behind a fixed sensor) has
    no brighter reference, and behind the antennas its bearing stays put
    however it moves. Its bearings count only once its averaged bearing has
    swept a few degrees beyond what noise gives: a static emitter, in front
-   or behind, never counts.
+   or behind, never counts. Not on a moving mount, where an emitter on a
+   collision course keeps a constant bearing.
 
 What the rules cannot see: an emitter beside or behind a fixed sensor that
 moves but never passes in front (its folded bearing sweeps too); mount a

@@ -289,6 +289,18 @@ def _se(x: Array) -> float:
     return float(np.std(x, ddof=1) / math.sqrt(len(x))) if len(x) > 1 else math.nan
 
 
+def _constant(diff: Array) -> bool:
+    """Whether every episode's difference is the same, to rounding (no spread to test)."""
+    return float(np.ptp(diff)) <= 1e-12 * max(1.0, float(np.abs(diff).max()))
+
+
+def _paired_p(diff: Array) -> float:
+    """The paired test's p-value when the differences have no spread: 1 when they are
+    all 0, else 0 (the same nonzero difference in every episode; a t statistic without
+    spread is infinite, and scipy's moment calculation would lose its precision)."""
+    return 1.0 if np.allclose(diff, 0.0) else 0.0
+
+
 def compare(learned: Sequence[Outcomes], baseline: Outcomes) -> list[PairedRow]:
     """Per-distance statistics of the learned seeds against the baseline (same episodes).
 
@@ -314,7 +326,7 @@ def compare(learned: Sequence[Outcomes], baseline: Outcomes) -> list[PairedRow]:
         averaged = stack[:, i, :].mean(axis=0)
         base = baseline.risk[i]
         diff = averaged - base
-        p = 1.0 if np.allclose(diff, 0.0) else float(ttest_rel(averaged, base).pvalue)
+        p = _paired_p(diff) if _constant(diff) else float(ttest_rel(averaged, base).pvalue)
         rows.append(
             PairedRow(
                 distance_m=d,

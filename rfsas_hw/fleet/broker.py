@@ -214,11 +214,16 @@ class BrokerFiles:
         Raises:
             ConfigError: no certificate was issued for ``ident``.
         """
-        pair = self.client(ident)
-        host = f"[{self.host}]" if ":" in self.host else self.host
-        query = {"ca": str(self.ca_cert), "cert": str(pair.cert), "key": str(pair.key), **options}
-        text = "&".join(f"{k}={quote(v, safe='/,.:-_')}" for k, v in query.items())
-        return f"mqtts://{host}:{self.port}?{text}"
+        return client_url(self.host, self.port, self.ca_cert, self.client(ident), **options)
+
+
+def client_url(host: str, port: int, ca_cert: Path, pair: CertPair, **options: str) -> str:
+    """The ``mqtts://`` URL of a client with certificate ``pair`` of a broker at
+    ``host``:``port`` whose CA is ``ca_cert`` (extra query ``options`` appended)."""
+    name = f"[{host}]" if ":" in host else host
+    query = {"ca": str(ca_cert), "cert": str(pair.cert), "key": str(pair.key), **options}
+    text = "&".join(f"{k}={quote(v, safe='/,.:-_')}" for k, v in query.items())
+    return f"mqtts://{name}:{port}?{text}"
 
 
 def identities_of(

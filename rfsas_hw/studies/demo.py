@@ -33,6 +33,7 @@ from rfsas_hw.backend.risk import BRAKE_DECEL_MPS2, stopping_distance
 from rfsas_hw.backend.service import BackendConfig, BackendService, JsonlSink, ResultSink
 from rfsas_hw.backend.triangulation import TriangulationOptions
 from rfsas_hw.backend.vehicle import VehicleState
+from rfsas_hw.df.fovguard import FovGuard
 from rfsas_hw.errors import SimulationError
 from rfsas_hw.geo import SiteOrigin
 from rfsas_hw.link import Publisher, Receiver, Signer, TrustedKeys, open_transport
@@ -309,8 +310,10 @@ def run_demo(
         observations[s.id] = obs
         source_stats[s.id] = stats
         current_pose[s.id] = _pose(world, s.id, world.t0_ns)
+        # the field-of-view guard of the mount: the motion rule on a roadside unit only
+        guard = FovGuard.for_mount(moving=s.mounted_on is not None)
         pipelines[s.id] = SensorPipeline(
-            sensor_calibration(world, s.id), hasher, s.id, current_pose[s.id]
+            sensor_calibration(world, s.id), hasher, s.id, current_pose[s.id], fov_guard=guard
         )
         publishers[s.id] = Publisher(
             signers[s.id],

@@ -503,7 +503,8 @@ def decode_cpm(data: bytes) -> Cpm:
     container) are kept, decoded, in :attr:`Cpm.extra`.
 
     Raises:
-        CpmFormatError: truncated, corrupted or not a CPM v2 (the message says where).
+        CpmFormatError: truncated, corrupted or not a CPM v2, or a segment number beyond
+            the total (the message says where).
         MissingDependencyError: ``asn1tools`` is not installed.
     """
     msg, containers = _message(data)
@@ -513,6 +514,11 @@ def decode_cpm(data: bytes) -> Cpm:
     sensors = containers.pop("sensorInformationContainer", [])
     objects = containers.pop("perceivedObjectContainer", None)
     segment = management.get("segmentationInfo")
+    if segment is not None and segment["thisMsgNo"] > segment["totalMsgNo"]:
+        raise CpmFormatError(
+            f"CPM segmentation info: message {segment['thisMsgNo']} of "
+            f"{segment['totalMsgNo']} segments"
+        )
     heading: dict[str, float] = {}
     if vehicle is not None:
         angle = vehicle["orientationAngle"]

@@ -86,6 +86,10 @@ def test_batched_encounters_refuse_bad_rows() -> None:
     states[1, 2] = np.nan
     with pytest.raises(BackendError, match="threat 1"):
         assess_encounters(car, states, covs)
+    bad_cov = covs.copy()
+    bad_cov[2, 3, 1] = np.inf  # a velocity covariance entry of the last row
+    with pytest.raises(BackendError, match="threat 2"):
+        assess_encounters(car, np.zeros((3, 4)), bad_cov)
     with pytest.raises(BackendError, match="shape"):
         assess_encounters(car, np.zeros((3, 3)), covs)
     with pytest.raises(BackendError, match="one entry per threat"):

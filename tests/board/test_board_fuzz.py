@@ -12,9 +12,11 @@ from __future__ import annotations
 
 import os
 import random
+from collections.abc import Sequence
 
 import numpy as np
 import pytest
+from bytefuzz import Mutation, delete, duplicate, flip_bits, insert, mutate, set_byte
 
 from rfsas_hw.board import codec
 from rfsas_hw.board.columns import is_measurement, records
@@ -51,31 +53,21 @@ def _seed_stream(rng: random.Random) -> bytes:
     return b"".join(out)
 
 
-def _mutate(data: bytes, rng: random.Random) -> bytes:
-    b = bytearray(data)
-    for _ in range(rng.randint(1, 8)):
-        op = rng.random()
-        pos = rng.randrange(len(b) + 1)
-        if op < 0.3 and b:
-            b[min(pos, len(b) - 1)] ^= 1 << rng.randrange(8)
-        elif op < 0.5 and b:
-            del b[min(pos, len(b) - 1)]
-        elif op < 0.7:
-            b[pos:pos] = bytes(rng.randrange(256) for _ in range(rng.randint(1, 20)))
-        elif op < 0.8:
-            b[pos:pos] = b"\x00"
-        elif op < 0.9 and b:
-            b[pos:pos] = b[rng.randrange(len(b)) :][: rng.randint(1, 60)]  # duplicated piece
-        else:
-            b[pos:pos] = bytes([0xD1]) * rng.randint(1, 5)  # fake magic bytes
-    return bytes(b)
+def fake_magic(rng: random.Random, d: bytes, _: Sequence[bytes]) -> bytes:
+    """One to five frame-start bytes inserted: false frame starts to resynchronise on."""
+    pos = rng.randrange(len(d) + 1)
+    return d[:pos] + b"\xd1" * rng.randint(1, 5) + d[pos:]
+
+
+MUTATIONS: list[Mutation] = [flip_bits] * 3 + [delete] * 2 + [insert] * 2
+MUTATIONS += [set_byte(header=1 << 30, values=b"\x00"), duplicate, fake_magic]
 
 
 @pytest.mark.fuzz
 def test_mutated_streams_never_crash_and_every_byte_is_accounted_for() -> None:
     rng = random.Random(SEED)
     for case in range(CASES):
-        stream = _mutate(_seed_stream(rng), rng)
+        stream = mutate(rng, _seed_stream(rng), MUTATIONS, rounds=range(1, 9))
         chunk = rng.choice([5, 64, 5000])
         slow, col = FrameDecoder(), FrameDecoder()
         delivered = 0

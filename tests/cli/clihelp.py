@@ -44,3 +44,7 @@ def write_calibration(path: Path) -> Path:
     samples = read_samples_csv(REPO / "calibration" / "example_turntable.csv")
     save_calibration(fit_calibration(samples, per_channel=False), path)
     return path
+
+
+STILL = rt_writer.STILL
+"""Options for replaying :func:`write_capture`'s capture (its transmitters stand still)."""

@@ -16,9 +16,11 @@ CAL = REPO / "calibration" / "example_cal.yaml"
 
 
 def _replay(spec: str, out: Path, capsys: pytest.CaptureFixture[str]) -> tuple[int, str]:
-    from clihelp import run
+    from clihelp import STILL, run
 
-    code, _, err = run(["replay", spec, "--calibration", str(CAL), "--out", str(out)], capsys)
+    code, _, err = run(
+        ["replay", spec, *STILL, "--calibration", str(CAL), "--out", str(out)], capsys
+    )
     return code, err
 
 

@@ -15,7 +15,7 @@ from rfsas_hw.link import Receiver, ReceiverConfig, TrustedKeys
 from rfsas_hw.link.keys import KeyStore
 
 sys.path.insert(0, str(REPO / "tests" / "privacy"))
-from privhelp import CALIBRATION, write_known_capture
+from privhelp import CALIBRATION, STILL, write_known_capture
 
 
 def _send(tmp_path: Path, capsys: pytest.CaptureFixture[str], extra: list[str]) -> Receiver:
@@ -36,7 +36,7 @@ def _send(tmp_path: Path, capsys: pytest.CaptureFixture[str], extra: list[str]) 
         code, _, err = run(
             ["replay", str(capture), "--calibration", str(CALIBRATION), "--keys", str(keys.path),
              "--sensor-id", "rsu-1", "--send", f"udp://127.0.0.1:{sock.getsockname()[1]}",
-             *extra],
+             *STILL, *extra],
             capsys,
         )  # fmt: skip
         assert code == 0, err

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import click
 import pytest
-from clihelp import REPO, run, write_calibration, write_capture
+from clihelp import REPO, STILL, run, write_calibration, write_capture
 
 from rfsas_hw.cli.exitcodes import EPILOG, FAILED, OK
 from rfsas_hw.cli.main import _load_commands, cli
@@ -49,9 +49,10 @@ def _swapped_check(tmp: Path) -> Path:
 FAILING: dict[str, list[str]] = {
     "replay, 0 bearings": ["replay", "{cap}", "--calibration", "{cal11}", "--out", "{tmp}/b.csv"],
     "replay, write failed": [
-        "replay", "{cap}", "--calibration", "{cal}", "--out", "/dev/full", "--format", "jsonl"],
+        "replay", "{cap}", *STILL, "--calibration", "{cal}", "--out", "/dev/full",
+        "--format", "jsonl"],
     "replay, nothing sent": [
-        "replay", "{cap}", "--calibration", "{cal}", "--keys", "{keys}",
+        "replay", "{cap}", *STILL, "--calibration", "{cal}", "--keys", "{keys}",
         "--send", "udp://127.0.0.1:0"],
     "live, 0 bearings": [
         "live", "pcap:{cap}", "--calibration", "{cal11}", "--out", "{tmp}/b.jsonl"],
@@ -81,7 +82,7 @@ def test_the_same_runs_succeed_when_the_work_is_done(
     files: dict[str, Path], capsys: pytest.CaptureFixture[str]
 ) -> None:
     code, out, err = run(
-        ["replay", str(files["cap"]), "--calibration", str(files["cal"]), "--json",
+        ["replay", str(files["cap"]), *STILL, "--calibration", str(files["cal"]), "--json",
          "--out", str(files["tmp"] / "b.csv")],
         capsys,
     )  # fmt: skip

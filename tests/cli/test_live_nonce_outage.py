@@ -18,7 +18,7 @@ import threading
 import time
 from pathlib import Path
 
-from clihelp import rt_writer, write_calibration
+from clihelp import STILL, rt_writer, write_calibration
 
 from rfsas_hw.link.distribution import NonceDistributor
 from rfsas_hw.link.keys import KeyStore
@@ -67,7 +67,7 @@ def test_live_survives_epochs_and_an_authority_outage(tmp_path: Path) -> None:
     proc = subprocess.Popen(
         [sys.executable, "-m", "rfsas_hw.cli.main", "live", "pcap:-", "--calibration", str(cal),
          "--keys", str(sensor.path), "--nonces", nonce_url, "--epoch", str(EPOCH_S),
-         "--duration", str(RUN_S), "--out", str(out), "--json"],
+         "--duration", str(RUN_S), "--out", str(out), "--json", *STILL],
         stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
     )  # fmt: skip
     assert proc.stdin is not None

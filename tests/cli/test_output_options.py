@@ -15,7 +15,7 @@ from pathlib import Path
 
 import click
 import pytest
-from clihelp import REPO, run, write_calibration, write_capture
+from clihelp import REPO, STILL, run, write_calibration, write_capture
 
 from rfsas_hw.cli import main as cli_main
 from rfsas_hw.cli.exitcodes import BAD_INPUT, FAILED
@@ -131,6 +131,12 @@ INVOCATIONS: dict[tuple[str, str], tuple[list[str], list[str]]] = {
                              "--duration", "2", "--vehicles", "2", "--pedestrians", "2",
                              "--bicycles", "1", "--rfsas", "off", "--no-png", "--out", "{out}"],
                             ["grid.net.xml"]),
+    ("city run", "--work"): (["city", "run", "--net", "grid.net.xml", "--origin", "52.43,13.53",
+                              "--duration", "2", "--vehicles", "2", "--pedestrians", "2",
+                              "--bicycles", "1", "--rfsas", "off", "--no-png", "--out", "city",
+                              "--work", "{out}"], ["grid.net.xml"]),
+    ("city keys", "--out"): (["city", "keys", "--net", "grid.net.xml", "--origin", "52.43,13.53",
+                              "--out", "{out}"], ["grid.net.xml"]),
     ("ncap", "--out"): (["ncap", "--scenarios", "CPNA", "--speeds", "20", "--controllers",
                          "los", "--deployments", "car", "--devices", "phone-active", "--seeds",
                          "1", "--workers", "0", "--no-plots", "--out", "{out}"], []),
@@ -150,10 +156,10 @@ INVOCATIONS: dict[tuple[str, str], tuple[list[str], list[str]]] = {
                                   ["keys/rsu-1/identity.yaml"]),
     ("keys new", "--out"): (["keys", "new", "--role", "sensor", "-o", "{out}"], []),
     ("live", "--out"): (["live", "pcap:cap.pcap", "--calibration", "cal.yaml", "--out", "{out}",
-                         "--format", "csv"], ["cap.pcap", "cal.yaml"]),
+                         "--format", "csv", *STILL], ["cap.pcap", "cal.yaml"]),
     ("nonces secret", "--out"): (["nonces", "secret", "-o", "{out}"], []),
     ("replay", "--out"): (["replay", "cap.pcap", "--calibration", "cal.yaml", "--out", "{out}",
-                           "--format", "jsonl"], ["cap.pcap", "cal.yaml"]),
+                           "--format", "jsonl", *STILL], ["cap.pcap", "cal.yaml"]),
     ("sim braking", "--plot"): (["sim", "braking", "--plot", "{out}"], []),
     ("sim capture", "--out"): (["sim", "capture", "scene.yaml", "-o", "{out}"], ["scene.yaml"]),
     ("sim cueing", "--demo"): (["sim", "cueing", "--demo", "{out}"], []),

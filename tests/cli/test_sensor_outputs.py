@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from clihelp import REPO, run, write_calibration, write_capture
+from clihelp import REPO, STILL, run, write_calibration, write_capture
 
 from rfsas_hw.cli.exitcodes import BAD_INPUT, FAILED, INTERRUPTED, OK
 from rfsas_hw.link.keys import KeyStore
@@ -39,7 +39,7 @@ def test_an_output_that_is_an_input_is_refused_and_the_input_kept(
     (tmp_path / "sym.jsonl").symlink_to(cal)
     for out in (cap, tmp_path / "hard.pcap", cal, tmp_path / "sym.jsonl"):
         code, _, err = run(
-            ["replay", str(cap), "--calibration", str(cal), "--out", str(out), "--format",
+            ["replay", str(cap), *STILL, "--calibration", str(cal), "--out", str(out), "--format",
              "jsonl", "--force"],
             capsys,
         )  # fmt: skip
@@ -55,7 +55,7 @@ def test_an_existing_output_needs_force(
     cap, cal = inputs
     out = tmp_path / "b.jsonl"
     out.write_text("keep me\n")
-    args = ["replay", str(cap), "--calibration", str(cal), "--out", str(out)]
+    args = ["replay", str(cap), *STILL, "--calibration", str(cal), "--out", str(out)]
     code, _, err = run(args, capsys)
     assert code == BAD_INPUT and "--force" in err
     assert out.read_text() == "keep me\n"
@@ -64,12 +64,28 @@ def test_an_existing_output_needs_force(
     assert len(out.read_text().splitlines()) == 200
 
 
+def test_a_fixed_mount_refuses_emitters_that_stand_still(
+    tmp_path: Path, inputs: tuple[Path, Path], capsys: pytest.CaptureFixture[str]
+) -> None:
+    cap, cal = inputs
+    args = ["replay", str(cap), "--calibration", str(cal), "--out", str(tmp_path / "b.jsonl")]
+    # by default the sensor is a fixed mount: transmitters that never move never count,
+    # and the one line says how to replay such a capture
+    code, _, err = run(args, capsys)
+    assert code == FAILED, err
+    assert "may_be_outside 200" in err and "--prove-motion 0" in err
+    for opt_out in (["--prove-motion", "0"], ["--moving-mount"]):
+        code, _, err = run([*args, "--force", *opt_out], capsys)
+        assert code == OK, err
+        assert len((tmp_path / "b.jsonl").read_text().splitlines()) == 200
+
+
 def test_out_dash_is_stdout_and_the_summary_goes_to_stderr(
     inputs: tuple[Path, Path], capsys: pytest.CaptureFixture[str]
 ) -> None:
     cap, cal = inputs
     code, out, err = run(
-        ["replay", str(cap), "--calibration", str(cal), "--out", "-", "--json"], capsys
+        ["replay", str(cap), *STILL, "--calibration", str(cal), "--out", "-", "--json"], capsys
     )
     assert code == OK, err
     rows = [json.loads(line) for line in out.splitlines()]
@@ -85,7 +101,7 @@ def test_json_summary_on_stdout(
 ) -> None:
     cap, cal = inputs
     code, out, _ = run(
-        ["replay", str(cap), "--calibration", str(cal), "--out", str(tmp_path / "b.csv"),
+        ["replay", str(cap), *STILL, "--calibration", str(cal), "--out", str(tmp_path / "b.csv"),
          "--json"],
         capsys,
     )  # fmt: skip
@@ -101,7 +117,17 @@ def test_a_failed_write_exits_1_with_one_line(
 ) -> None:
     cap, cal = inputs
     code, _, err = run(
-        ["replay", str(cap), "--calibration", str(cal), "--out", "/dev/full", "--format", "jsonl"],
+        [
+            "replay",
+            str(cap),
+            *STILL,
+            "--calibration",
+            str(cal),
+            "--out",
+            "/dev/full",
+            "--format",
+            "jsonl",
+        ],
         capsys,
     )
     assert code == FAILED
@@ -117,7 +143,15 @@ def test_zero_bearings_exit_1_with_a_hint(
     cal11 = tmp_path / "cal11.yaml"
     cal11.write_text(text.replace("- channel: 6", "- channel: 11"))
     code, _, err = run(
-        ["replay", str(cap), "--calibration", str(cal11), "--out", str(tmp_path / "b.jsonl")],
+        [
+            "replay",
+            str(cap),
+            *STILL,
+            "--calibration",
+            str(cal11),
+            "--out",
+            str(tmp_path / "b.jsonl"),
+        ],
         capsys,
     )
     assert code == FAILED
@@ -130,7 +164,7 @@ def test_send_to_a_host_that_does_not_resolve_is_bad_input(
     cap, cal = inputs
     KeyStore.create(tmp_path / "rsu", "sensor")
     code, _, err = run(
-        ["replay", str(cap), "--calibration", str(cal), "--keys", str(tmp_path / "rsu"),
+        ["replay", str(cap), *STILL, "--calibration", str(cal), "--keys", str(tmp_path / "rsu"),
          "--send", "udp://no-such-host.invalid:47000"],
         capsys,
     )  # fmt: skip
@@ -155,7 +189,7 @@ def test_send_over_ipv6_arrives(
     with open_transport("udp://[::1]:0", "recv") as rx:
         port = rx.address[1]
         code, out, err = run(
-            ["replay", str(cap), "--calibration", str(cal), "--keys", str(tmp_path / "rsu"),
+            ["replay", str(cap), *STILL, "--calibration", str(cal), "--keys", str(tmp_path / "rsu"),
              "--send", f"udp://[::1]:{port}", "--json"],
             capsys,
         )  # fmt: skip
@@ -222,7 +256,7 @@ def test_sigterm_ends_a_replay_like_ctrl_c(tmp_path: Path, inputs: tuple[Path, P
     cap, cal = inputs
     out = tmp_path / "b.jsonl"
     proc = subprocess.Popen(
-        [sys.executable, "-m", "rfsas_hw.cli.main", "replay", str(cap), "--calibration",
+        [sys.executable, "-m", "rfsas_hw.cli.main", "replay", str(cap), *STILL, "--calibration",
          str(cal), "--out", str(out), "--realtime", "--json"],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
     )  # fmt: skip

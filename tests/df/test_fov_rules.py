@@ -341,7 +341,7 @@ def test_static_emitters_all_around_a_fixed_sensor_need_to_prove_their_front(cal
     # the level rule alone: a static emitter behind or beside has no brighter front level
     _, without = run(FovGuard())
     assert without > 0.15, without
-    res, share = run(FovGuard(prove_motion_deg=PROVE_MOTION_DEG))
+    res, share = run(FovGuard.for_mount(moving=False))  # the default for a fixed mount
     assert share <= CONFIDENT_WRONG_MAX, share
     # static emitters never prove they are in front: none of their bearings count
     assert not res.valid[em < n_static].any()
@@ -375,7 +375,37 @@ def test_the_corner_ap_behind_rsu_nw_in_the_bundled_crossing() -> None:
     res, wrong = run(FovGuard())
     assert np.all(np.abs(true[ap]) > 170.0)  # the AP stands behind the sensor
     assert wrong[ap].sum() > 50  # all its bearings confident-wrong without the rule
-    res, wrong = run(FovGuard(prove_motion_deg=PROVE_MOTION_DEG))
+    res, wrong = run(FovGuard.for_mount(moving=False))
     assert not res.valid[ap].any()
     assert wrong.sum() <= CONFIDENT_WRONG_MAX * res.valid.sum()
     assert res.valid[~ap].mean() > 0.4  # the price: the phone's first seconds
+
+
+def test_the_guard_for_a_mount() -> None:
+    assert FovGuard.for_mount(moving=False).prove_motion_deg == PROVE_MOTION_DEG
+    assert FovGuard.for_mount(moving=True).prove_motion_deg == 0.0
+    assert FovGuard.for_mount(moving=True, prove_motion_deg=2.0).prove_motion_deg == 2.0
+    assert FovGuard.for_mount(moving=False, prove_motion_deg=0.0).prove_motion_deg == 0.0
+    assert FovGuard.for_mount(moving=False, warmup_s=5.0).warmup_ns == 5_000_000_000
+    with pytest.raises(ValueError, match="prove_motion_deg"):
+        FovGuard.for_mount(moving=False, prove_motion_deg=-1.0)
+
+
+def test_a_moving_mount_keeps_an_emitter_on_a_collision_course(cal) -> None:  # type: ignore[no-untyped-def]
+    # a sensor on a car closing in at 20 m/s on a phone 5° off its boresight: the
+    # bearing stays put while the range falls from 150 m to 10 m (7 s, 5 frames/s)
+    rng = np.random.default_rng(3)
+    t = np.arange(0.0, 7.0, 0.2)
+    true = np.full(len(t), 5.0)
+    peak = 15.0 - free_space_path_loss_db(150.0 - 20.0 * t, 2437.0)
+    r = rssi_pairs(true, peak, ANT, RX, rng)
+    ch = np.full(len(t), CHANNEL)
+    t_ns = (t * 1e9).astype(np.int64)
+
+    def kept(guard: FovGuard) -> float:
+        res = estimate(cal, r[:, 0], r[:, 1], ch)
+        res = guard.apply(cal, res, r[:, 0], r[:, 1], ch, np.zeros(len(t)), t_ns)
+        return float(res.valid.mean())
+
+    assert kept(FovGuard.for_mount(moving=False)) == 0.0  # the motion rule refuses it all
+    assert kept(FovGuard.for_mount(moving=True)) > 0.8

@@ -67,6 +67,17 @@ def test_compare_pairs_the_episodes_and_pools() -> None:
         compare([fake([[0.0]])], base)
 
 
+def test_a_difference_without_spread_is_certain_and_warns_nothing() -> None:
+    # the same nonzero difference in every episode: t is infinite, p is 0 (scipy would warn
+    # of lost precision, an error under this suite's warning filter)
+    base = fake([[0.1, 0.2, 0.3, 0.4]])
+    rows = compare([fake([[0.05, 0.15, 0.25, 0.35]])], base)
+    assert rows[0].p_value == 0.0
+    # with any spread the paired test decides
+    rows = compare([fake([[0.05, 0.15, 0.25, 0.36]])], base)
+    assert 0 < rows[0].p_value < 1
+
+
 class StopPolicy:
     """Brakes from the first step and stays stopped: the degenerate exit."""
 

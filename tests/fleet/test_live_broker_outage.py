@@ -20,7 +20,7 @@ from rfsas_hw.privacy.hashing import write_secret
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "cli"))
 
-from clihelp import rt_writer, write_calibration
+from clihelp import STILL, rt_writer, write_calibration
 
 
 def test_live_rides_out_a_broker_outage(
@@ -34,7 +34,7 @@ def test_live_rides_out_a_broker_outage(
     proc = subprocess.Popen(
         [sys.executable, "-m", "rfsas_hw.cli.main", "live", "pcap:-", "--calibration", str(cal),
          "--keys", str(sensor.path), "--nonce-secret", str(secret), "--pose", "1,2,90",
-         "--send", broker.url("rsu-1", origin=ORIGIN), "--json"],
+         "--send", broker.url("rsu-1", origin=ORIGIN), "--json", *STILL],
         stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
     )  # fmt: skip
     assert proc.stdin is not None

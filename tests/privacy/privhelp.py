@@ -102,3 +102,9 @@ class ArrivalStamps:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+STILL = ["--prove-motion", "0"]
+"""Options for replaying a capture whose transmitters stand still (as these helpers'
+do): on a fixed mount the motion rule refuses every bearing of a transmitter that never
+moves, and the tests that replay one check something else."""

@@ -7,7 +7,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
-from privhelp import CALIBRATION, KNOWN_MACS
+from privhelp import CALIBRATION, KNOWN_MACS, STILL
 from test_mac_leak import find_leaks
 
 from rfsas_hw.df.interferometer import C_MPS
@@ -26,7 +26,7 @@ def test_csi_replay_leaks_no_mac(tmp_path: Path) -> None:
     assert all(int(m).to_bytes(6, "big") in capture.read_bytes() for m in set(macs.tolist()))
     out = tmp_path / "bearings.jsonl"
     cmd = [sys.executable, "-m", "rfsas_hw.cli.main", "-vv", "replay", f"csi:{capture}?freq=2437"]
-    cmd += ["--calibration", str(CALIBRATION), "--out", str(out)]
+    cmd += [*STILL, "--calibration", str(CALIBRATION), "--out", str(out)]
     proc = subprocess.run(cmd, capture_output=True, timeout=120, check=False)
     assert proc.returncode == 0, proc.stderr.decode(errors="replace")
     assert len(out.read_text().splitlines()) == n

@@ -13,7 +13,7 @@ import time
 from pathlib import Path
 
 import numpy as np
-from privhelp import CALIBRATION, KNOWN_MACS, ArrivalStamps, write_known_capture
+from privhelp import CALIBRATION, KNOWN_MACS, STILL, ArrivalStamps, write_known_capture
 
 from rfsas_hw.link import Receiver, open_transport
 from rfsas_hw.link.distribution import NonceDistributor
@@ -31,7 +31,7 @@ def live_cmd(
     capture: Path, sensor: KeyStore, out: Path, send: str, nonces: str | None
 ) -> list[str]:
     cmd = [sys.executable, "-m", "rfsas_hw.cli.main", "live", f"pcap:{capture}"]
-    cmd += ["--calibration", str(CALIBRATION), "--out", str(out), "--sensor-id", sensor.id]
+    cmd += [*STILL, "--calibration", str(CALIBRATION), "--out", str(out), "--sensor-id", sensor.id]
     cmd += ["--send", send, "--keys", str(sensor.path)]
     return cmd + (["--nonces", nonces] if nonces else [])
 

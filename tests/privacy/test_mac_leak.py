@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from cryptography.hazmat.primitives.asymmetric import ec
-from privhelp import KNOWN_MACS, ArrivalStamps, known_frames, write_known_capture
+from privhelp import KNOWN_MACS, STILL, ArrivalStamps, known_frames, write_known_capture
 
 from rfsas_hw.df import load_calibration
 from rfsas_hw.link import Publisher, Receiver, ReceiverConfig, Signer, TrustedKeys
@@ -163,7 +163,15 @@ def test_replay_command_end_to_end_leaks_no_mac(tmp_path: Path) -> None:
     out = tmp_path / "bearings.jsonl"
     with ArrivalStamps() as trap:
         cmd = [sys.executable, "-m", "rfsas_hw.cli.main", "-vv", "replay", str(capture)]
-        cmd += ["--calibration", str(CALIBRATION), "--out", str(out), "--sensor-id", "rsu-1"]
+        cmd += [
+            *STILL,
+            "--calibration",
+            str(CALIBRATION),
+            "--out",
+            str(out),
+            "--sensor-id",
+            "rsu-1",
+        ]
         cmd += ["--pose", "1,2,90", "--send", trap.url, "--keys", str(keys.path)]
         out_log, err_log = tmp_path / "stdout", tmp_path / "stderr"
         with (

@@ -27,7 +27,13 @@ websocket = pytest.importorskip(
     "websocket", reason="needs the dev extra: pip install 'rfsas-hw[dev]'"
 )
 
-from privhelp import CALIBRATION, KNOWN_MACS, known_frames, write_known_capture  # noqa: E402
+from privhelp import (  # noqa: E402
+    CALIBRATION,
+    KNOWN_MACS,
+    STILL,
+    known_frames,
+    write_known_capture,
+)
 from test_mac_leak import find_leaks  # noqa: E402
 
 from rfsas_hw.df import load_calibration  # noqa: E402
@@ -73,7 +79,15 @@ def test_replay_to_mcap_and_rosbag2_leaks_no_mac(tmp_path: Path) -> None:
     runs = ((tmp_path / "run.mcap", live), (tmp_path / "run_bag", ["--format", "rosbag2"]))
     for out, extra in runs:
         cmd = [sys.executable, "-m", "rfsas_hw.cli.main", "-vv", "replay", str(capture)]
-        cmd += ["--calibration", str(CALIBRATION), "--out", str(out), "--sensor-id", "rsu-1"]
+        cmd += [
+            *STILL,
+            "--calibration",
+            str(CALIBRATION),
+            "--out",
+            str(out),
+            "--sensor-id",
+            "rsu-1",
+        ]
         cmd += ["--pose", "1,2,90", *extra]
         proc = subprocess.run(cmd, capture_output=True, timeout=120, check=False)
         assert proc.returncode == 0, proc.stderr.decode(errors="replace")

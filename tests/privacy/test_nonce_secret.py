@@ -11,7 +11,7 @@ import time
 from pathlib import Path
 
 import pytest
-from privhelp import CALIBRATION, write_known_capture
+from privhelp import CALIBRATION, STILL, write_known_capture
 
 from rfsas_hw.errors import KeyStoreError
 from rfsas_hw.privacy import DerivedNonces, MacHasher, hash_mac, write_secret
@@ -43,7 +43,7 @@ def test_secret_file_is_private_and_never_overwritten(tmp_path: Path) -> None:
 
 def _ids(capture: Path, out: Path, *extra: str) -> set[str]:
     cmd = [sys.executable, "-m", "rfsas_hw.cli.main", "replay", str(capture)]
-    cmd += ["--calibration", str(CALIBRATION), "--out", str(out), *extra]
+    cmd += [*STILL, "--calibration", str(CALIBRATION), "--out", str(out), *extra]
     proc = subprocess.run(cmd, capture_output=True, timeout=120, check=False)
     assert proc.returncode == 0, proc.stderr.decode(errors="replace")
     return {json.loads(line)["emitter"] for line in out.read_text().splitlines()}

@@ -7,7 +7,7 @@ import sys
 import time
 from pathlib import Path
 
-from privhelp import CALIBRATION, ArrivalStamps, write_known_capture
+from privhelp import CALIBRATION, STILL, ArrivalStamps, write_known_capture
 
 from rfsas_hw.link import Receiver, TrustedKeys
 from rfsas_hw.link.keys import KeyStore
@@ -19,7 +19,15 @@ def _replay(capture: Path, keys: KeyStore, tmp_path: Path, *extra: str) -> list[
     """What ``rfsas replay --send`` sends, each datagram with its arrival time (UTC ns)."""
     with ArrivalStamps() as trap, (tmp_path / "replay.log").open("wb") as log:
         cmd = [sys.executable, "-m", "rfsas_hw.cli.main", "replay", str(capture)]
-        cmd += ["--calibration", str(CALIBRATION), "--sensor-id", "rsu-1", "--pose", "0,0,90"]
+        cmd += [
+            *STILL,
+            "--calibration",
+            str(CALIBRATION),
+            "--sensor-id",
+            "rsu-1",
+            "--pose",
+            "0,0,90",
+        ]
         cmd += ["--send", trap.url, "--keys", str(keys.path), *extra]
         with subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT) as proc:
             try:

@@ -40,6 +40,7 @@ def test_a_capture_becomes_hashed_bearings_in_a_file_and_on_the_link(tmp_path: P
         config = SensorAppConfig(
             spec=f"pcap:{capture}",
             calibration=CALIBRATION,
+            prove_motion_deg=0.0,  # the capture's transmitters stand still
             sensor_id="rsu-1",
             pose=Pose(0.0, 0.0, 90.0),
             nonce_secret=secret,
@@ -83,7 +84,12 @@ def test_a_capture_becomes_hashed_bearings_in_a_file_and_on_the_link(tmp_path: P
 def test_outputs_it_refuses_and_a_second_run(tmp_path: Path) -> None:
     capture = tmp_path / "heard.pcap"
     write_known_capture(capture, time.time_ns())
-    base = SensorAppConfig(spec=f"pcap:{capture}", calibration=CALIBRATION, inputs=(capture,))
+    base = SensorAppConfig(
+        spec=f"pcap:{capture}",
+        calibration=CALIBRATION,
+        inputs=(capture,),
+        prove_motion_deg=0.0,  # the capture's transmitters stand still
+    )
     with pytest.raises(ConfigError, match="nothing to do"):
         SensorApp(base)
     with pytest.raises(ConfigError, match="also an input"):

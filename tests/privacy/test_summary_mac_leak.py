@@ -8,7 +8,7 @@ import sys
 import time
 from pathlib import Path
 
-from privhelp import CALIBRATION, KNOWN_MACS, write_known_capture
+from privhelp import CALIBRATION, KNOWN_MACS, STILL, write_known_capture
 from test_mac_leak import find_leaks
 
 from rfsas_hw.link.keys import KeyStore
@@ -34,15 +34,15 @@ def test_summaries_and_stdout_bearings_leak_no_mac(tmp_path: Path) -> None:
     blobs: dict[str, bytes] = {}
     runs = {
         "stdout bearings and json": ["replay", str(capture), "--calibration", str(CALIBRATION),
-                                     "--out", "-", "--json"],
-        "0 bearings": ["replay", str(capture), "--calibration", str(cal11), "--json",
+                                     "--out", "-", "--json", *STILL],
+        "0 bearings": ["replay", str(capture), *STILL, "--calibration", str(cal11), "--json",
                        "--out", str(tmp_path / "none.jsonl")],
         "nothing sent": ["replay", str(capture), "--calibration", str(CALIBRATION), "--json",
-                         "--keys", str(sensor.path), "--send", "udp://127.0.0.1:0"],
+                         "--keys", str(sensor.path), "--send", "udp://127.0.0.1:0", *STILL],
         # no authority answers: frames wait, the alarm is raised, the frames are dropped
         "nonce alarm": ["live", f"pcap:{capture}", "--calibration", str(CALIBRATION), "--json",
                         "--keys", str(sensor.path), "--nonces", "udp://127.0.0.1:0",
-                        "--out", str(tmp_path / "b.csv")],
+                        "--out", str(tmp_path / "b.csv"), *STILL],
     }  # fmt: skip
     codes = {}
     for name, args in runs.items():

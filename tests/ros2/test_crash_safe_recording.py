@@ -14,7 +14,7 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "cli"))
 
-from clihelp import run, write_calibration, write_capture
+from clihelp import STILL, run, write_calibration, write_capture
 
 pytest.importorskip("mcap", reason="needs the ros2 extra (pip install .[ros2])")
 pytest.importorskip("rosbags", reason="needs the ros2 extra (pip install .[ros2])")
@@ -89,7 +89,9 @@ def test_replay_to_mcap_records_one_array_per_span_with_its_time(
     cap = write_capture(tmp_path / "cap.pcap", n=120, span_s=12.0)
     cal = write_calibration(tmp_path / "cal.yaml")
     out = tmp_path / "run.mcap"
-    code, _, err = run(["replay", str(cap), "--calibration", str(cal), "--out", str(out)], capsys)
+    code, _, err = run(
+        ["replay", str(cap), *STILL, "--calibration", str(cal), "--out", str(out)], capsys
+    )
     assert code == 0, err
     with out.open("rb") as fh:
         stamps = [

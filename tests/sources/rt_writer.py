@@ -190,3 +190,9 @@ def sweep_capture(
             (t_ns, mac80211_header(r0, r1, tsft_us=i * 1000) + dot11(ta=ta, seq=i % 4096))
         )
     return pcap(frames)
+
+
+STILL = ["--prove-motion", "0"]
+"""Options for replaying a capture whose transmitters stand still (as these helpers'
+do): on a fixed mount the motion rule refuses every bearing of a transmitter that never
+moves, and the tests that replay one check something else."""

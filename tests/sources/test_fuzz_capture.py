@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import rt_writer as w
+from bytefuzz import Mutation, delete, flip_bits, insert, mutate, pack_u32, set_byte, truncate
 
 from rfsas_hw.errors import CaptureFormatError
 from rfsas_hw.sources.frames import FrameDecoder, FrameSpans
@@ -24,7 +25,6 @@ from rfsas_hw.sources.pcapfile import CaptureParser
 
 CASES = int(os.environ.get("RFSAS_FUZZ_CASES", "100000"))
 SEED = int(os.environ.get("RFSAS_FUZZ_SEED", "20240601"))
-INTERESTING_U32 = [0, 1, 3, 4, 8, 12, 0x7F, 0x80, 0xFF, 0xFFFF, 0x7FFFFFFF, 0x80000000, 0xFFFFFFFF]
 
 
 def seeds(data_dir: Path) -> list[bytes]:
@@ -50,28 +50,8 @@ def seeds(data_dir: Path) -> list[bytes]:
     ]
 
 
-def mutate(rng: random.Random, data: bytes) -> bytes:
-    buf = bytearray(data)
-    for _ in range(rng.choice((1, 1, 1, 2, 3))):
-        op = rng.randrange(6)
-        n = len(buf)
-        if n == 0:
-            break
-        at = rng.randrange(n)
-        if op == 0:
-            buf[at] = rng.randrange(256)
-        elif op == 1:
-            buf[at] ^= 1 << rng.randrange(8)
-        elif op == 2 and at + 4 <= n:
-            fmt = rng.choice("<>")
-            struct.pack_into(fmt + "I", buf, at, rng.choice(INTERESTING_U32))
-        elif op == 3:
-            del buf[rng.randrange(n) :]
-        elif op == 4:
-            del buf[at : at + rng.randrange(1, 17)]
-        else:
-            buf[at:at] = bytes(rng.randrange(256) for _ in range(rng.randrange(1, 9)))
-    return bytes(buf)
+MUTATIONS: list[Mutation] = [set_byte(header=1 << 30), flip_bits, pack_u32, truncate]
+MUTATIONS += [delete, insert]
 
 
 def decode_all(data: bytes, decoder: FrameDecoder, other: FrameDecoder | None) -> None:
@@ -114,7 +94,7 @@ def test_mutated_captures_never_crash(data_dir: Path) -> None:
     walk = FrameDecoder(n_antennas=2, vector_min=1 << 30)
     vector = FrameDecoder(n_antennas=2, vector_min=0)
     for case in range(CASES):
-        data = mutate(rng, rng.choice(bases))
+        data = mutate(rng, rng.choice(bases), MUTATIONS, rounds=(1, 1, 1, 2, 3))
         try:
             decode_all(data, walk, vector if case % 50 == 0 else None)
         except Exception as err:

@@ -115,7 +115,15 @@ def test_replay_cli_writes_hashed_bearings(
     out = tmp_path / "b.jsonl"
     result = CliRunner().invoke(
         cli,
-        ["replay", str(minute_capture), "--calibration", str(cal_path), "--out", str(out)],
+        [
+            "replay",
+            str(minute_capture),
+            *w.STILL,
+            "--calibration",
+            str(cal_path),
+            "--out",
+            str(out),
+        ],
         catch_exceptions=False,
     )
     assert result.exit_code == 0, result.output
@@ -139,6 +147,7 @@ def test_replay_cli_csv_and_summary_of_a_broken_capture(
         [
             "replay",
             str(data_dir / "broken_it_len_larger_than_packet.pcap"),
+            *w.STILL,
             "--calibration",
             str(cal_path),
             "--out",
@@ -155,11 +164,19 @@ def test_replay_cli_csv_and_summary_of_a_broken_capture(
 def test_replay_cli_errors_are_one_line(cal_path: Path, tmp_path: Path) -> None:
     result = CliRunner().invoke(
         cli,
-        ["replay", str(tmp_path / "none.pcap"), "--calibration", str(cal_path), "--out", "x.jsonl"],
+        [
+            "replay",
+            str(tmp_path / "none.pcap"),
+            *w.STILL,
+            "--calibration",
+            str(cal_path),
+            "--out",
+            "x.jsonl",
+        ],
     )
     assert result.exit_code != 0
     result = CliRunner().invoke(
-        cli, ["replay", "x.pcap", "--calibration", str(cal_path)], standalone_mode=False
+        cli, ["replay", "x.pcap", *w.STILL, "--calibration", str(cal_path)], standalone_mode=False
     )
     assert result.exception is not None
 
@@ -177,7 +194,7 @@ def test_live_reads_a_pcap_stream_from_a_real_pipe(
         stdout=subprocess.PIPE,
     )  # fmt: skip
     consumer = subprocess.run(
-        _cli("live", "pcap:-", "--calibration", str(cal_path), "--out", str(out)),
+        _cli("live", "pcap:-", *w.STILL, "--calibration", str(cal_path), "--out", str(out)),
         stdin=producer.stdout,
         capture_output=True,
         timeout=60,
@@ -203,7 +220,7 @@ def test_live_ctrl_c_ends_cleanly_with_the_summary(
         stdout=subprocess.PIPE,
     )  # fmt: skip
     consumer = subprocess.Popen(
-        _cli("live", "pcap:-", "--calibration", str(cal_path), "--out", str(out)),
+        _cli("live", "pcap:-", *w.STILL, "--calibration", str(cal_path), "--out", str(out)),
         stdin=producer.stdout,
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,

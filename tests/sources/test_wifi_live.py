@@ -286,7 +286,7 @@ def test_live_cli_on_a_veth_for_a_duration(
     try:
         proc = subprocess.run(
             [sys.executable, "-m", "rfsas_hw.cli.main", "live", f"wifi:{rx}", "--any-link-type",
-             "--duration", "1.5", "--calibration", str(cal), "--out", str(out)],
+             "--duration", "1.5", *w.STILL, "--calibration", str(cal), "--out", str(out)],
             capture_output=True, text=True, timeout=60, check=False,
         )  # fmt: skip
     finally:

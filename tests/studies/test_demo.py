@@ -23,7 +23,9 @@ def demo(tmp_path_factory: pytest.TempPathFactory) -> DemoResult:
 def test_every_message_is_verified_and_used(demo: DemoResult) -> None:
     c = demo.counters
     sent = sum(c["messages_sent"].values())
-    assert sent > 50
+    # the roadside unit is a fixed mount: the corner AP behind it proves no motion and
+    # sends nothing (over 50 messages with it)
+    assert sent > 40
     assert c["receiver"]["verified"] == sent
     assert c["backend"]["messages"] == sent
     assert c["backend"]["bearings"] == sum(c["bearings"].values())

@@ -1,5 +1,6 @@
-"""``rfsas replay --prove-motion``: the corner AP behind rsu-nw in the bundled crossing,
-from the twin's capture to bearings, with and without the motion rule."""
+"""``rfsas replay`` on a fixed mount: the corner AP behind rsu-nw in the bundled crossing,
+from the twin's capture to bearings, with the motion rule (the default) and without it
+(``--prove-motion 0``, ``--moving-mount``)."""
 
 from __future__ import annotations
 
@@ -18,7 +19,7 @@ EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
 _load_commands()
 
 
-def test_replay_with_prove_motion_drops_the_static_ap_behind(tmp_path: Path) -> None:
+def test_replay_of_a_fixed_mount_drops_the_static_ap_behind(tmp_path: Path) -> None:
     scenario = load_scenario(EXAMPLES / "crossing.yaml")
     world = World(scenario)
     rec = world.receptions("rsu-nw")
@@ -28,7 +29,8 @@ def test_replay_with_prove_motion_drops_the_static_ap_behind(tmp_path: Path) -> 
     truth = {int(t) // 1000: i for i, t in enumerate(rec.capture_ns[:, 0])}
 
     def run(*extra: str) -> tuple[int, int, int]:
-        out = tmp_path / f"b{len(extra)}.jsonl"
+        out = tmp_path / ("_".join(extra).replace("-", "") or "default")
+        out = out.with_suffix(".jsonl")
         result = CliRunner().invoke(
             cli,
             [
@@ -44,8 +46,10 @@ def test_replay_with_prove_motion_drops_the_static_ap_behind(tmp_path: Path) -> 
         wrong = np.abs(err - 180.0) > 3.0 * np.array([b["sigma_deg"] for b in rows])
         return len(rows), int(np.sum(rec.emitter[idx] == ap)), int(wrong.sum())
 
-    total, from_ap, wrong = run()
+    total, from_ap, wrong = run("--prove-motion", "0")
     assert from_ap > 50 and wrong >= from_ap  # every bearing of the AP is confident-wrong
-    total, from_ap, wrong = run("--prove-motion", "3")
+    assert run("--moving-mount") == (total, from_ap, wrong)  # no motion rule either
+    total, from_ap, wrong = run()  # a fixed mount: the motion rule by default
     assert from_ap == 0 and total > 40
     assert wrong <= 0.05 * total
+    assert run("--moving-mount", "--prove-motion", "3") == (total, from_ap, wrong)

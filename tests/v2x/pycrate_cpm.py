@@ -89,3 +89,8 @@ class PycrateCpm:
         value = self._cpm.get_val()
         self._cpm.set_val(value)
         return bytes(self._cpm.to_uper())
+
+    def encode(self, value: Any) -> bytes:
+        """UPER of a value in pycrate's form (as :meth:`decode` gives it)."""
+        self._cpm.set_val(value)
+        return bytes(self._cpm.to_uper())

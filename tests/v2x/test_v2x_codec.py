@@ -185,6 +185,14 @@ def test_values_a_cpm_cannot_hold_are_refused(change: dict[str, object], what: s
         encode_cpm(replace(sample_cpm(0), **change))  # type: ignore[arg-type]
 
 
+def test_a_segment_number_beyond_the_total_is_refused(pycrate_cpm: PycrateCpm) -> None:
+    # each number is in its ASN.1 range (1 … 8), but message 5 of 2 does not exist
+    value = pycrate_cpm.decode((GOLDEN_DIR / "rsu_segment_2_of_2.uper").read_bytes())
+    value["payload"]["managementContainer"]["segmentationInfo"]["thisMsgNo"] = 5
+    with pytest.raises(CpmFormatError, match="message 5 of 2 segments"):
+        decode_cpm(pycrate_cpm.encode(value))
+
+
 def test_truncated_or_padded_cpm_is_refused_with_a_reason() -> None:
     data = encode_cpm(sample_cpm(3))
     for cut in (0, 1, 5, 10, len(data) // 2, len(data) - 1):

@@ -12,9 +12,20 @@ from __future__ import annotations
 import os
 import random
 from collections import Counter
-from collections.abc import Callable
 
 import pytest
+from bytefuzz import (
+    Mutation,
+    delete,
+    extend,
+    flip_bits,
+    insert,
+    junk,
+    mutate,
+    set_byte,
+    splice,
+    truncate,
+)
 from golden import GOLDEN_DIR
 
 from rfsas_hw.errors import CpmFormatError
@@ -22,53 +33,8 @@ from rfsas_hw.v2x.codec import decode_cpm, encode_cpm
 
 CASES = min(int(os.environ.get("RFSAS_FUZZ_CASES", "1000")), 200_000)
 
-Mutation = Callable[[random.Random, bytearray, list[bytes]], bytearray]
-
-
-def flip_bits(rng: random.Random, d: bytearray, _: list[bytes]) -> bytearray:
-    for _i in range(rng.choice((1, 1, 2, 3, 8))):
-        pos = rng.randrange(len(d))
-        d[pos] ^= 1 << rng.randrange(8)
-    return d
-
-
-def set_byte(rng: random.Random, d: bytearray, _: list[bytes]) -> bytearray:
-    pos = rng.randrange(min(len(d), 40)) if rng.random() < 0.6 else rng.randrange(len(d))
-    d[pos] = rng.choice((0, 1, 0x7F, 0x80, 0xFF, rng.randrange(256)))
-    return d
-
-
-def truncate(rng: random.Random, d: bytearray, _: list[bytes]) -> bytearray:
-    return d[: rng.randrange(len(d))]
-
-
-def extend(rng: random.Random, d: bytearray, _: list[bytes]) -> bytearray:
-    return d + rng.randbytes(rng.choice((1, 2, 30, 600)))
-
-
-def insert(rng: random.Random, d: bytearray, _: list[bytes]) -> bytearray:
-    pos = rng.randrange(len(d) + 1)
-    return d[:pos] + rng.randbytes(rng.randint(1, 31)) + d[pos:]
-
-
-def delete(rng: random.Random, d: bytearray, _: list[bytes]) -> bytearray:
-    pos = rng.randrange(len(d))
-    return d[:pos] + d[pos + rng.randint(1, 31) :]
-
-
-def splice(rng: random.Random, d: bytearray, pool: list[bytes]) -> bytearray:
-    other = rng.choice(pool)
-    cut = rng.randrange(1, len(d))
-    return d[:cut] + other[rng.randrange(len(other)) :]
-
-
-def junk(rng: random.Random, d: bytearray, _: list[bytes]) -> bytearray:
-    head = b"\x02\x0e" if rng.random() < 0.5 else b""
-    return bytearray(head + rng.randbytes(rng.randrange(0, 300)))
-
-
-MUTATIONS: list[Mutation] = [flip_bits, flip_bits, set_byte, truncate, extend, insert, delete]
-MUTATIONS += [splice, junk]
+MUTATIONS: list[Mutation] = [flip_bits, flip_bits, set_byte(header=40), truncate, insert, delete]
+MUTATIONS += [extend((1, 2, 30, 600)), splice, junk(heads=(b"\x02\x0e",), longest=300)]
 
 
 @pytest.mark.fuzz
@@ -78,8 +44,7 @@ def test_mutated_cpms_are_refused_or_read_strictly() -> None:
     rng = random.Random(20261127)
     outcome: Counter[str] = Counter()
     for _ in range(CASES):
-        mutate = rng.choice(MUTATIONS)
-        data = bytes(mutate(rng, bytearray(rng.choice(pool)), pool))
+        data = mutate(rng, rng.choice(pool), MUTATIONS, pool)
         try:
             cpm = decode_cpm(data)
         except CpmFormatError as err:
@@ -105,8 +70,7 @@ def test_mutated_geonetworking_frames_are_refused_or_read() -> None:
     rng = random.Random(4400)
     refused = 0
     for _ in range(max(CASES // 4, 50)):
-        mutate = rng.choice(MUTATIONS[:-1])
-        data = bytes(mutate(rng, bytearray(rng.choice(pool)), pool))
+        data = mutate(rng, rng.choice(pool), MUTATIONS[:-1], pool)
         try:
             decode_cpm(split_datagram(data, "fuzzed packet"))
         except CpmFormatError as err:

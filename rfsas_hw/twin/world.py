@@ -352,7 +352,7 @@ class World:
         }
         self._cache: dict[str, Receptions] = {}
         self._tables: dict[str, tuple[int, npt.NDArray[np.uint8], Array, Array]] = {}
-        """Per sensor id: how many emitters its :meth:`_emitter_table` covers, and it."""
+        """Per sensor id: how many emitters its table covers, and the table."""
         self._layouts: dict[tuple[object, ...], _Layout] = {}
 
     # -- geometry -----------------------------------------------------------------

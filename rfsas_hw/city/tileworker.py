@@ -4,19 +4,19 @@ Each worker is a process of its own (:func:`worker_main`). Per simulation step
 the main process sends it, over a pipe, the VRUs with a phone near its units
 (:class:`Snapshot`); the worker
 
-1. grows each VRU's live track in the streaming twin
-   (:class:`~rfsas_hw.twin.stream.StreamTwin`) of each junction it is near —
-   every junction's units have a twin of their own with only the phones
-   within ``hear_m`` of them (a frame is computed for every unit of a twin, so
-   one twin for all of a worker's units would cost every phone near any of
-   them times all of them); a phone near two junctions transmits in both twins
-   from the same seeded traffic streams — and gives a newly seen VRU its
-   phone (the device model the demand drew for it, the MAC
+1. grows the live track of each VRU within ``hear_m`` of one of its units in
+   its streaming twin (:class:`~rfsas_hw.twin.stream.StreamTwin`, one for all
+   of the worker's units) and gives a newly seen VRU its phone (the device
+   model the demand drew for it, the MAC
    :func:`~rfsas_hw.bridges.bridge.device_mac` draws from the seed, a new MAC
    every ``mac.rotate_s`` when the policy says so);
-2. computes the frames each unit heard since the previous step, runs each
-   unit's :class:`~rfsas_hw.pipeline.SensorPipeline` (calibration, DF, keyed
-   MAC hashing with the deployment's epoch nonces from the authority);
+2. computes the frames each unit heard since the previous step — all units in
+   one pass of the twin's physics, each unit only the phones within its reach
+   (``hear_m`` plus the size of its junction: every phone near a junction is
+   heard by all of that junction's units, a phone near another junction costs
+   this unit nothing) — and runs each unit's
+   :class:`~rfsas_hw.pipeline.SensorPipeline` (calibration, DF, keyed MAC
+   hashing with the deployment's epoch nonces from the authority);
 3. signs each unit's bearings with that unit's key and publishes them on its
    bearing topic (:class:`~rfsas_hw.link.publisher.Publisher`, version 2 with
    the pre-authentication tag), each in the :data:`SLOT_S` slot of its frame's
@@ -41,6 +41,7 @@ from __future__ import annotations
 
 import datetime as dt
 import logging
+import math
 import time
 from dataclasses import dataclass, field
 from multiprocessing.connection import Connection
@@ -108,9 +109,9 @@ class TileWork:
     clock: SimClock
     """The deployment's clock."""
     groups: tuple[tuple[str, ...], ...]
-    """Unit ids per junction: each junction's units are twinned together."""
+    """Unit ids per junction: a phone near a junction is heard by all of its units."""
     hear_m: float = 150.0
-    """A junction's twin has the phones this close to one of its units, metres."""
+    """The twin has the phones this close to one of the worker's units, metres."""
 
 
 @dataclass(frozen=True)
@@ -164,6 +165,21 @@ def utc_text(t_ns: int) -> str:
     return when.isoformat(timespec="microseconds").replace("+00:00", "Z")
 
 
+def _reach(
+    units: tuple[UnitSpec, ...], groups: tuple[tuple[str, ...], ...], hear_m: float
+) -> dict[str, float]:
+    """Per unit id, how far from it a phone is heard: ``hear_m`` plus the largest distance
+    from it to another unit of its junction (a phone within ``hear_m`` of one unit of a
+    junction is heard by all of them), metres."""
+    pos = {u.id: (u.pose.x_m, u.pose.y_m) for u in units}
+    reach = dict.fromkeys(pos, hear_m)
+    for ids in groups:
+        for a in ids:
+            span = max(math.dist(pos[a], pos[b]) for b in ids)
+            reach[a] = hear_m + span
+    return reach
+
+
 def unit_sensor(u: UnitSpec) -> SensorSpec:
     """The twin's sensor of a roadside unit."""
     return SensorSpec(
@@ -178,19 +194,23 @@ def unit_sensor(u: UnitSpec) -> SensorSpec:
     )
 
 
-class _JunctionTwin:
-    """The units of one junction and the phones near them, in a twin of their own.
+class _UnitsTwin:
+    """A worker's units and the phones near them, in one streaming twin.
 
-    A frame is computed for every unit of a twin, so a twin per junction costs the
-    phones near that junction times its units, where one twin for all of a worker's
-    units would cost every phone near any of them times all of them.
+    Every unit computes the frames of the phones within its reach only
+    (:attr:`reach_m`), so one twin for all of a worker's units costs what a twin
+    per junction cost, in one pass of the physics per step instead of one per
+    junction.
     """
 
-    def __init__(self, worker: TwinWorker, units: tuple[UnitSpec, ...]) -> None:
+    def __init__(self, worker: TwinWorker) -> None:
         self.worker = worker
+        units = worker.work.units
         self.sensors = tuple(unit_sensor(u) for u in units)
         self.x_m = np.array([u.pose.x_m for u in units])
         self.y_m = np.array([u.pose.y_m for u in units])
+        self.reach_m = _reach(units, worker.work.groups, worker.work.hear_m)
+        """Per unit id: ``hear_m`` plus the largest distance to a unit of its junction, m."""
         self.twin: StreamTwin | None = None
         self.sources: dict[str, StreamTwinSource] = {}
         self.phones: dict[str, _Phone] = {}
@@ -223,7 +243,7 @@ class _JunctionTwin:
             start_utc=utc_text(t0_ns),
         )
         scenario = Scenario(spec=spec, source=f"<{work.worker_id}>", base_dir=Path.cwd())
-        self.twin = StreamTwin(scenario, start_s=t_s)
+        self.twin = StreamTwin(scenario, start_s=t_s, reach_m=self.reach_m)
         for sensor in self.sensors:
             self.sources[sensor.id] = StreamTwinSource(self.twin, sensor.id)
         return self.twin
@@ -301,8 +321,8 @@ class TwinWorker:
         self.t0_ns = 0
         self._started = False
         self._now_ns = 0
-        by_id = {u.id: u for u in work.units}
-        self.junctions = [_JunctionTwin(self, tuple(by_id[i] for i in ids)) for ids in work.groups]
+        self.air = _UnitsTwin(self)
+        """The worker's units and the phones near them, twinned."""
         self.publishers: dict[str, Publisher] = {}
         first = work.units[0].id
         store = KeyStore.open(work.keys[first])
@@ -348,18 +368,17 @@ class TwinWorker:
         """
         out = []
         epoch = self._now_ns // self.hasher.epoch_ns
-        for j in self.junctions:
-            for vru, phone in j.phones.items():
-                if phone.reported_epoch == epoch:
-                    continue
-                try:
-                    emitter = self.hasher.hash_one(phone.mac, self._now_ns)
-                except NonceUnavailableError:
-                    continue
-                phone.reported_epoch = epoch
-                if self._reported.get((vru, phone.mac)) != epoch:
-                    self._reported[(vru, phone.mac)] = epoch
-                    out.append((emitter_hex(emitter), vru))
+        for vru, phone in self.air.phones.items():
+            if phone.reported_epoch == epoch:
+                continue
+            try:
+                emitter = self.hasher.hash_one(phone.mac, self._now_ns)
+            except NonceUnavailableError:
+                continue
+            phone.reported_epoch = epoch
+            if self._reported.get((vru, phone.mac)) != epoch:
+                self._reported[(vru, phone.mac)] = epoch
+                out.append((emitter_hex(emitter), vru))
         return out
 
     def step(self, snap: Snapshot) -> tuple[int, int]:
@@ -368,23 +387,20 @@ class TwinWorker:
         if first:
             self._started = True
             self.t0_ns = snap.t0_ns
-            for j in self.junctions:
-                j.start(snap.t_s, snap.t0_ns)
+            self.air.start(snap.t_s, snap.t0_ns)
         self._now_ns = self.t0_ns + round(snap.t_s * NS_PER_S)
-        for j in self.junctions:
-            j.update(snap, j.near(snap, self.work.hear_m))
+        air = self.air
+        air.update(snap, air.near(snap, self.work.hear_m))
         self.counters.steps += 1
         if first:
             return 0, 0
         frames = bearings = 0
         slot_ns = round(SLOT_S * NS_PER_S)
-        for j in self.junctions:
-            assert j.twin is not None
-            if not j.phones and not j.was_busy:
-                continue  # nothing near it, nothing in flight: nothing to hear
-            j.was_busy = bool(j.phones)
-            j.twin.prepare(snap.t_s)
-            for sid, src in j.sources.items():
+        if air.phones or air.was_busy:  # else nothing near, nothing in flight
+            air.was_busy = bool(air.phones)
+            assert air.twin is not None
+            air.twin.prepare(snap.t_s)
+            for sid, src in air.sources.items():
                 src.horizon_s = snap.t_s
                 obs = src.read()
                 if obs is None or not len(obs):
@@ -425,8 +441,7 @@ class TwinWorker:
             if problem is not None:
                 self.counters.send_problems.append(f"{pub.signer.sender_id}: {problem}")
         self.publishers.clear()
-        for j in self.junctions:
-            j.close()
+        self.air.close()
         self.inbox.close()
         return self.counters
 

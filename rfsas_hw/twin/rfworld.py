@@ -37,29 +37,47 @@ def segment_crossings(p0: Array, p1: Array, rects: Array) -> npt.NDArray[np.bool
     ``p0`` and ``p1`` are ``(n, 2)`` end points, ``rects`` an ``(m, ≥4)``
     array of x_min, x_max, y_min, y_max. A segment crosses a rectangle when
     any part of it lies strictly inside (slab clipping, Liang–Barsky); a
-    segment that only grazes an edge does not count.
+    segment that only grazes an edge does not count, nor does one with a NaN
+    end. Only the pairs whose boxes overlap are clipped (a segment cannot
+    enter a rectangle its box does not overlap), so a district's buildings
+    cost what the few near each segment cost.
     """
     n, m = len(p0), len(rects)
+    out = np.zeros((n, m), dtype=bool)
     if n == 0 or m == 0:
-        return np.zeros((n, m), dtype=bool)
-    d = (p1 - p0)[:, None, :]
-    o = p0[:, None, :]
-    lo = rects[None, :, 0:3:2]  # (1, m, 2): x_min, y_min
-    hi = rects[None, :, 1:4:2]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t1 = (lo - o) / d
-        t2 = (hi - o) / d
-    parallel = d == 0
-    if parallel.any():
-        inside_slab = (o > lo) & (o < hi)
-        t_near = np.where(parallel, np.where(inside_slab, -np.inf, np.inf), np.minimum(t1, t2))
-        t_far = np.where(parallel, np.where(inside_slab, np.inf, -np.inf), np.maximum(t1, t2))
-    else:  # no segment along an axis (the usual case): no slab test to substitute
+        return out
+    box_lo = np.minimum(p0, p1)
+    box_hi = np.maximum(p0, p1)
+    # NaN ends compare False everywhere: such a segment overlaps nothing
+    seg, rect = np.nonzero(
+        (rects[None, :, 0] < box_hi[:, None, 0])
+        & (rects[None, :, 1] > box_lo[:, None, 0])
+        & (rects[None, :, 2] < box_hi[:, None, 1])
+        & (rects[None, :, 3] > box_lo[:, None, 1])
+    )
+    if not len(seg):
+        return out
+    enter = np.zeros(len(seg))
+    leave = np.ones(len(seg))
+    for axis in (0, 1):
+        o = p0[seg, axis]
+        d = p1[seg, axis] - o
+        lo, hi = rects[rect, 2 * axis], rects[rect, 2 * axis + 1]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t1 = (lo - o) / d
+            t2 = (hi - o) / d
         t_near = np.minimum(t1, t2)
         t_far = np.maximum(t1, t2)
-    enter = np.maximum(t_near.max(axis=-1), 0.0)
-    leave = np.minimum(t_far.min(axis=-1), 1.0)
-    return np.asarray(leave - enter > 1e-9, dtype=bool)
+        parallel = d == 0
+        if parallel.any():
+            # along this axis: inside the slab for all t, or never
+            inside = (o[parallel] > lo[parallel]) & (o[parallel] < hi[parallel])
+            t_near[parallel] = np.where(inside, -np.inf, np.inf)
+            t_far[parallel] = np.where(inside, np.inf, -np.inf)
+        np.maximum(enter, t_near, out=enter)
+        np.minimum(leave, t_far, out=leave)
+    out[seg, rect] = leave - enter > 1e-9
+    return out
 
 
 def blockage_db(p0: Array, p1: Array, rects: Array) -> tuple[Array, npt.NDArray[np.bool_]]:

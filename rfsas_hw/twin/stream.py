@@ -34,7 +34,7 @@ import numpy as np
 import numpy.typing as npt
 
 from rfsas_hw.angles import wrap_deg_180
-from rfsas_hw.errors import SimulationError
+from rfsas_hw.errors import ConfigError, SimulationError
 from rfsas_hw.records import mac_to_int
 from rfsas_hw.twin.motion import Track
 from rfsas_hw.twin.scan import ScanPlan
@@ -48,6 +48,7 @@ __all__ = ["LiveTrack", "StreamTwin"]
 
 
 _COLUMNS = ("t", "emitter", "channel", "kind", "seq")
+_HEARS_NONE = np.zeros(0, bool)
 
 
 def _merge_frames(
@@ -246,6 +247,14 @@ class StreamTwin(World):
         lookahead_s: traffic is generated this far beyond the window asked
             for, in one go (the frames do not depend on it: each generator
             gives the same frames however its time is cut up), seconds.
+        reach_m: per standing sensor id, the farthest an emitter can be from it
+            for its frames to be computed at all, metres: a frame from farther
+            away is not heard and costs no physics (many units in one twin
+            each compute only the emitters near them).
+
+    Raises:
+        ConfigError: a reach for a sensor the scenario does not have, on a
+            vehicle, or not positive.
     """
 
     def __init__(
@@ -256,6 +265,7 @@ class StreamTwin(World):
         *,
         start_s: float = 0.0,
         lookahead_s: float = 1.0,
+        reach_m: Mapping[str, float] | None = None,
     ) -> None:
         short = dataclasses.replace(scenario.spec, duration_s=1e-9)
         super().__init__(
@@ -291,9 +301,19 @@ class StreamTwin(World):
         self._plans: dict[str, ScanPlan] = {}
         self._ready: dict[str, tuple[float, float, Receptions]] = {}
         """Windows computed ahead by :meth:`prepare`, by sensor id."""
-        self._hear_cache: dict[tuple[str, int], npt.NDArray[np.bool_]] = {}
+        self._hear_cache: dict[str, npt.NDArray[np.bool_]] = {}
         self._trimmed_s = -math.inf
         """Where the frames and knots were last trimmed, seconds."""
+        self.reach_m: dict[str, float] = {}
+        """Per standing sensor id, how far away an emitter can be heard at most, metres."""
+        for sid, reach in (reach_m or {}).items():
+            s = scenario.sensor(sid)
+            if s.pose is None or not reach > 0.0:
+                raise ConfigError(
+                    f"sensor {sid!r}: a reach ({reach} m) needs a standing sensor and a "
+                    "positive distance"
+                )
+            self.reach_m[sid] = float(reach)
 
     # -- entities -------------------------------------------------------------------
 
@@ -396,7 +416,12 @@ class StreamTwin(World):
                 on = plan.channel_at(w["t"]) == w["channel"]
             else:  # one channel, listened to all the time (frame times are finite)
                 on = w["channel"] == plan.channels[0]
-        rows = np.flatnonzero(hears & on)
+        heard = hears & on
+        reach = self.reach_m.get(s.id)
+        if reach is not None and s.pose is not None:
+            xy = self._window_positions()
+            heard &= np.hypot(xy[:, 0] - s.pose.x_m, xy[:, 1] - s.pose.y_m) <= reach
+        rows = np.flatnonzero(heard)
         # the window is already in the offline order (time, then emitter)
         out = {k: v[rows] for k, v in w.items()}
         out["row"] = rows
@@ -412,7 +437,7 @@ class StreamTwin(World):
     def _candidates_key(self, s: SensorSpec) -> tuple[bytes, int] | None:
         """What :meth:`_candidates` of ``s`` depends on, when it is the technologies heard
         and one fixed channel (sensors with equal keys get the same frames); else None."""
-        if s.id in self.listening:
+        if s.id in self.listening or s.id in self.reach_m:
             return None
         plan = self._plan(s)
         if plan.hopping:
@@ -420,12 +445,12 @@ class StreamTwin(World):
         return self._hears(s).tobytes(), int(plan.channels[0])
 
     def _hears(self, s: SensorSpec) -> npt.NDArray[np.bool_]:
-        """Whether sensor ``s`` hears each emitter's technology (kept while emitters stay)."""
-        key = (s.id, len(self.emitters))
-        hears = self._hear_cache.get(key)
-        if hears is None:
-            hears = np.array([s.hears(e.tech) for e in self.emitters], bool)
-            self._hear_cache[key] = hears
+        """Whether sensor ``s`` hears each emitter's technology (grown as emitters come)."""
+        hears = self._hear_cache.get(s.id, _HEARS_NONE)
+        if len(hears) < len(self.emitters):
+            new = self.emitters[len(hears) :]
+            hears = np.concatenate([hears, np.array([s.hears(e.tech) for e in new], bool)])
+            self._hear_cache[s.id] = hears
         return hears
 
     def _frame_positions(self, c: dict[str, Any]) -> Array:
@@ -437,10 +462,14 @@ class StreamTwin(World):
         rows = c.get("row")
         if rows is None:
             return super()._frame_positions(c)
+        return np.asarray(self._window_positions()[rows], np.float64)
+
+    def _window_positions(self) -> Array:
+        """Where every frame of the window was sent from, shape (n, 2), metres (once per window)."""
         if self._window_xy is None:
             w = self._window
             self._window_xy = self._positions(w["emitter"], w["t"])
-        return np.asarray(self._window_xy[rows], np.float64)
+        return self._window_xy
 
     def _positions(self, emitter: npt.NDArray[np.intp], t_s: Array) -> Array:
         """Where each frame's emitter was at its time, shape (n, 2), metres.

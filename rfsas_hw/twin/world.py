@@ -84,6 +84,14 @@ def no_frames() -> dict[str, npt.NDArray[Any]]:
     }
 
 
+_NO_TABLE: tuple[int, npt.NDArray[np.uint8], npt.NDArray[np.float64], npt.NDArray[np.float64]] = (
+    0,
+    np.zeros(0, np.uint8),
+    np.zeros(0),
+    np.zeros(0),
+)
+"""The emitter table of no emitter (see :meth:`World._emitter_table`)."""
+
 _LAYOUTS_MAX = 64
 """How many :class:`_Layout` a world keeps (sensor sets × frame counts) before starting over."""
 
@@ -343,7 +351,8 @@ class World:
             for s in spec.sensors
         }
         self._cache: dict[str, Receptions] = {}
-        self._tables: dict[tuple[str, int], tuple[npt.NDArray[np.uint8], Array, Array]] = {}
+        self._tables: dict[str, tuple[int, npt.NDArray[np.uint8], Array, Array]] = {}
+        """Per sensor id: how many emitters its table covers, and the table."""
         self._layouts: dict[tuple[object, ...], _Layout] = {}
 
     # -- geometry -----------------------------------------------------------------
@@ -425,17 +434,24 @@ class World:
     def _emitter_table(self, s: SensorSpec) -> tuple[npt.NDArray[np.uint8], Array, Array]:
         """Per emitter: tech code, radiated power (dBm) and sensor ``s``'s threshold (dBm).
 
-        Kept between calls: emitters are only ever appended, never changed.
+        Kept between calls and grown by the emitters added since: emitters are
+        only ever appended, never changed.
         """
         emitters = self.scenario.spec.emitters
-        key = (s.id, len(emitters))
-        table = self._tables.get(key)
-        if table is None:
-            codes = np.array([TECH_CODES[e.tech] for e in emitters] or [0], np.uint8)
-            power = np.array([e.power_dbm() + e.antenna_gain_dbi for e in emitters] or [0.0])
-            threshold = np.array([s.threshold_for(e.tech) for e in emitters] or [0.0])
-            table = self._tables[key] = (codes, power, threshold)
-        return table
+        if not emitters:
+            return np.zeros(1, np.uint8), np.zeros(1), np.zeros(1)
+        known, codes, power, threshold = self._tables.get(s.id, _NO_TABLE)
+        if known < len(emitters):
+            new = emitters[known:]
+            codes = np.concatenate([codes, np.array([TECH_CODES[e.tech] for e in new], np.uint8)])
+            power = np.concatenate(
+                [power, np.array([e.power_dbm() + e.antenna_gain_dbi for e in new], np.float64)]
+            )
+            threshold = np.concatenate(
+                [threshold, np.array([s.threshold_for(e.tech) for e in new], np.float64)]
+            )
+            self._tables[s.id] = (len(emitters), codes, power, threshold)
+        return codes, power, threshold
 
     def _frequencies(
         self, tech: npt.NDArray[np.uint8], channel: npt.NDArray[np.int16]

@@ -202,3 +202,18 @@ def test_the_gateway_hands_each_advisory_to_its_own_vehicle() -> None:
     assert sum(totals.rejected.values()) == 1
     gateway.vehicles(["car-2"])
     assert list(gateway.receivers) == ["car-2"]
+
+
+def test_a_unit_hears_the_phones_near_any_unit_of_its_junction() -> None:
+    from rfsas_hw.bridges.config import UnitSpec
+    from rfsas_hw.city.tileworker import _reach
+    from rfsas_hw.twin.scenario import PoseSpec
+
+    units = (
+        UnitSpec(id="a", pose=PoseSpec(0.0, 0.0, 0.0)),
+        UnitSpec(id="b", pose=PoseSpec(30.0, 40.0, 180.0)),
+        UnitSpec(id="c", pose=PoseSpec(500.0, 0.0, 90.0)),
+    )
+    reach = _reach(units, (("a", "b"), ("c",)), 150.0)
+    # a phone 150 m from b is at most 200 m from a; c's junction is c alone
+    assert reach == {"a": 200.0, "b": 200.0, "c": 150.0}

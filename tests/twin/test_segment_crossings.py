@@ -66,3 +66,28 @@ def test_crossings_equal_the_full_substitution_for_every_kind_of_segment() -> No
     np.testing.assert_array_equal(
         segment_crossings(p0, p1, rects[:, :4]), _reference(p0, p1, rects[:, :4])
     )
+
+
+def test_buildings_far_from_the_segments_change_nothing() -> None:
+    """A district of buildings, segments in one corner of it: the answer is the full
+    test's, whether or not a building is near the segments, and NaN ends cross nothing."""
+    rng = np.random.default_rng(5)
+    corner = rng.uniform(0.0, 1000.0, (400, 2))
+    size = rng.uniform(5.0, 40.0, (400, 2))
+    rects = np.column_stack(
+        [corner[:, 0], corner[:, 0] + size[:, 0], corner[:, 1], corner[:, 1] + size[:, 1]]
+    )
+    rects = np.column_stack([rects, rng.uniform(5.0, 20.0, 400)])
+    crossed = 0
+    for _ in range(200):
+        n = int(rng.integers(1, 30))
+        centre = rng.uniform(0.0, 1000.0, 2)
+        p0 = centre + rng.uniform(-60.0, 60.0, (n, 2))
+        p1 = centre + rng.uniform(-60.0, 60.0, (n, 2))
+        want = _reference(p0, p1, rects)
+        np.testing.assert_array_equal(segment_crossings(p0, p1, rects), want)
+        crossed += int(want.sum())
+    assert crossed > 100
+    nan = np.full((3, 2), np.nan)
+    assert not segment_crossings(nan, nan, rects).any()
+    assert segment_crossings(nan, nan, rects).shape == (3, 400)

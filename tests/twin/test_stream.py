@@ -418,3 +418,46 @@ def test_per_sensor_constants_are_built_once_per_layout_and_never_shared() -> No
     assert 0 < len(together._layouts) < windows
     for layout in together._layouts.values():
         assert not layout.xy.flags.writeable and not layout.offsets.flags.writeable
+
+
+def test_a_unit_with_a_reach_computes_only_the_frames_from_within_it() -> None:
+    # at the low level of detail a frame's readings draw nothing at random, so the
+    # frames a reach leaves are exactly those of the twin without it, row for row
+    sc = _crowded(12)
+    world = World(sc, detail="low")
+    reach = 12.0
+    plain = StreamTwin(sc, detail="low")
+    near = StreamTwin(sc, detail="low", reach_m={"rsu-nw": reach})
+    fed_a: dict[str, int] = {}
+    fed_b: dict[str, int] = {}
+    kept = dropped = 0
+    t0 = 0.0
+    while t0 < world.duration_s:
+        t1 = min(t0 + 0.1, world.duration_s)
+        _feed(plain, world, t1, fed_a)
+        _feed(near, world, t1, fed_b)
+        all_of, near_of = plain.step(t1), near.step(t1)
+        for sid, got in near_of.items():
+            want = all_of[sid]
+            if sid == "rsu-nw":
+                inside = want.distance_m <= reach
+                kept, dropped = kept + int(inside.sum()), dropped + int((~inside).sum())
+                want = want.select(inside)
+            for name in Receptions.__dataclass_fields__:
+                if name not in ("sensor_id", "n_cards"):
+                    _assert_column(getattr(got, name), getattr(want, name), name)
+        t0 = t1
+    assert kept > 50 and dropped > 50
+
+
+def test_a_reach_needs_a_standing_sensor_and_a_positive_distance() -> None:
+    from rfsas_hw.errors import ConfigError
+
+    sc = load_scenario(CROSSING)
+    with pytest.raises(ConfigError, match="no sensor"):
+        StreamTwin(sc, reach_m={"nobody": 10.0})
+    with pytest.raises(ConfigError, match="positive"):
+        StreamTwin(sc, reach_m={"rsu-nw": 0.0})
+    mounted = next(s.id for s in sc.spec.sensors if s.pose is None)
+    with pytest.raises(ConfigError, match="standing"):
+        StreamTwin(sc, reach_m={mounted: 10.0})

@@ -17,12 +17,12 @@ machine counts as little as possible; wall time is printed too.
 
 Run: ``python bench/bench_bridge.py [STEPS]`` (needs the ``[sumo]`` extra).
 
-Measured with ``python bench/bench_bridge.py 60`` on the 2-core development
-machine with nothing else running (load average 0.7): bundled crossing
-1.89 ms per step (SUMO 0.021 ms), +100 entities 13.37 ms (SUMO 0.220 ms),
-about 0.12 ms more per extra entity; over six runs in the same minute
-1.73–1.89 ms and 13.0–14.6 ms, both goals met. docs/simulators.md §6 has
-the table and what a step costs.
+Measured last with ``python bench/bench_bridge.py 60`` on the 2-core development
+machine with nothing else running (load average 0.8-1.0), five runs: bundled
+crossing 2.07 and 2.13 ms per step while the host was in its fast state (SUMO's
+step 0.008-0.010 ms), 3.19-3.57 ms in its slow one (0.016-0.017 ms): the 2 ms
+goal is not met; +100 entities 12.3-16.3 ms, within its 20 ms. docs/simulators.md
+§6 has the tables and what a step costs.
 
 The ``backend ms`` column is the part of the bridge's CPU time spent in the
 backend's bearing intake and step (association, triangulation, tracking,

@@ -251,10 +251,15 @@ class SensorPipeline:
         return memo.estimate_with_levels(batch)
 
     def _guard(
-        self, batch: ObservationBatch, result: DfResult, levels_dbm: Array | None = None
+        self,
+        batch: ObservationBatch,
+        result: DfResult,
+        levels_dbm: Array | None = None,
+        folds: bool = True,
     ) -> DfResult:
         """The level rule in time (:class:`FovGuard`) on the amplitude or phase bearings;
-        ``levels_dbm``: the bearings' boresight-equivalent levels if known."""
+        ``levels_dbm``: the bearings' boresight-equivalent levels if known; ``folds``:
+        False for phase bearings (the amplitude pair's folds are not theirs)."""
         rssi = batch.rssi_dbm
         return self.fov_guard.apply(
             self.calibration,
@@ -265,6 +270,7 @@ class SensorPipeline:
             batch.mac,
             batch.t_ns,
             levels_dbm,
+            folds=folds,
         )
 
     def process(self, batch: ObservationBatch) -> BearingBatch:
@@ -283,7 +289,9 @@ class SensorPipeline:
         if self.calibration.phase is not None and batch.csi is not None:
             # a CSI receiver with a phase calibration: interferometer bearings (their
             # levels are the phase bearings', computed by the guard)
-            result = self._guard(batch, phase_df_result(self.calibration, batch, result))
+            result = self._guard(
+                batch, phase_df_result(self.calibration, batch, result), folds=False
+            )
         elif self.calibration.array is not None and batch.csi is not None:
             # an array with a CSI receiver: every antenna in one fit, over its own field
             # of view (the amplitude pair's level curve says nothing about it)

@@ -24,7 +24,13 @@ import numpy.typing as npt
 from rfsas_hw.df.calibration import Calibration
 from rfsas_hw.df.estimate import DfFlag, DfResult
 from rfsas_hw.df.fovchannels import ChannelConsistency
-from rfsas_hw.df.fovrule import LEVEL_MARGIN_DB, boresight_equivalent_dbm, weak_against
+from rfsas_hw.df.fovrule import (
+    LEVEL_MARGIN_DB,
+    boresight_equivalent_dbm,
+    fold_drop_db,
+    fold_margin_db,
+    weak_against,
+)
 
 Array = npt.NDArray[np.floating[Any]]
 
@@ -98,6 +104,10 @@ minutes; :data:`PROVE_WINDOW_S` bounds those chances.
 """
 
 
+NO_FOLD_DB = 1000.0
+"""The drop :func:`fold_drops` gives a bearing with no fold on its table's grid, dB."""
+
+
 def boresight_levels(
     cal: Calibration,
     result: DfResult,
@@ -128,6 +138,43 @@ def boresight_levels(
     return boresight_equivalent_dbm(rssi1_dbm, rssi2_dbm, level)
 
 
+def fold_drops(cal: Calibration, result: DfResult, channel: npt.ArrayLike | None = None) -> Array:
+    """How much weaker each amplitude bearing's brightest fold is, dB
+    (:func:`~rfsas_hw.df.fovrule.fold_drop_db` of the frame's table at the bearing,
+    built once per table); :data:`NO_FOLD_DB` or +inf where the bearing has no fold on
+    the grid or the table no level curve, NaN where there is no bearing.
+    """
+    angle = np.asarray(result.angle_deg, np.float64)
+    n = len(angle)
+    out: Array = np.where(np.isnan(angle), np.nan, np.inf)
+    ch = None if channel is None else np.asarray(channel)
+    if ch is None or n < 2 or ch.min() == ch.max():
+        groups: list[tuple[int | None, npt.NDArray[np.bool_] | None]] = [
+            (None if ch is None or not n else int(ch[0]), None)
+        ]
+    else:
+        groups = [(int(c), ch == c) for c in np.unique(ch).tolist()]
+    for c, mask in groups:
+        table = cal.table_for(c)
+        if table is None or table.level_db is None:
+            continue
+        drop = table.cache.get("fold_drop_db")
+        if drop is None:
+            drop = fold_drop_db(table.grid_deg, table.psi, table.level_db, table.fov_deg)
+            # outside the FoV (NaN) no bearing is given, and where nothing folds (+inf)
+            # there is nothing to tell apart: a finite stand-in far beyond any margin
+            # keeps the interpolation between grid points finite
+            drop = np.where(np.isfinite(drop), drop, NO_FOLD_DB)
+            table.cache["fold_drop_db"] = drop
+        a = angle if mask is None else angle[mask]
+        at = np.where(np.isnan(a), np.nan, np.interp(a, table.grid_deg, drop))
+        if mask is None:
+            out = at
+        else:
+            out[mask] = at
+    return out
+
+
 def _no_level(angle_deg: Array) -> Array:
     """0 dB where there is a bearing, NaN where there is none (no table for the frame)."""
     out: Array = np.where(np.isnan(angle_deg), np.nan, 0.0)
@@ -135,9 +182,14 @@ def _no_level(angle_deg: Array) -> Array:
 
 
 def refuse_weak(
-    result: DfResult, levels_dbm: Array, reference_dbm: Array, margin_db: float = LEVEL_MARGIN_DB
+    result: DfResult,
+    levels_dbm: Array,
+    reference_dbm: Array,
+    margin_db: float | Array = LEVEL_MARGIN_DB,
 ) -> DfResult:
-    """``result`` with the bearings weak against their reference flagged ``MAY_BE_OUTSIDE``."""
+    """``result`` with the bearings weak against their reference flagged ``MAY_BE_OUTSIDE``
+    (``margin_db``: one margin, or one per bearing as
+    :func:`~rfsas_hw.df.fovrule.fold_margin_db` gives)."""
     return refuse(result, weak_against(levels_dbm, reference_dbm, margin_db))
 
 
@@ -226,7 +278,7 @@ class FovGuard:
         self.smooth_ns = smooth_s * 1e9
         self.channels = ChannelConsistency() if channels is None else channels
         self._ref: dict[
-            int, tuple[float, float, int, int, float, float, float, float, float, float]
+            int, tuple[float, float, int, int, float, float, float, float, float, float, float]
         ] = {}
         """Per emitter: smoothed and reference level (dBm), when it was last updated and
         when first heard (ns), its averaged bearing, the least and most that average
@@ -259,7 +311,7 @@ class FovGuard:
         swept ``prove_motion_deg`` (see the class).
         """
         zeros = [0.0] * len(np.asarray(keys))
-        smooth, refs = self._walk(
+        smooth, refs, _ = self._walk(
             np.asarray(keys).tolist(),
             np.asarray(t_ns).tolist(),
             np.asarray(levels_dbm).tolist(),
@@ -277,8 +329,9 @@ class FovGuard:
         angles_deg: list[float],
         sigmas_deg: list[float] | None = None,
         judge_motion: bool = True,
-    ) -> tuple[list[float], list[float]]:
-        """:meth:`track` on the columns as lists."""
+    ) -> tuple[list[float], list[float], list[float]]:
+        """:meth:`track` on the columns as lists; also, per frame, how far the reference
+        has decayed since the emitter was last that bright (dB; NaN without a level)."""
         refs = self._ref
         decay = self.decay_db_per_s * 1e-9
         tau = self.smooth_ns
@@ -288,6 +341,7 @@ class FovGuard:
         nan, inf = math.nan, math.inf
         smooth: list[float] = []
         out: list[float] = []
+        aged: list[float] = []
         sigmas = [0.0] * len(angles_deg) if sigmas_deg is None else sigmas_deg
         for key, t, level, angle, sigma in zip(
             keys, t_ns, levels_dbm, angles_deg, sigmas, strict=True
@@ -295,22 +349,23 @@ class FovGuard:
             if level != level:  # NaN: no bearing, nothing learned
                 smooth.append(nan)
                 out.append(nan)
+                aged.append(nan)
                 continue
             got = refs.pop(key, None)  # re-inserted below: the dict stays in hearing order
             if got is None:
-                s = ref = level
+                s = ref = peak = level
                 first = t
                 b = lo = hi = angle
                 var = 0.0 if sweep > 0 else -1.0
                 wbar = norm = 0.0
             else:
-                old_s, old_ref, t_old, first, b, lo, hi, var, wbar, norm = got
+                old_s, old_ref, t_old, first, b, lo, hi, var, wbar, norm, peak = got
                 dt = t - t_old if t > t_old else 0
                 keep = math.exp(-dt / tau) if tau > 0 else 0.0
                 s = keep * old_s + (1.0 - keep) * level
                 ref = old_ref - decay * dt
                 if s > ref:
-                    ref = s
+                    ref = peak = s
                 if var >= 0.0:  # not proven yet: follow the bearing's average and sweep
                     w = 1.0 - math.exp(-dt / tau_b)
                     step = (angle - b + 180.0) % 360.0 - 180.0  # the short way round
@@ -331,12 +386,13 @@ class FovGuard:
                     late = t - first > PROVE_WINDOW_S * 1e9
                     if hi - lo >= max(LATE_SWEEPS * sweep if late else sweep, noise):
                         var = -1.0
-            refs[key] = (s, ref, t, first, b, lo, hi, var, wbar, norm)
+            refs[key] = (s, ref, t, first, b, lo, hi, var, wbar, norm, peak)
             smooth.append(s)
             out.append(ref if t - first >= warmup and var < 0.0 else inf)
+            aged.append(peak - ref)
         while len(refs) > self.max_emitters:
             del refs[next(iter(refs))]
-        return smooth, out
+        return smooth, out, aged
 
     def apply(
         self,
@@ -348,6 +404,8 @@ class FovGuard:
         keys: npt.ArrayLike,
         t_ns: npt.ArrayLike,
         levels_dbm: Array | None = None,
+        *,
+        folds: bool = True,
     ) -> DfResult:
         """``result`` with the bearings weak against their emitter's reference refused,
         and those that disagree with the emitter's bearing on another channel moments
@@ -356,20 +414,27 @@ class FovGuard:
         ``keys`` identifies the emitter of each frame, ``t_ns`` its time (ns).
         ``levels_dbm`` are the frames' :func:`boresight_levels` when the caller has
         them already (they depend on the reading pair and its bearing only); None:
-        computed here.
+        computed here. ``folds``: the bearings are the amplitude pair's, whose folds
+        beyond the FoV's edge shrink the level rule's margin (:func:`fold_drops`,
+        :func:`~rfsas_hw.df.fovrule.fold_margin_db`); False for bearings of another
+        method (the phase interferometer), judged with the fixed ``margin_db``.
         """
         if levels_dbm is None:
             levels_dbm = boresight_levels(cal, result, rssi1_dbm, rssi2_dbm, channel)
         key_rows, t_rows = np.asarray(keys).tolist(), np.asarray(t_ns).tolist()
-        smooth, refs = self._walk(
+        smooth, refs, aged = self._walk(
             key_rows,
             t_rows,
             np.asarray(levels_dbm).tolist(),
             result.angle_deg.tolist(),
             result.sigma_deg.tolist(),
         )
-        margin = self.margin_db
-        refused = [weak_against(s, r, margin) for s, r in zip(smooth, refs, strict=True)]
+        if folds:
+            drops = fold_drops(cal, result, channel)
+            margins = fold_margin_db(drops, aged, self.margin_db).tolist()
+        else:
+            margins = [self.margin_db] * len(smooth)
+        refused = [weak_against(s, r, m) for s, r, m in zip(smooth, refs, margins, strict=True)]
         if channel is not None:
             angle = result.angle_deg.tolist()
             if True in refused:  # the weak ones are refused first: neither judged nor remembered

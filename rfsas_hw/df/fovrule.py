@@ -95,15 +95,79 @@ def boresight_equivalent_dbm(
 def weak_against(level_dbm: float, reference_dbm: float, margin_db: float = ...) -> bool: ...
 @overload
 def weak_against(
-    level_dbm: Array, reference_dbm: Array, margin_db: float = ...
+    level_dbm: Array, reference_dbm: Array, margin_db: float | Array = ...
 ) -> npt.NDArray[np.bool_]: ...
 def weak_against(
-    level_dbm: float | Array, reference_dbm: float | Array, margin_db: float = LEVEL_MARGIN_DB
+    level_dbm: float | Array,
+    reference_dbm: float | Array,
+    margin_db: float | Array = LEVEL_MARGIN_DB,
 ) -> bool | npt.NDArray[np.bool_]:
     """True where a boresight-equivalent level is more than ``margin_db`` below its reference.
 
-    Floats (one frame) or arrays (many) alike. NaN levels or references give
-    False (quietly: numpy does not warn on comparisons with NaN).
+    Floats (one frame) or arrays (many) alike; an array may carry one margin per
+    frame (:func:`fold_margin_db`). NaN levels, references or margins give False
+    (quietly: numpy does not warn on comparisons with NaN).
     """
     out: bool | npt.NDArray[np.bool_] = level_dbm < reference_dbm - margin_db
+    return out
+
+
+def fold_drop_db(
+    grid_deg: Array, psi: Array, level_db: Array, fov_deg: tuple[float, float]
+) -> Array:
+    """How much weaker the brightest fold of each grid angle is, dB; +inf with no fold.
+
+    A *fold* of an angle θ inside the FoV is an angle outside it, on the
+    calibrated grid, where ψ_D takes the same value: an emitter there gives
+    the same ratio and hence the bearing θ. It differs from one at θ only in
+    level: the stronger chain reads ``level_db(θ) − level_db(fold)`` less.
+    That drop, for the brightest fold (the hardest to tell apart), is returned
+    per grid point (NaN outside the FoV, +inf where no grid angle outside the
+    FoV folds onto it). Folds are found on the grid's segments outside the FoV
+    (the edge points included), the level interpolated linearly along them.
+    """
+    grid = np.asarray(grid_deg, np.float64)
+    p = np.asarray(psi, np.float64)
+    level = np.asarray(level_db, np.float64)
+    lo, hi = fov_deg
+    inside = (grid >= lo - 1e-9) & (grid <= hi + 1e-9)
+    out: Array = np.full(len(grid), np.nan)
+    outer = ~((grid > lo + 1e-9) & (grid < hi - 1e-9))  # outside, the edges included
+    seg = np.flatnonzero(outer[:-1] & outer[1:])  # segments [j, j + 1] outside the FoV
+    target = p[inside]
+    if not len(seg):
+        out[inside] = np.inf
+        return out
+    a, b = p[seg][None, :], p[seg + 1][None, :]
+    t = target[:, None]
+    span = b - a
+    with np.errstate(divide="ignore", invalid="ignore"):
+        frac = np.where(span != 0.0, (t - a) / span, np.where(t == a, 0.0, np.nan))
+    hit = (frac >= 0.0) & (frac <= 1.0)
+    fold_level = level[seg][None, :] + frac * (level[seg + 1] - level[seg])[None, :]
+    brightest = np.max(np.where(hit, fold_level, -np.inf), axis=1)
+    out[inside] = level[inside] - brightest  # +inf where nothing folds (−inf brightest)
+    return out
+
+
+def fold_margin_db(
+    drop_db: npt.ArrayLike, aged_db: npt.ArrayLike = 0.0, margin_db: float = LEVEL_MARGIN_DB
+) -> Array:
+    """The level rule's margin, dB, for bearings whose brightest fold is ``drop_db`` weaker.
+
+    Two hypotheses explain a bearing: the emitter is where it says, at its
+    reference level, or at the fold, ``drop_db`` weaker. Reading noise blurs both
+    alike, so a frame nearer the fold's level than its own (more than half the
+    drop below the emitter's peak) is refused. The peak is the reference before
+    it decayed: ``aged_db`` is how far it has decayed since the emitter was last
+    that bright. The decay allows for a change of range since then, and that
+    change blurs both hypotheses alike too, so the margin below the *decayed*
+    reference is ``drop/2 − aged``: an emitter not seen at its brightest for long
+    loses the power to tell a fold near the edge, and there its bearings are
+    refused. At most ``margin_db`` (behind the antennas, where the drop is large,
+    the fixed margin rules; +inf drop: no fold). A margin ≤ 0 refuses every frame
+    below the reference. NaN stays NaN.
+    """
+    half = 0.5 * np.asarray(drop_db, np.float64) - np.asarray(aged_db, np.float64)
+    out: Array = np.minimum(half, margin_db)
     return out

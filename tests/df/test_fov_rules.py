@@ -9,8 +9,14 @@ from rfsas_hw.df import estimate, fit_calibration, load_calibration, save_calibr
 from rfsas_hw.df.calfile import calibration_from_mapping, calibration_to_mapping
 from rfsas_hw.df.check import CONFIDENT_WRONG_MAX, check_calibration, constant_guess_rms_deg
 from rfsas_hw.df.estimate import DfFlag
-from rfsas_hw.df.fovguard import PROVE_MOTION_DEG, FovGuard, boresight_levels
-from rfsas_hw.df.fovrule import near_edge, weak_against
+from rfsas_hw.df.fovguard import PROVE_MOTION_DEG, FovGuard, boresight_levels, fold_drops
+from rfsas_hw.df.fovrule import (
+    LEVEL_MARGIN_DB,
+    fold_drop_db,
+    fold_margin_db,
+    near_edge,
+    weak_against,
+)
 from rfsas_hw.rf import GaussianBeamPair, ReceiverModel, turntable_sweep
 from rfsas_hw.rf.propagation import free_space_path_loss_db
 from rfsas_hw.rf.synth import TurntableSamples, rssi_pairs
@@ -409,3 +415,45 @@ def test_a_moving_mount_keeps_an_emitter_on_a_collision_course(cal) -> None:  # 
 
     assert kept(FovGuard.for_mount(moving=False)) == 0.0  # the motion rule refuses it all
     assert kept(FovGuard.for_mount(moving=True)) > 0.8
+
+
+def test_fold_drop_shrinks_the_level_margin_towards_the_edge(cal) -> None:  # type: ignore[no-untyped-def]
+    t = cal.tables[0]
+    drop = fold_drop_db(t.grid_deg, t.psi, t.level_db, t.fov_deg)
+    at = {a: float(np.interp(a, t.grid_deg, drop)) for a in (-40.0, -30.0, -10.0, 30.0)}
+    # the test antenna: −30° folds onto about −63°, 10 dB weaker; −40° onto about −52°,
+    # under 4 dB; near boresight the fold lies far behind, 20 dB and more down
+    assert 8.0 < at[-30.0] < 12.0 and at[-40.0] < 4.5 and at[-10.0] > 18.0
+    assert 8.0 < at[30.0] < 12.0
+    assert np.isnan(drop[t.grid_deg < t.fov_deg[0]]).all()  # no bearing out there
+    # half the drop, less the reference's decay, at most the fixed margin
+    m = fold_margin_db(np.array([at[-30.0], at[-30.0], at[-10.0], np.nan]), [0.0, 2.0, 0.0, 0.0])
+    assert m[0] == pytest.approx(at[-30.0] / 2) and m[1] == pytest.approx(at[-30.0] / 2 - 2)
+    assert m[2] == LEVEL_MARGIN_DB and np.isnan(m[3])
+    # a table without a level curve has no folds to tell apart: the fixed margin
+    doc = calibration_to_mapping(cal)
+    del doc["tables"][0]["level_db"]
+    old = calibration_from_mapping(doc, "old.yaml")
+    res = estimate(old, np.array([-50.0]), np.array([-60.0]), np.array([CHANNEL]))
+    assert fold_drops(old, res, [CHANNEL])[0] == np.inf
+
+
+def test_walkers_just_beyond_the_edge_are_refused_by_their_fold(cal) -> None:  # type: ignore[no-untyped-def]
+    # seed 16 of the fixed-sensor set, 600 s: walkers just beyond the edge (−47…−65°)
+    # fold onto ≈ −31° only 6–7 dB below their front level, inside the fixed 6 dB margin
+    true, r, em, t_ns, n_static = _fixed_sensor(16, 600.0)
+    ch = np.full(len(true), CHANNEL)
+
+    def run(folds: bool):  # type: ignore[no-untyped-def]
+        guard = FovGuard.for_mount(moving=False)
+        est = estimate(cal, r[:, 0], r[:, 1], ch)
+        res = guard.apply(cal, est, r[:, 0], r[:, 1], ch, em, t_ns, folds=folds)
+        v = res.valid
+        return res, _confident_wrong_share(res.angle_deg[v], res.sigma_deg[v], true[v])
+
+    _, fixed_margin = run(False)
+    assert fixed_margin > CONFIDENT_WRONG_MAX, fixed_margin
+    res, share = run(True)
+    assert share <= CONFIDENT_WRONG_MAX, share
+    walkers_front = (em >= n_static) & (np.abs(true) <= 45.0)
+    assert np.mean(res.valid[walkers_front]) > 0.25, np.mean(res.valid[walkers_front])

@@ -30,7 +30,8 @@ import numpy.typing as npt
 
 from rfsas_hw.df.calibration import Calibration
 from rfsas_hw.df.estimate import DfFlag, DfResult, estimate
-from rfsas_hw.df.fovguard import boresight_levels, refuse_weak
+from rfsas_hw.df.fovguard import boresight_levels, fold_drops, refuse_weak
+from rfsas_hw.df.fovrule import fold_margin_db
 from rfsas_hw.rf.synth import TurntableSamples
 
 Array = npt.NDArray[np.floating[Any]]
@@ -261,7 +262,8 @@ def with_run_reference(
         mine = (ch == c) & np.isfinite(levels)
         if mine.any():
             reference[ch == c] = np.percentile(levels[mine], REFERENCE_PERCENTILE)
-    return refuse_weak(result, levels, reference)
+    # one emitter at one range: nothing decays, the fold's drop is judged from the reference
+    return refuse_weak(result, levels, reference, fold_margin_db(fold_drops(cal, result, channel)))
 
 
 def check_calibration(cal: Calibration, samples: TurntableSamples) -> CheckReport:

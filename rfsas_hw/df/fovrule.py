@@ -23,7 +23,11 @@ and the error can be 100° or more. Three rules keep such bearings out:
    boresight level, so the emitter is beside or behind the antennas.
    The reference is the brightest ``e`` of the same emitter recently
    (:class:`~rfsas_hw.df.fovguard.FovGuard`, in time) or, for a turntable
-   check at one range, the brightest of the run.
+   check at one range, the brightest of the run. Near the FoV's edge the
+   margin shrinks: an emitter just beyond the edge folds onto a bearing whose
+   level is only a few dB above its own (:func:`fold_drop_db`, from the
+   table's ψ_D and level curve), so a bearing is refused once its level is
+   nearer its fold's than its own (:func:`fold_margin_db`).
 
 3. **Channel rule** (:mod:`rfsas_hw.df.fovchannels`): a bearing that disagrees
    with the same emitter's bearing on another channel moments earlier is

@@ -209,7 +209,8 @@ class FovGuard:
     """Refuses bearings of an emitter that is weak against its own recent front level.
 
     Args:
-        margin_db: how far below the reference a bearing is refused, dB.
+        margin_db: how far below the reference a bearing is refused, dB (at most: near
+            the FoV's edge amplitude bearings get less, see :meth:`apply`).
         decay_db_per_s: how fast the reference forgets, dB per second.
         max_emitters: emitters remembered at most.
         warmup_s: bearings of an emitter heard for less than this are refused, seconds.

@@ -286,10 +286,10 @@ def test_an_emitter_beside_the_antennas_disagrees_across_channels() -> None:  # 
             r[sel] = rssi_pairs(np.full(int(sel.sum()), true_deg), -50.0, ant, RX, rng)
             del c
         t_ns = (np.arange(n) * 0.05e9).astype(np.int64)
-        # the level rule off: only the channels can tell
+        # the level rule off (no fixed margin, no folds): only the channels can tell
         guard = FovGuard(margin_db=100.0)
         res = guard.apply(two, estimate(two, r[:, 0], r[:, 1], ch), r[:, 0], r[:, 1], ch,
-                          np.zeros(n), t_ns)  # fmt: skip
+                          np.zeros(n), t_ns, folds=False)  # fmt: skip
         return float(res.valid.mean())
 
     assert run(10.0) > 0.97  # inside: the two channels agree

@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from rfsas_hw.df.calibration import Calibration
+from rfsas_hw.df.calibration import Calibration, CalibrationTable
 from rfsas_hw.df.estimate import DfFlag, DfResult
 from rfsas_hw.df.fovchannels import ChannelConsistency
 from rfsas_hw.df.fovrule import (
@@ -146,32 +146,35 @@ def fold_drops(cal: Calibration, result: DfResult, channel: npt.ArrayLike | None
     """
     angle = np.asarray(result.angle_deg, np.float64)
     n = len(angle)
-    out: Array = np.where(np.isnan(angle), np.nan, np.inf)
     ch = None if channel is None else np.asarray(channel)
-    if ch is None or n < 2 or ch.min() == ch.max():
-        groups: list[tuple[int | None, npt.NDArray[np.bool_] | None]] = [
-            (None if ch is None or not n else int(ch[0]), None)
-        ]
+    if ch is None or n < 2 or ch.min() == ch.max():  # the usual case: one table for the batch
+        table = cal.table_for(None if ch is None or not n else int(ch[0]))
+        if table is not None and table.level_db is not None:
+            one: Array = np.interp(angle, table.grid_deg, _table_drops(table))  # NaN stays NaN
+            return one
+        groups: list[tuple[int | None, npt.NDArray[np.bool_]]] = []
     else:
         groups = [(int(c), ch == c) for c in np.unique(ch).tolist()]
+    out: Array = np.where(np.isnan(angle), np.nan, np.inf)
     for c, mask in groups:
         table = cal.table_for(c)
-        if table is None or table.level_db is None:
-            continue
-        drop = table.cache.get("fold_drop_db")
-        if drop is None:
-            drop = fold_drop_db(table.grid_deg, table.psi, table.level_db, table.fov_deg)
-            # outside the FoV (NaN) no bearing is given, and where nothing folds (+inf)
-            # there is nothing to tell apart: a finite stand-in far beyond any margin
-            # keeps the interpolation between grid points finite
-            drop = np.where(np.isfinite(drop), drop, NO_FOLD_DB)
-            table.cache["fold_drop_db"] = drop
-        a = angle if mask is None else angle[mask]
-        at = np.where(np.isnan(a), np.nan, np.interp(a, table.grid_deg, drop))
-        if mask is None:
-            out = at
-        else:
-            out[mask] = at
+        if table is not None and table.level_db is not None:
+            out[mask] = np.interp(angle[mask], table.grid_deg, _table_drops(table))
+    return out
+
+
+def _table_drops(table: CalibrationTable) -> Array:
+    """:func:`~rfsas_hw.df.fovrule.fold_drop_db` of a table with a level curve, on its
+    grid, built once and cached on the table; outside the FoV (NaN: no bearing is given
+    there) and where nothing folds (+inf: nothing to tell apart) :data:`NO_FOLD_DB`, a
+    finite stand-in far beyond any margin that keeps the interpolation finite."""
+    drop = table.cache.get("fold_drop_db")
+    if drop is None:
+        assert table.level_db is not None
+        raw = fold_drop_db(table.grid_deg, table.psi, table.level_db, table.fov_deg)
+        drop = np.where(np.isfinite(raw), raw, NO_FOLD_DB)
+        table.cache["fold_drop_db"] = drop
+    out: Array = drop
     return out
 
 

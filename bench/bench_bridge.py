@@ -17,12 +17,15 @@ machine counts as little as possible; wall time is printed too.
 
 Run: ``python bench/bench_bridge.py [STEPS]`` (needs the ``[sumo]`` extra).
 
-Measured last with ``python bench/bench_bridge.py 60`` on the 2-core development
-machine with nothing else running (load average 0.8-1.0), five runs: bundled
-crossing 2.07 and 2.13 ms per step while the host was in its fast state (SUMO's
-step 0.008-0.010 ms), 3.19-3.57 ms in its slow one (0.016-0.017 ms): the 2 ms
-goal is not met; +100 entities 12.3-16.3 ms, within its 20 ms. docs/simulators.md
-§6 has the tables and what a step costs.
+Measured last with ``python bench/bench_bridge.py 60``, seven rounds alternating
+the code before and after the DF memo's neighbours and the twin's one-emitter
+shortcuts (docs/simulators.md §6), on the shared 2-core machine (load average
+3.7-5.1): bundled crossing 1.59-2.56 ms per step after (median 1.87; SUMO's
+step 0.007-0.008 ms in every run) against 1.88-3.68 ms before (median 3.32;
+SUMO 0.008-0.021 ms). The part of the step outside the backend, in units of the
+backend's own time, went from 3.18-3.70 to 2.43-2.98 (medians 3.43 and 2.77).
+Before, on a quiet machine, the bundled step took 2.07-2.13 ms in the host's
+fast state. +100 entities 11.5-17.3 ms, within its 20 ms.
 
 The ``backend ms`` column is the part of the bridge's CPU time spent in the
 backend's bearing intake and step (association, triangulation, tracking,

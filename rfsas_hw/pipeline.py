@@ -15,6 +15,7 @@ is raised; it clears when frames flow again.
 
 from __future__ import annotations
 
+import itertools
 import logging
 import time
 from collections import Counter, deque
@@ -45,7 +46,10 @@ DF_MEMO_ROWS = 8
 A batch of 1–8 known pairs costs about 7–10 µs against 50–65 µs for
 :func:`estimate` (``bench/bench_small_batches.py``)."""
 DF_MEMO_MAX = 1 << 14
-"""Reading pairs a pipeline remembers at most (then it starts over)."""
+"""Reading pairs a pipeline remembers at most (then it forgets the older half)."""
+DF_MEMO_REACH = 4
+"""On a miss, the memo also learns the pairs up to this many reading steps around
+each new pair (a moving emitter's next readings are near its last ones)."""
 
 
 @dataclass
@@ -96,6 +100,11 @@ class _DfMemo:
     A pair's boresight-equivalent level (:func:`boresight_levels`, what the
     field-of-view guard judges) is a function of the pair and its bearing
     alone, so it is kept with the result. Pairs with a NaN are never kept.
+    A batch on one channel that misses also has the pairs around its new ones
+    (:data:`DF_MEMO_REACH` steps of the calibration's reading step) computed in
+    the same :func:`estimate` call: a moving emitter's next readings are near
+    its last ones, and one call on a hundred pairs costs little more than one
+    on three.
     Pipelines of one calibration (the units of one build) share a memo:
     :func:`_df_memo`. A result computed in another batch may differ from this
     batch's own in the last bit (numpy's SIMD and scalar loops); it is the same
@@ -113,6 +122,14 @@ class _DfMemo:
         """Per key: angle, σ, SNR, flags, the columns' dtypes and the boresight level."""
         self._dtypes: dict[tuple[Any, ...], tuple[Any, ...]] = {}
         """One tuple object per combination of column dtypes (compared by identity)."""
+        step = calibration.step_db
+        reach = np.arange(-DF_MEMO_REACH, DF_MEMO_REACH + 1) * step
+        self._offsets = (
+            np.stack(np.meshgrid(reach, reach, indexing="ij"), axis=-1).reshape(-1, 2)
+            if step > 0.0 and DF_MEMO_REACH > 0
+            else None
+        )
+        """Steps from a pair to its neighbours, dB, shape (m, 2) (None: no neighbours)."""
 
     def estimate(self, batch: ObservationBatch) -> DfResult:
         """:func:`estimate` of the batch's first two chains."""
@@ -128,13 +145,21 @@ class _DfMemo:
         rows = self.rows
         got = [rows.get(k) for k in keys]
         if any(g is None for g in got) or any(g[4] is not got[0][4] for g in got):  # type: ignore[index]
+            n = len(keys)
+            r1, r2, channel = rssi[:, 0], rssi[:, 1], batch.channel
+            if one:  # the neighbours' results go into the same call
+                near = self._neighbours([k for k, g in zip(keys, got, strict=True) if g is None])
+                if len(near):
+                    r1 = np.concatenate([r1, near[:, 0]])
+                    r2 = np.concatenate([r2, near[:, 1]])
+                    channel = np.full(len(r1), channels[0], batch.channel.dtype)
+                    keys = keys + [(a, b, channels[0], one) for a, b in near.tolist()]
             cal = self.calibration
-            result = estimate(
-                cal, rssi[:, 0], rssi[:, 1], batch.channel, min_snr_db=self.min_snr_db
-            )
-            levels = boresight_levels(cal, result, rssi[:, 0], rssi[:, 1], batch.channel)
+            result = estimate(cal, r1, r2, channel, min_snr_db=self.min_snr_db)
+            levels = boresight_levels(cal, result, r1, r2, channel)
             if len(rows) + len(keys) > DF_MEMO_MAX:
-                rows.clear()
+                for k in list(itertools.islice(rows, len(rows) // 2 + len(keys))):
+                    del rows[k]
             dtypes = (
                 result.angle_deg.dtype,
                 result.sigma_deg.dtype,
@@ -153,7 +178,15 @@ class _DfMemo:
             ):
                 if k[0] == k[0] and k[1] == k[1]:  # NaN never matches a key
                     rows[k] = (a, s, q, f, dtypes, e)
-            return result, levels
+            if len(keys) == n:
+                return result, levels
+            head = DfResult(
+                result.angle_deg[:n].copy(),
+                result.sigma_deg[:n].copy(),
+                result.snr_db[:n].copy(),
+                result.flags[:n].copy(),
+            )
+            return head, levels[:n].copy()
         dtypes = got[0][4]  # type: ignore[index]
         result = DfResult(
             np.array([g[0] for g in got], dtypes[0]),  # type: ignore[index]
@@ -162,6 +195,24 @@ class _DfMemo:
             np.array([g[3] for g in got], dtypes[3]),  # type: ignore[index]
         )
         return result, np.array([g[5] for g in got], np.float64)  # type: ignore[index]
+
+    def _neighbours(self, missing: list[tuple[float, float, int, bool]]) -> Array:
+        """Reading pairs on the calibration's step grid within :data:`DF_MEMO_REACH`
+        steps of the ``missing`` pairs, neither among them nor known yet, shape (m, 2),
+        float32 (the readings' own dtype: their keys are the keys such readings get)."""
+        pairs = [(k[0], k[1]) for k in missing if k[0] == k[0] and k[1] == k[1]]
+        if not pairs or self._offsets is None:
+            return np.empty((0, 2), np.float32)
+        centre = np.array(pairs, np.float64)
+        grid = (centre[:, None, :] + self._offsets).reshape(-1, 2).astype(np.float32)
+        c, one = missing[0][2], missing[0][3]
+        rows, own = self.rows, set(pairs)
+        fresh = [
+            p
+            for p in dict.fromkeys(map(tuple, grid.tolist()))
+            if p not in own and (p[0], p[1], c, one) not in rows
+        ]
+        return np.array(fresh, np.float32).reshape(-1, 2)
 
 
 _MEMOS: dict[tuple[int, float | None], _DfMemo] = {}

@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import json
 import math
+import statistics
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -501,7 +502,7 @@ class Bridge:
                     bearings[sid] = BearingBatch.empty(sid)
                     continue
                 if sid in self._mounted:  # a roadside unit's pose never changes
-                    mid_s = (float(np.median(obs.t_ns)) - self.t0_ns) / NS_PER_S
+                    mid_s = (float(statistics.median(obs.t_ns.tolist())) - self.t0_ns) / NS_PER_S
                     xy, heading = twin.sensor_pose(sid, [mid_s])
                     pipe.pose = Pose(float(xy[0, 0]), float(xy[0, 1]), float(heading[0]))
                 batch = pipe.process(obs)

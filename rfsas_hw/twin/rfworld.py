@@ -95,8 +95,12 @@ def link_path_loss_db(distance_m: Array, freq_mhz: npt.ArrayLike, rf: RfSpec) ->
     offset = TABLE_OFFSET_DB if rf.offset_db is None else rf.offset_db
     if rf.path_loss == "table":
         return path_loss_db(d, "table", offset_db=offset)
-    out = np.empty_like(d)
     freqs = np.asarray(freq_mhz)
+    if len(d) and freqs.min() == freqs.max():  # the usual case: one frequency, no grouping
+        return path_loss_db(
+            d, rf.path_loss, freq_mhz=float(freqs[0]), ht_m=rf.tx_height_m, hr_m=rf.rx_height_m
+        )
+    out = np.empty_like(d)
     for f in np.unique(freqs):
         sel = freqs == f
         out[sel] = path_loss_db(

@@ -83,6 +83,12 @@ def _interp_tracks(
     ``np.interp`` on each track, as the offline world interpolates one track;
     the rows are grouped by track with one sort, so a track costs two calls.
     """
+    if len(knots) == 1:  # one track (the usual case of a small scene): nothing to group
+        ts, xs, ys = knots[0]
+        one = np.empty((len(t), 2))
+        one[:, 0] = np.interp(t, ts, xs)
+        one[:, 1] = np.interp(t, ts, ys)
+        return one
     order = np.argsort(track, kind="stable")
     bounds = np.searchsorted(track[order], np.arange(len(knots) + 1)).tolist()
     t_sorted = t[order]
@@ -483,8 +489,12 @@ class StreamTwin(World):
         """
         if not len(t_s):
             return np.empty((0, 2))
-        uniq, inverse = np.unique(emitter, return_inverse=True)
-        uniq_ids: list[int] = uniq.tolist()
+        uniq_ids: list[int]
+        if emitter.min() == emitter.max():  # one emitter: no sort
+            uniq_ids, inverse = [int(emitter[0])], np.zeros(len(emitter), np.intp)
+        else:
+            uniq, inverse = np.unique(emitter, return_inverse=True)
+            uniq_ids = uniq.tolist()
         knots: list[tuple[Array, Array, Array]] = []
         for i in uniq_ids:
             track = self._carrier(i)

@@ -242,9 +242,10 @@ class Receptions:
         ``SENTINEL_CHAIN``; omitted or unheard ones NaN with ``MISSING_CHAIN``.
         """
         if card is None:
-            rows = self.heard.any(axis=1)
-            if rows.all():  # the usual case: no copies
-                rows = slice(None)  # type: ignore[assignment]
+            # the usual case, every card heard every frame: no copies (one reduction)
+            rows = slice(None) if self.heard.all() else self.heard.any(axis=1)
+            if not isinstance(rows, slice) and rows.all():
+                rows = slice(None)
             rssi = self.chain_dbm[rows]
             state = self.chain_state[rows]
             capture = self.capture_ns[rows]

@@ -154,3 +154,37 @@ def test_pipelines_share_a_memo_per_calibration_and_give_the_same_bearings(
             for name in ("azimuth_deg", "sigma_deg", "snr_db", "relative_deg"):
                 a, b = getattr(got, name), getattr(want, name)
                 np.testing.assert_allclose(a, b, rtol=1e-6, atol=1e-4, err_msg=name)
+
+
+def test_df_memo_learns_the_neighbours_of_a_new_pair() -> None:
+    # a miss also computes the pairs up to DF_MEMO_REACH steps around the new one (in
+    # the same estimate call), so the next readings of a moving emitter are answered
+    sweep = turntable_sweep(np.arange(-90.0, 90.5, 1.0), 30, -50.0, GaussianBeamPair(), RX, seed=3)
+    cal = fit_calibration(sweep, "linear")
+    memo = _DfMemo(cal, None)
+
+    def batch(pairs: list[tuple[float, float]]) -> ObservationBatch:
+        n = len(pairs)
+        return ObservationBatch(
+            t_ns=T0 + np.arange(n, dtype=np.int64),
+            mac=np.full(n, 0x0200000000A1, np.uint64),
+            freq_mhz=np.full(n, 2437),
+            channel=np.full(n, 6),
+            rssi_dbm=np.array(pairs, np.float32),
+        )
+
+    memo.estimate(batch([(-50.0, -55.0)]))
+    side = 2 * pipeline.DF_MEMO_REACH + 1
+    assert len(memo.rows) == side * side
+    step, reach = cal.step_db, pipeline.DF_MEMO_REACH
+    near = batch([(-50.0 - reach * step, -55.0 + step), (-50.0 + step, -55.0 + reach * step)])
+    got = memo.estimate(near)
+    assert len(memo.rows) == side * side  # answered from the memo
+    r = near.rssi_dbm
+    want = estimate(cal, r[:, 0], r[:, 1], near.channel)
+    for name in ("angle_deg", "sigma_deg", "snr_db", "flags"):
+        a, b = getattr(got, name), getattr(want, name)
+        assert a.dtype == b.dtype
+        np.testing.assert_allclose(a, b, rtol=1e-6, atol=1e-6, err_msg=name)
+    memo.estimate(batch([(-50.0 - (reach + 1) * step, -55.0)]))  # just outside: a miss
+    assert len(memo.rows) > side * side

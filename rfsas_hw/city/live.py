@@ -71,7 +71,7 @@ from rfsas_hw.fleet.tiles import TilePlan
 from rfsas_hw.geo import SiteOrigin
 from rfsas_hw.link.distribution import NonceDistributor
 from rfsas_hw.link.mqtt import open_mqtt
-from rfsas_hw.link.topics import ROOT, TopicRouter, quadkey
+from rfsas_hw.link.topics import ROOT, TopicRouter, quadkeys
 from rfsas_hw.privacy.epochs import EpochSchedule
 from rfsas_hw.records import Assessment, Fix
 from rfsas_hw.twin.scenario import BuildingSpec, PoseSpec
@@ -442,7 +442,7 @@ class DistributedRfsas:
 
     def _tiles(self, cars: Movers) -> list[str]:
         lat, lon, _ = self.origin.to_geodetic(cars.x_m, cars.y_m)
-        return [quadkey(a, b) for a, b in zip(lat.tolist(), lon.tolist(), strict=True)]
+        return quadkeys(lat, lon)
 
     def step(self, t_s: float, cars: Movers, vrus: Movers, phones: dict[str, str]) -> StepOut:
         """Run the distributed path for one step (see the module docstring).
@@ -461,16 +461,19 @@ class DistributedRfsas:
             raise SimulationError("DistributedRfsas.start() must be called before the first step")
         now_ns = self.t0_ns + round(t_s * NS_PER_S)
         self.distributor.tick(now_ns)
-        has = np.array([v in phones for v in vrus.ids], dtype=bool)
+        has = np.flatnonzero([v in phones for v in vrus.ids])
+        hear = self.config.hear_m
         for conn, xs, ys in self._workers.values():
-            reach2 = self.config.hear_m**2
-            near = has & (
-                (
-                    (vrus.x_m[:, None] - xs[None, :]) ** 2 + (vrus.y_m[:, None] - ys[None, :]) ** 2
-                ).min(axis=1, initial=np.inf)
-                < reach2
-            )
-            idx = np.flatnonzero(near)
+            # the VRUs with a phone in the box around the worker's units grown by the
+            # hearing range (and a metre for rounding), then the exact distance of those
+            box = has[
+                (vrus.x_m[has] > xs.min(initial=np.inf) - hear - 1.0)
+                & (vrus.x_m[has] < xs.max(initial=-np.inf) + hear + 1.0)
+                & (vrus.y_m[has] > ys.min(initial=np.inf) - hear - 1.0)
+                & (vrus.y_m[has] < ys.max(initial=-np.inf) + hear + 1.0)
+            ]
+            d2 = (vrus.x_m[box, None] - xs[None, :]) ** 2 + (vrus.y_m[box, None] - ys[None, :]) ** 2
+            idx = box[d2.min(axis=1, initial=np.inf) < hear**2]
             ids = tuple(vrus.ids[i] for i in idx.tolist())
             conn.send(
                 Snapshot(

@@ -28,6 +28,9 @@ import re
 import struct
 from dataclasses import dataclass
 
+import numpy as np
+import numpy.typing as npt
+
 from rfsas_hw.errors import LinkError
 from rfsas_hw.geo import SiteOrigin
 from rfsas_hw.privacy.epochs import EpochSchedule
@@ -54,22 +57,41 @@ def quadkey(lat_deg: float, lon_deg: float, zoom: int = ZOOM) -> str:
     Raises:
         LinkError: a non-finite coordinate or a zoom outside 1–23.
     """
-    if not (math.isfinite(lat_deg) and math.isfinite(lon_deg)):
-        raise LinkError(f"cannot tile a non-finite position ({lat_deg}, {lon_deg})")
+    return quadkeys(np.array([lat_deg]), np.array([lon_deg]), zoom)[0]
+
+
+def quadkeys(lat_deg: npt.ArrayLike, lon_deg: npt.ArrayLike, zoom: int = ZOOM) -> list[str]:
+    """:func:`quadkey` of many positions at once (arrays broadcast), in their order.
+
+    The tile indices are computed as arrays and each distinct tile is spelt once, so
+    hundreds of vehicles in a few tiles cost little more than a few.
+
+    Raises:
+        LinkError: a non-finite coordinate or a zoom outside 1–23.
+    """
+    lat, lon = np.broadcast_arrays(
+        np.asarray(lat_deg, dtype=np.float64), np.asarray(lon_deg, dtype=np.float64)
+    )
+    lat, lon = lat.ravel(), lon.ravel()
+    finite = np.isfinite(lat) & np.isfinite(lon)
+    if not finite.all():
+        i = int(np.flatnonzero(~finite)[0])
+        raise LinkError(f"cannot tile a non-finite position ({lat[i]}, {lon[i]})")
     if not 1 <= zoom <= 23:
         raise LinkError(f"quadkey zoom {zoom} outside 1-23")
-    lat = min(max(lat_deg, -MAX_LAT_DEG), MAX_LAT_DEG)
     n = 1 << zoom
-    x = int((lon_deg + 180.0) / 360.0 * n)
-    s = math.sin(math.radians(lat))
-    y = int((0.5 - math.log((1 + s) / (1 - s)) / (4 * math.pi)) * n)
-    x = min(max(x, 0), n - 1)
-    y = min(max(y, 0), n - 1)
-    digits = []
-    for i in range(zoom, 0, -1):
-        bit = 1 << (i - 1)
-        digits.append(str((1 if x & bit else 0) + (2 if y & bit else 0)))
-    return "".join(digits)
+    s = np.sin(np.radians(np.clip(lat, -MAX_LAT_DEG, MAX_LAT_DEG)))
+    x = ((lon + 180.0) / 360.0 * n).astype(np.int64)
+    y = ((0.5 - np.log((1 + s) / (1 - s)) / (4 * math.pi)) * n).astype(np.int64)
+    tile = np.clip(x, 0, n - 1) * n + np.clip(y, 0, n - 1)
+    spelt: dict[int, str] = {}
+    for t in set(tile.tolist()):
+        tx, ty = divmod(t, n)
+        spelt[t] = "".join(
+            str((1 if tx & (1 << i) else 0) + (2 if ty & (1 << i) else 0))
+            for i in range(zoom - 1, -1, -1)
+        )
+    return [spelt[t] for t in tile.tolist()]
 
 
 def check_quadkey(key: str) -> str:

@@ -20,6 +20,7 @@ from rfsas_hw.link.topics import (
     bearing_filter,
     bearing_topic,
     quadkey,
+    quadkeys,
     topic_sender,
 )
 from rfsas_hw.privacy.nonces import NonceAuthority
@@ -34,6 +35,19 @@ def test_quadkey_matches_the_published_tile_scheme() -> None:
     assert len(quadkey(48.137, 11.575)) == 16
     # a point 10 m away at zoom 16 (≈ 400 m tiles in Munich) lies in the same tile
     assert quadkey(48.137, 11.575)[:14] == quadkey(48.13709, 11.575)[:14]
+
+
+def test_quadkeys_tile_many_positions_in_order() -> None:
+    # the published tiles above, repeated and interleaved: one key per position, in order
+    lats = [-55.0, 85.0, -55.0, -85.0]
+    lons = [-22.5, -180.0, -22.5, 179.9]
+    assert quadkeys(lats, lons, zoom=3) == ["213", "000", "213", "333"]
+    assert quadkeys(lats, lons) == [quadkey(a, b) for a, b in zip(lats, lons, strict=True)]
+    assert quadkeys([], []) == []
+    with pytest.raises(LinkError, match=r"non-finite position \(1.0, inf\)"):
+        quadkeys([0.0, 1.0], [0.0, float("inf")])
+    with pytest.raises(LinkError, match="zoom 24"):
+        quadkeys([0.0], [0.0], zoom=24)
 
 
 def test_bad_inputs() -> None:

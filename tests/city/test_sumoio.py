@@ -1,0 +1,89 @@
+"""SumoDistrict.read: subscription results into the rfsas frame, cars apart from VRUs."""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+from typing import Any
+
+import numpy as np
+
+from rfsas_hw.city.sumoio import SumoDistrict
+
+POS, SPEED, ANGLE, DIST = 0x42, 0x40, 0x43, 0x84
+
+
+class _Domain:
+    """One TraCI domain (vehicle or person) of a fake SUMO: static values and results."""
+
+    def __init__(self, static: dict[str, tuple[str, float, float]]) -> None:
+        self.static = static
+        self.results: dict[str, dict[int, Any]] = {}
+        self.subscribed: list[str] = []
+
+    def getVehicleClass(self, oid: str) -> str:  # noqa: N802 (TraCI's name)
+        return self.static[oid][0]
+
+    def getLength(self, oid: str) -> float:  # noqa: N802
+        return self.static[oid][1]
+
+    def getWidth(self, oid: str) -> float:  # noqa: N802
+        return self.static[oid][2]
+
+    def subscribe(self, oid: str, _vars: tuple[int, ...]) -> None:
+        self.subscribed.append(oid)
+
+    def getAllSubscriptionResults(self) -> dict[str, dict[int, Any]]:  # noqa: N802
+        return self.results
+
+
+def _fake_sumo() -> Any:
+    vehicle = _Domain(
+        {"car": ("passenger", 4.0, 1.8), "bike": ("bicycle", 1.6, 0.6), "bus": ("bus", 12.0, 2.5)}
+    )
+    person = _Domain({"ped": ("pedestrian", 0.2, 0.5)})
+    departed = {"v": ["car", "bike", "bus"], "p": ["ped"]}
+    simulation = SimpleNamespace(
+        getDepartedIDList=lambda: departed["v"],
+        getDepartedPersonIDList=lambda: departed["p"],
+        getArrivedIDList=lambda: [],
+        getArrivedPersonIDList=lambda: [],
+    )
+    return SimpleNamespace(vehicle=vehicle, person=person, simulation=simulation, departed=departed)
+
+
+def test_read_puts_box_centres_in_the_frame_and_vrus_apart() -> None:
+    sumo = _fake_sumo()
+    sumo.vehicle.results = {
+        "car": {POS: (10.0, 20.0), SPEED: 5.0, ANGLE: 90.0, DIST: 30.0},  # heading east
+        "bike": {POS: (0.0, 0.0), SPEED: -1.0, ANGLE: 0.0, DIST: 3.0},  # north; SUMO's -1
+        "bus": {POS: (-5.0, 0.0), SPEED: 0.0, ANGLE: 180.0, DIST: 0.0},
+        "gone": {POS: (0.0, 0.0), SPEED: 0.0, ANGLE: 0.0, DIST: 0.0},  # never departed
+    }
+    sumo.person.results = {"ped": {POS: (1.0, 2.0), SPEED: 1.2, ANGLE: 270.0}}
+    # a frame shifted by (100, 0) m and turned by 0°
+    district = SumoDistrict(sumo, lambda x, y: (x + 100.0, y), lambda a: np.asarray(a) % 360.0)
+    cars, vrus = district.read()
+    assert cars.ids == ("car", "bus") and cars.cls == ("passenger", "bus")
+    # a vehicle's front bumper moves back half its length along its heading
+    np.testing.assert_allclose(cars.x_m, [110.0 - 2.0, 95.0], atol=1e-9)
+    np.testing.assert_allclose(cars.y_m, [20.0, 6.0], atol=1e-9)
+    np.testing.assert_allclose(cars.odometer_m, [30.0, 0.0])
+    np.testing.assert_allclose(cars.length_m, [4.0, 12.0])
+    np.testing.assert_allclose(cars.width_m, [1.8, 2.5])
+    # two-wheelers first, then persons; a person's position is its centre
+    assert vrus.ids == ("bike", "ped") and vrus.cls == ("bicycle", "pedestrian")
+    np.testing.assert_allclose(vrus.x_m, [100.0, 101.0], atol=1e-9)
+    np.testing.assert_allclose(vrus.y_m, [-0.8, 2.0], atol=1e-9)
+    np.testing.assert_allclose(vrus.heading_deg, [0.0, 270.0])
+    np.testing.assert_allclose(vrus.speed_mps, [0.0, 1.2])  # negative speeds clipped
+    np.testing.assert_allclose(vrus.odometer_m, [3.0, 0.0])
+    assert sumo.vehicle.subscribed == ["car", "bike", "bus"]
+    assert sumo.person.subscribed == ["ped"]
+
+
+def test_read_of_an_empty_simulation_gives_empty_arrays() -> None:
+    sumo = _fake_sumo()
+    sumo.departed["v"], sumo.departed["p"] = [], []
+    cars, vrus = SumoDistrict(sumo, lambda x, y: (x, y), lambda a: np.asarray(a)).read()
+    assert len(cars) == len(vrus) == 0
+    assert cars.x_m.shape == vrus.speed_mps.shape == (0,)

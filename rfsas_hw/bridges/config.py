@@ -78,19 +78,15 @@ EntityKind = Literal["pedestrian", "cyclist", "vehicle"]
 ENTITY_KINDS: tuple[EntityKind, ...] = ("pedestrian", "cyclist", "vehicle")
 
 
-def _check_floor(value: float | None, unit: str) -> None:
-    if value is not None and not (math.isfinite(value) and value >= 0.0):
-        raise ValueError(f"unit {unit!r}: env_floor_deg must be a finite number ≥ 0, got {value}")
+@dataclass(frozen=True, kw_only=True)
+class UnitHardware:
+    """What a unit is built from, roadside or on the ego vehicle (keyword fields,
+    after the unit's own id and placement).
 
+    Raises (from the constructor):
+        ValueError: a negative or non-finite ``env_floor_deg``.
+    """
 
-@dataclass(frozen=True)
-class UnitSpec:
-    """A roadside unit: a direction-finding sensor at a fixed pose."""
-
-    id: str
-    """Unit id (goes into bearings and messages)."""
-    pose: PoseSpec
-    """Position (metres east/north of the site origin) and boresight (compass degrees)."""
     receiver: ReceiverType = "radiotap-2-chain"
     """Receiver hardware."""
     antenna: AntennaSpec = field(default_factory=AntennaSpec)
@@ -110,37 +106,32 @@ class UnitSpec:
     own floor; 0 for a turntable fit, which sees free space only)."""
 
     def __post_init__(self) -> None:
-        _check_floor(self.env_floor_deg, self.id)
+        floor = self.env_floor_deg
+        if floor is not None and not (math.isfinite(floor) and floor >= 0.0):
+            unit = getattr(self, "id", "?")
+            raise ValueError(
+                f"unit {unit!r}: env_floor_deg must be a finite number ≥ 0, got {floor}"
+            )
 
 
 @dataclass(frozen=True)
-class EgoUnitSpec:
+class UnitSpec(UnitHardware):
+    """A roadside unit: a direction-finding sensor at a fixed pose."""
+
+    id: str
+    """Unit id (goes into bearings and messages)."""
+    pose: PoseSpec
+    """Position (metres east/north of the site origin) and boresight (compass degrees)."""
+
+
+@dataclass(frozen=True)
+class EgoUnitSpec(UnitHardware):
     """The ego vehicle's own unit, riding on it."""
 
     id: str = "ego-unit"
     """Unit id."""
     heading_offset_deg: float = 0.0
     """Boresight relative to the vehicle's heading, degrees clockwise."""
-    receiver: ReceiverType = "radiotap-2-chain"
-    """Receiver hardware."""
-    antenna: AntennaSpec = field(default_factory=AntennaSpec)
-    """The two-beam antenna."""
-    calibration: str = "turntable"
-    """``turntable`` or a calibration file path."""
-    driver: DriverSpec = field(default_factory=DriverSpec)
-    """Driver quirks."""
-    scan: ScanSpec = field(default_factory=ScanSpec)
-    """Scan plan."""
-    threshold_dbm: dict[str, float] = field(default_factory=dict)
-    """Sensitivity per technology, dBm."""
-    env_floor_deg: float | None = None
-    """Environment floor of the unit's bearings where it is mounted, degrees: the
-    angle error that multipath and scatter add beyond the calibration's σ model,
-    as a check against known positions measures it there (None: the calibration's
-    own floor; 0 for a turntable fit, which sees free space only)."""
-
-    def __post_init__(self) -> None:
-        _check_floor(self.env_floor_deg, self.id)
 
 
 @dataclass(frozen=True)

@@ -368,12 +368,16 @@ class DistributedRfsas:
                 clock=self.clock,
                 dashboard=self.config.dashboard,
             )
-            parent, child = ctx.Pipe()
-            proc = ctx.Process(target=backend_main, args=(work, child), name=b, daemon=True)
-            proc.start()
-            child.close()
-            self._procs.append(proc)
-            self._backends[b] = parent
+            self._backends[b] = self._spawn(ctx, backend_main, work, b)
+
+    def _spawn(self, ctx: Any, target: Any, work: Any, name: str) -> Any:
+        """Start ``target(work, pipe)`` as the daemon process ``name``; our end of the pipe."""
+        parent, child = ctx.Pipe()
+        proc = ctx.Process(target=target, args=(work, child), name=name, daemon=True)
+        proc.start()
+        child.close()
+        self._procs.append(proc)
+        return parent
 
     def _start_workers(
         self,
@@ -416,12 +420,7 @@ class DistributedRfsas:
                 groups=_junction_groups(part),
                 hear_m=self.config.hear_m,
             )
-            parent, child = ctx.Pipe()
-            proc = ctx.Process(target=worker_main, args=(work, child), name=wid, daemon=True)
-            proc.start()
-            child.close()
-            self._procs.append(proc)
-            self._workers[wid] = (parent, xs, ys)
+            self._workers[wid] = (self._spawn(ctx, worker_main, work, wid), xs, ys)
 
     def _wait_ready(self) -> None:
         conns = {**{w: c for w, (c, _, _) in self._workers.items()}, **self._backends}

@@ -71,7 +71,7 @@ from rfsas_hw.twin.scenario import (
     ScenarioSpec,
     SensorSpec,
 )
-from rfsas_hw.twin.stream import StreamTwin
+from rfsas_hw.twin.stream import StreamTwin, extend_tracks
 
 NS_PER_S = 1_000_000_000
 SLOT_S = 0.02
@@ -281,9 +281,9 @@ class _UnitsTwin:
         present = {snap.ids[i] for i in rows}
         for vru in [v for v in self.phones if v not in present]:
             twin.retire_emitter(self.phones.pop(vru).index, t_s)
+        tracks = []
         for i in rows:
             vru = snap.ids[i]
-            x, y, h = float(snap.x_m[i]), float(snap.y_m[i]), float(snap.heading_deg[i])
             phone = self.phones.get(vru)
             if phone is None:
                 # a VRU that comes back into range walks on as a new mover (the twin's
@@ -291,14 +291,15 @@ class _UnitsTwin:
                 visit = self._visits.get(vru, 0)
                 self._visits[vru] = visit + 1
                 mover = f"{vru}@{visit}"
-                twin.add_mover(mover)
-                twin.live[mover].extend(t_s, x, y, h)
+                tracks.append(twin.add_mover(mover))
                 self._give_phone(twin, vru, mover, snap.devices[i], t_s)
                 continue
-            twin.live[phone.mover].extend(t_s, x, y, h)
+            tracks.append(twin.live[phone.mover])
             if rotate is not None and t_s - phone.since_s >= rotate:
                 twin.retire_emitter(phone.index, t_s)
                 self._give_phone(twin, vru, phone.mover, snap.devices[i], t_s)
+        # every track's knot of this step in one go
+        extend_tracks(tracks, t_s, snap.x_m[idx], snap.y_m[idx], snap.heading_deg[idx])
 
     def close(self) -> None:
         for src in self.sources.values():

@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -44,7 +44,7 @@ from rfsas_hw.twin.world import Listening, ReceiverStreams, Receptions, World, n
 
 Array = npt.NDArray[np.float64]
 
-__all__ = ["LiveTrack", "StreamTwin"]
+__all__ = ["LiveTrack", "StreamTwin", "extend_tracks"]
 
 
 _COLUMNS = ("t", "emitter", "channel", "kind", "seq")
@@ -142,32 +142,20 @@ class LiveTrack:
         Raises:
             SimulationError: ``t_s`` is before the newest knot, or a value is not finite.
         """
-        if not (math.isfinite(t_s) and math.isfinite(x_m) and math.isfinite(y_m)):
-            raise SimulationError(f"track knot at t={t_s}: position ({x_m}, {y_m}) not finite")
-        if self._n and t_s < self._t[self._n - 1]:
-            raise SimulationError(
-                f"track knot at t={t_s:.6f} s is before the newest one "
-                f"({self._t[self._n - 1]:.6f} s); knots must come in time order"
-            )
-        if self._n == len(self._t):
+        h = None if heading_deg is None else np.array([heading_deg], np.float64)
+        extend_tracks([self], t_s, np.array([x_m], np.float64), np.array([y_m], np.float64), h)
+
+    def _push(self, t_s: float, x_m: float, y_m: float, h: float) -> None:
+        """Append a checked knot (``h``: unwrapped heading, NaN if not reported)."""
+        i = self._n
+        if i == len(self._t):
             for name in ("_t", "_x", "_y", "_h"):
                 old = getattr(self, name)
                 grown = np.empty(2 * len(old))
                 grown[: len(old)] = old
                 setattr(self, name, grown)
-        h = math.nan
-        if heading_deg is not None:
-            if not math.isfinite(heading_deg):
-                raise SimulationError(f"track knot at t={t_s}: heading {heading_deg} not finite")
-            prev = self._h[self._n - 1] if self._n else math.nan
-            h = (
-                heading_deg % 360.0
-                if math.isnan(prev)
-                else prev + wrap_deg_180(float(heading_deg - prev))
-            )
-        i = self._n
         self._t[i], self._x[i], self._y[i], self._h[i] = t_s, x_m, y_m, h
-        self._n += 1
+        self._n = i + 1
         self._cache = None
 
     def forget_before(self, t_s: float) -> None:
@@ -237,6 +225,46 @@ class LiveTrack:
             t = np.atleast_1d(np.asarray(t_s, dtype=np.float64))
             return np.asarray(np.mod(np.interp(t, self._t[:n], h), 360.0), np.float64)
         return self.track().heading_deg(t_s)
+
+
+def extend_tracks(
+    tracks: Sequence[LiveTrack],
+    t_s: float,
+    x_m: Array,
+    y_m: Array,
+    heading_deg: Array | None = None,
+) -> None:
+    """Add one knot at ``t_s`` to each of ``tracks``: ``(x_m[i], y_m[i])`` and, if known,
+    the compass heading ``heading_deg[i]`` (degrees), as :meth:`LiveTrack.extend` does for
+    one; the checks and the headings' unwrapping (the short way round from each track's
+    last heading) run over all tracks at once.
+
+    Raises:
+        SimulationError: ``t_s`` is before a track's newest knot, or a value is not
+            finite (no track is extended then).
+    """
+    x = np.asarray(x_m, np.float64)
+    y = np.asarray(y_m, np.float64)
+    if not math.isfinite(t_s) or not (np.isfinite(x).all() and np.isfinite(y).all()):
+        bad = 0 if not math.isfinite(t_s) else int(np.flatnonzero(~np.isfinite(x + y))[0])
+        raise SimulationError(f"track knot at t={t_s}: position ({x[bad]}, {y[bad]}) not finite")
+    for tr in tracks:
+        if tr._n and t_s < tr._t[tr._n - 1]:
+            raise SimulationError(
+                f"track knot at t={t_s:.6f} s is before the newest one "
+                f"({tr._t[tr._n - 1]:.6f} s); knots must come in time order"
+            )
+    if heading_deg is None:
+        h = np.full(len(tracks), math.nan)
+    else:
+        heading = np.asarray(heading_deg, np.float64)
+        if not np.isfinite(heading).all():
+            bad = int(np.flatnonzero(~np.isfinite(heading))[0])
+            raise SimulationError(f"track knot at t={t_s}: heading {heading[bad]} not finite")
+        prev = np.array([tr._h[tr._n - 1] if tr._n else math.nan for tr in tracks], np.float64)
+        h = np.where(np.isnan(prev), np.mod(heading, 360.0), prev + wrap_deg_180(heading - prev))
+    for tr, xi, yi, hi in zip(tracks, x.tolist(), y.tolist(), h.tolist(), strict=True):
+        tr._push(t_s, xi, yi, hi)
 
 
 class StreamTwin(World):

@@ -18,7 +18,7 @@ from rfsas_hw.twin.scenario import (
     WaypointSpec,
     load_scenario,
 )
-from rfsas_hw.twin.stream import LiveTrack, StreamTwin
+from rfsas_hw.twin.stream import LiveTrack, StreamTwin, extend_tracks
 from rfsas_hw.twin.world import Receptions, World
 
 CROSSING = Path(__file__).resolve().parents[2] / "examples" / "crossing.yaml"
@@ -461,3 +461,29 @@ def test_a_reach_needs_a_standing_sensor_and_a_positive_distance() -> None:
     mounted = next(s.id for s in sc.spec.sensors if s.pose is None)
     with pytest.raises(ConfigError, match="standing"):
         StreamTwin(sc, reach_m={mounted: 10.0})
+
+
+def test_extend_tracks_is_extend_of_each_track() -> None:
+    rng = np.random.default_rng(4)
+    one = [LiveTrack() for _ in range(5)]
+    many = [LiveTrack() for _ in range(5)]
+    for k in range(6):
+        x, y = rng.uniform(-50, 50, 5), rng.uniform(-50, 50, 5)
+        h = rng.uniform(-720.0, 720.0, 5)  # across north and beyond one turn
+        for tr, xi, yi, hi in zip(one, x, y, h, strict=True):
+            tr.extend(0.1 * k, float(xi), float(yi), float(hi))
+        extend_tracks(many, 0.1 * k, x, y, h)
+    t = np.linspace(0.0, 0.6, 13)
+    for a, b in zip(one, many, strict=True):
+        np.testing.assert_allclose(b.position(t), a.position(t))
+        np.testing.assert_allclose(b.heading_deg(t), a.heading_deg(t), atol=1e-9)
+    fresh, old = LiveTrack(), many[0]
+    extend_tracks([fresh, old], 0.6, np.array([1.0, 2.0]), np.array([3.0, 4.0]))
+    assert len(fresh) == 1 and old.last_s == 0.6
+    with pytest.raises(SimulationError, match="time order"):
+        extend_tracks([fresh, old], 0.5, np.zeros(2), np.zeros(2))
+    with pytest.raises(SimulationError, match="not finite"):
+        extend_tracks([fresh], 0.7, np.array([np.nan]), np.zeros(1))
+    with pytest.raises(SimulationError, match="heading"):
+        extend_tracks([fresh], 0.7, np.zeros(1), np.zeros(1), np.array([np.inf]))
+    assert len(fresh) == 1  # nothing added by a refused step

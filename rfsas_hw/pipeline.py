@@ -19,6 +19,7 @@ import itertools
 import logging
 import time
 from collections import Counter, deque
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -138,21 +139,28 @@ class _DfMemo:
     def estimate_with_levels(self, batch: ObservationBatch) -> tuple[DfResult, Array]:
         """:meth:`estimate` and the frames' boresight-equivalent levels, dBm
         (:func:`boresight_levels` of that result; NaN without a bearing)."""
-        rssi = batch.rssi_dbm
-        channels = batch.channel.tolist()
+        return self.readings(batch.rssi_dbm, batch.channel)
+
+    def readings(
+        self, rssi: npt.NDArray[np.float32], channel: npt.NDArray[np.int16]
+    ) -> tuple[DfResult, Array]:
+        """:meth:`estimate_with_levels` of the readings ``rssi`` (n, ≥ 2; the first two
+        chains count) on ``channel`` (n,)."""
+        batch_channel = channel
+        channels = channel.tolist()
         one = self.channel_free or min(channels) == max(channels)
         keys = [(r[0], r[1], c, one) for r, c in zip(rssi.tolist(), channels, strict=True)]
         rows = self.rows
         got = [rows.get(k) for k in keys]
         if any(g is None for g in got) or any(g[4] is not got[0][4] for g in got):  # type: ignore[index]
             n = len(keys)
-            r1, r2, channel = rssi[:, 0], rssi[:, 1], batch.channel
+            r1, r2, channel = rssi[:, 0], rssi[:, 1], batch_channel
             if one:  # the neighbours' results go into the same call
                 near = self._neighbours([k for k, g in zip(keys, got, strict=True) if g is None])
                 if len(near):
                     r1 = np.concatenate([r1, near[:, 0]])
                     r2 = np.concatenate([r2, near[:, 1]])
-                    channel = np.full(len(r1), channels[0], batch.channel.dtype)
+                    channel = np.full(len(r1), channels[0], batch_channel.dtype)
                     keys = keys + [(a, b, channels[0], one) for a, b in near.tolist()]
             cal = self.calibration
             result = estimate(cal, r1, r2, channel, min_snr_db=self.min_snr_db)
@@ -244,6 +252,10 @@ class _Waiting:
 class SensorPipeline:
     """Turn observation batches into bearing batches for one sensor.
 
+    Several sensors of one process (the units of a twin worker) go through their
+    pipelines together with :func:`process_units`, which is what :meth:`process`
+    does for one.
+
     Args:
         calibration: the antenna pair's calibration (one table per channel or one for all).
         hasher: MAC → emitter id (the privacy stage).
@@ -254,6 +266,13 @@ class SensorPipeline:
             the oldest are dropped (counted as ``hold_overflow``).
         fov_guard: the level rule in time (:class:`~rfsas_hw.df.fovguard.FovGuard`), keyed
             by the raw MAC inside this process; None: one with the default settings.
+        guard_key: added to every MAC to key ``fov_guard``'s state: pipelines sharing
+            one guard (so that :func:`process_units` judges all their frames in one
+            pass) keep their emitters apart with different keys; a multiple of
+            2⁴⁸ below 2⁶⁴ (MACs have 48 bits).
+
+    Raises:
+        ValueError: ``guard_key`` is not a multiple of 2⁴⁸ in [0, 2⁶⁴).
     """
 
     def __init__(
@@ -266,9 +285,13 @@ class SensorPipeline:
         min_snr_db: float | None = None,
         hold_max: int = DEFAULT_HOLD_MAX,
         fov_guard: FovGuard | None = None,
+        guard_key: int = 0,
     ) -> None:
+        if not 0 <= guard_key < 1 << 64 or guard_key % (1 << 48):
+            raise ValueError(f"guard_key {guard_key} is not a multiple of 2**48 in [0, 2**64)")
         self.calibration = calibration
         self.fov_guard = FovGuard() if fov_guard is None else fov_guard
+        self.guard_key = np.uint64(guard_key)
         self.hasher = hasher
         self.sensor_id = sensor_id
         self.pose = pose
@@ -283,13 +306,14 @@ class SensorPipeline:
         self.alarm_reason = ""
         self._memo: _DfMemo | None = None
 
-    def _estimate(self, batch: ObservationBatch) -> tuple[DfResult, Array | None]:
-        """DF of the batch's first two chains (a few frames through the memo), and the
+    def _estimate(
+        self, rssi: npt.NDArray[np.float32], channel: npt.NDArray[np.int16]
+    ) -> tuple[DfResult, Array | None]:
+        """DF of the readings' first two chains (a few frames through the memo), and the
         frames' boresight-equivalent levels when the memo has them (else None)."""
-        rssi = batch.rssi_dbm
-        if len(batch) > DF_MEMO_ROWS:
+        if len(rssi) > DF_MEMO_ROWS:
             result = estimate(
-                self.calibration, rssi[:, 0], rssi[:, 1], batch.channel, min_snr_db=self.min_snr_db
+                self.calibration, rssi[:, 0], rssi[:, 1], channel, min_snr_db=self.min_snr_db
             )
             return result, None
         memo = self._memo
@@ -299,7 +323,7 @@ class SensorPipeline:
             or memo.min_snr_db != self.min_snr_db
         ):
             memo = self._memo = _df_memo(self.calibration, self.min_snr_db)
-        return memo.estimate_with_levels(batch)
+        return memo.readings(rssi, channel)
 
     def _guard(
         self,
@@ -318,7 +342,7 @@ class SensorPipeline:
             rssi[:, 0],
             rssi[:, 1],
             batch.channel,
-            batch.mac,
+            batch.mac + self.guard_key,
             batch.t_ns,
             levels_dbm,
             folds=folds,
@@ -329,26 +353,14 @@ class SensorPipeline:
         arrived; invalid frames are counted by reason. Never raises for a missing
         nonce: those frames are held (or dropped and counted, see the class).
         """
+        return process_units([(self, batch)])[0]
+
+    def _bearings(
+        self, batch: ObservationBatch, result: DfResult, released: BearingBatch | None
+    ) -> BearingBatch:
+        """The last stage of :meth:`process`: count the invalid frames, hash (or hold)
+        the valid ones by epoch, after ``released``."""
         n = len(batch)
-        self.stats.observations += n
-        released = self.release() if self._waiting else None
-        if n == 0 or batch.n_antennas < 2:
-            if n:
-                self.stats.rejected["missing_chain"] += n
-            return released if released is not None else BearingBatch.empty(self.sensor_id)
-        result, levels = self._estimate(batch)
-        if self.calibration.phase is not None and batch.csi is not None:
-            # a CSI receiver with a phase calibration: interferometer bearings (their
-            # levels are the phase bearings', computed by the guard)
-            result = self._guard(
-                batch, phase_df_result(self.calibration, batch, result), folds=False
-            )
-        elif self.calibration.array is not None and batch.csi is not None:
-            # an array with a CSI receiver: every antenna in one fit, over its own field
-            # of view (the amplitude pair's level curve says nothing about it)
-            result = array_df_result(self.calibration, batch, result)
-        else:
-            result = self._guard(batch, result, levels)
         n_bad = int(np.count_nonzero(result.flags))
         if n_bad:
             for flag in DfFlag:
@@ -484,3 +496,109 @@ class SensorPipeline:
             self.alarm = True
             self.stats.nonce_alarms += 1
             log.warning("nonce alarm: %s", reason)
+
+
+def _split(result: DfResult, bounds: list[int]) -> list[DfResult]:
+    """``result`` cut at ``bounds`` (row offsets, first 0, last its length); views."""
+    return [
+        DfResult(
+            result.angle_deg[lo:hi],
+            result.sigma_deg[lo:hi],
+            result.snr_db[lo:hi],
+            result.flags[lo:hi],
+        )
+        for lo, hi in itertools.pairwise(bounds)
+    ]
+
+
+def _joined(parts: list[npt.NDArray[Any]]) -> npt.NDArray[Any]:
+    return parts[0] if len(parts) == 1 else np.concatenate(parts)
+
+
+def process_units(
+    items: Sequence[tuple[SensorPipeline, ObservationBatch]],
+) -> list[BearingBatch]:
+    """:meth:`SensorPipeline.process` of each ``(pipeline, batch)``, the sensors together:
+    one DF call for the batches of pipelines with the same calibration (object) and
+    SNR floor, one pass of the level rule for those that also share a field-of-view
+    guard (each pipeline's emitters kept apart by its ``guard_key``), so that many
+    units of one process pay the fixed cost of those stages once, not once per unit.
+    Each pipeline's bearings, counters, held frames and nonce alarm are its own, as if
+    it had processed its batch alone; the bearings are the same estimates (a DF
+    result can differ in the last bit with the rows it is computed with, see
+    :class:`_DfMemo`). Never raises for a missing nonce.
+
+    Returns:
+        The bearings of each item, in the items' order.
+    """
+    out: list[BearingBatch | None] = [None] * len(items)
+    released: list[BearingBatch | None] = []
+    groups: dict[tuple[int, float | None], list[int]] = {}
+    for k, (pipe, batch) in enumerate(items):
+        n = len(batch)
+        pipe.stats.observations += n
+        released.append(pipe.release() if pipe._waiting else None)
+        if n == 0 or batch.n_antennas < 2:
+            if n:
+                pipe.stats.rejected["missing_chain"] += n
+            rel = released[k]
+            out[k] = rel if rel is not None else BearingBatch.empty(pipe.sensor_id)
+            continue
+        groups.setdefault((id(pipe.calibration), pipe.min_snr_db), []).append(k)
+    results: dict[int, DfResult] = {}
+    guarded: dict[tuple[int, int], list[tuple[int, DfResult, Array]]] = {}
+    for ks in groups.values():
+        first = items[ks[0]][0]
+        cal = first.calibration
+        rssi = _joined([items[k][1].rssi_dbm[:, :2] for k in ks])
+        channel = _joined([items[k][1].channel for k in ks])
+        result, levels = first._estimate(rssi, channel)
+        bounds = [0, *itertools.accumulate(len(items[k][1]) for k in ks)]
+        for k, part, (lo, hi) in zip(
+            ks, _split(result, bounds), itertools.pairwise(bounds), strict=True
+        ):
+            pipe, batch = items[k]
+            if cal.phase is not None and batch.csi is not None:
+                # a CSI receiver with a phase calibration: interferometer bearings (their
+                # levels are the phase bearings', computed by the guard)
+                results[k] = pipe._guard(batch, phase_df_result(cal, batch, part), folds=False)
+            elif cal.array is not None and batch.csi is not None:
+                # an array with a CSI receiver: every antenna in one fit, over its own field
+                # of view (the amplitude pair's level curve says nothing about it)
+                results[k] = array_df_result(cal, batch, part)
+            else:
+                if levels is None:  # the frames' boresight levels, once for the group
+                    levels = boresight_levels(cal, result, rssi[:, 0], rssi[:, 1], channel)
+                guard = (id(pipe.fov_guard), id(cal))
+                guarded.setdefault(guard, []).append((k, part, levels[lo:hi]))
+    for members in guarded.values():
+        # the level rule in time over every member's frames in one pass: each member's
+        # frames stay in their order, its emitters apart from the others' by its key
+        ks = [k for k, _, _ in members]
+        first = items[ks[0]][0]
+        batches = [items[k][1] for k in ks]
+        keys = _joined([b.mac + items[k][0].guard_key for k, b in zip(ks, batches, strict=True)])
+        joined = DfResult(
+            _joined([m[1].angle_deg for m in members]),
+            _joined([m[1].sigma_deg for m in members]),
+            _joined([m[1].snr_db for m in members]),
+            _joined([m[1].flags for m in members]),
+        )
+        judged = first.fov_guard.apply(
+            first.calibration,
+            joined,
+            _joined([b.rssi_dbm[:, 0] for b in batches]),
+            _joined([b.rssi_dbm[:, 1] for b in batches]),
+            _joined([b.channel for b in batches]),
+            keys,
+            _joined([b.t_ns for b in batches]),
+            _joined([m[2] for m in members]),
+        )
+        bounds = [0, *itertools.accumulate(len(b) for b in batches)]
+        results.update(zip(ks, _split(judged, bounds), strict=True))
+    for k, result in results.items():
+        pipe, batch = items[k]
+        out[k] = pipe._bearings(batch, result, released[k])
+    return [
+        o if o is not None else BearingBatch.empty(items[k][0].sensor_id) for k, o in enumerate(out)
+    ]

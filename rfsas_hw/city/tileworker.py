@@ -54,11 +54,13 @@ from rfsas_hw.bridges.bridge import device_mac
 from rfsas_hw.bridges.config import BridgeConfig, UnitSpec
 from rfsas_hw.city.clock import SimClock, cpu_s
 from rfsas_hw.df.calibration import Calibration
+from rfsas_hw.df.fovchannels import ChannelConsistency
+from rfsas_hw.df.fovguard import MAX_EMITTERS, FovGuard
 from rfsas_hw.link.distribution import NonceInbox
 from rfsas_hw.link.keys import KeyStore
 from rfsas_hw.link.publisher import Publisher
 from rfsas_hw.link.transport import open_transport
-from rfsas_hw.pipeline import SensorPipeline
+from rfsas_hw.pipeline import SensorPipeline, process_units
 from rfsas_hw.privacy.epochs import EpochSchedule
 from rfsas_hw.privacy.hashing import MacHasher, NonceUnavailableError
 from rfsas_hw.records import BearingBatch, Pose, emitter_hex, int_to_mac
@@ -342,9 +344,20 @@ class TwinWorker:
         self.inbox.wait_s = 0.0
         self.hasher = MacHasher(self.inbox, work.epoch_s)
         self.pipelines: dict[str, SensorPipeline] = {}
-        for u in work.units:
+        # one field-of-view guard for all units (each unit's emitters under its own key),
+        # so that the level rule judges every unit's frames of a step in one pass
+        most = MAX_EMITTERS * len(work.units)
+        guard = FovGuard(max_emitters=most, channels=ChannelConsistency(max_emitters=most))
+        for k, u in enumerate(work.units):
             pose = Pose(u.pose.x_m, u.pose.y_m, u.pose.heading_deg)
-            self.pipelines[u.id] = SensorPipeline(work.calibrations[u.id], self.hasher, u.id, pose)
+            self.pipelines[u.id] = SensorPipeline(
+                work.calibrations[u.id],
+                self.hasher,
+                u.id,
+                pose,
+                fov_guard=guard,
+                guard_key=(k + 1) << 48,
+            )
             signer = KeyStore.open(work.keys[u.id]).signer()
             self.publishers[u.id] = Publisher.to_url(
                 work.urls[u.id],
@@ -401,13 +414,17 @@ class TwinWorker:
             air.was_busy = bool(air.phones)
             assert air.twin is not None
             air.twin.prepare(snap.t_s)
+            heard = []
             for sid, src in air.sources.items():
                 src.horizon_s = snap.t_s
                 obs = src.read()
-                if obs is None or not len(obs):
-                    continue
-                batch = self.pipelines[sid].process(obs)
-                frames += len(obs)
+                if obs is not None and len(obs):
+                    heard.append((sid, obs))
+                    frames += len(obs)
+            # every unit's frames through its pipeline in one call (DF and the level
+            # rule once for all units)
+            batches = process_units([(self.pipelines[sid], obs) for sid, obs in heard])
+            for (sid, _), batch in zip(heard, batches, strict=True):
                 bearings += len(batch)
                 if not len(batch):
                     continue

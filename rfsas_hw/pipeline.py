@@ -238,6 +238,12 @@ def _df_memo(calibration: Calibration, min_snr_db: float | None) -> _DfMemo:
     return memo
 
 
+_FLAG_NAMES = tuple(
+    (int(f), f.name.lower()) for f in DfFlag if f is not DfFlag.NONE and f.name is not None
+)
+"""Each :class:`DfFlag` bit with the name its frames are counted under."""
+
+
 @dataclass(slots=True)
 class _Waiting:
     """Frames of one epoch with their bearings computed, waiting for the nonce."""
@@ -363,12 +369,12 @@ class SensorPipeline:
         n = len(batch)
         n_bad = int(np.count_nonzero(result.flags))
         if n_bad:
-            for flag in DfFlag:
-                if flag is DfFlag.NONE or flag.name is None:
-                    continue
-                count = int(np.count_nonzero(result.flags & np.uint8(flag)))
-                if count:
-                    self.stats.rejected[flag.name.lower()] += count
+            # each distinct combination of flags once (there are few), each flag it has
+            combos, counts = np.unique(result.flags[result.flags != 0], return_counts=True)
+            for combo, count in zip(combos.tolist(), counts.tolist(), strict=True):
+                for bit, name in _FLAG_NAMES:
+                    if combo & bit:
+                        self.stats.rejected[name] += count
             if n_bad == n:
                 return released if released is not None else BearingBatch.empty(self.sensor_id)
             valid = result.flags == 0

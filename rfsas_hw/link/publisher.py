@@ -203,9 +203,13 @@ class Publisher:
             if len(batch) == 0:
                 return
         epochs = batch.t_ns // self.epoch_ns
-        distinct = np.unique(epochs).tolist()
+        first, last = int(epochs.min()), int(epochs.max())
+        distinct = [first] if first == last else np.unique(epochs).tolist()
         for epoch in distinct:
-            rows = batch if len(distinct) == 1 else batch.select(epochs == epoch)
+            rows = batch if first == last else batch.select(epochs == epoch)
+            if len(rows) <= self.chunk:  # the usual case: one message, no copy
+                self._send(int(epoch), rows)
+                continue
             for start in range(0, len(rows), self.chunk):
                 self._send(int(epoch), rows.select(slice(start, start + self.chunk)))
 

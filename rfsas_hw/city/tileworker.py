@@ -16,7 +16,9 @@ the main process sends it, over a pipe, the VRUs with a phone near its units
    heard by all of that junction's units, a phone near another junction costs
    this unit nothing) — and runs each unit's
    :class:`~rfsas_hw.pipeline.SensorPipeline` (calibration, DF, keyed MAC
-   hashing with the deployment's epoch nonces from the authority);
+   hashing with the deployment's epoch nonces from the authority), all units
+   in one :func:`~rfsas_hw.pipeline.process_units` call (one field-of-view
+   guard for all of them, each unit's emitters under its own key);
 3. signs each unit's bearings with that unit's key and publishes them on its
    bearing topic (:class:`~rfsas_hw.link.publisher.Publisher`, version 2 with
    the pre-authentication tag), each in the :data:`SLOT_S` slot of its frame's

@@ -536,7 +536,13 @@ def process_units(
 
     Returns:
         The bearings of each item, in the items' order.
+
+    Raises:
+        ValueError: a pipeline is given more than one batch (its frames must go
+            through it in order, one batch after the other).
     """
+    if len({id(pipe) for pipe, _ in items}) != len(items):
+        raise ValueError("process_units takes one batch per pipeline")
     out: list[BearingBatch | None] = [None] * len(items)
     released: list[BearingBatch | None] = []
     groups: dict[tuple[int, float | None], list[int]] = {}

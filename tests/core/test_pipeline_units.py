@@ -130,3 +130,5 @@ def test_empty_and_single_chain_batches_keep_their_place(cal: Calibration) -> No
     assert [b.sensor_id for b in out] == ["rsu-0", "rsu-1", "rsu-2"]
     assert len(out[0]) == 0 and len(out[1]) == 0 and len(out[2]) > 0
     assert pipes[1].stats.rejected["missing_chain"] == len(full)
+    with pytest.raises(ValueError, match="one batch per pipeline"):
+        process_units([(pipes[2], full), (pipes[2], full)])

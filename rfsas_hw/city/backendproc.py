@@ -15,6 +15,15 @@ backend judges every vehicle in its tiles, not one. Every 0.1 s
    topic ``rfsas/v1/vehicle/<id>/advisory`` through a per-vehicle
    :class:`~rfsas_hw.fleet.advisory.AdvisorySink` (its limits hold per vehicle).
 
+Between two ticks, bearings verified since the last step make the service step
+again once :attr:`BackendWork.quick_s` has passed since that step (a new fix
+does not wait for the tick), and the vehicles near an emitter it fixed are
+judged at once. The vehicles' states arrive ahead of their time (the simulation
+runs ahead of the clock); each is used from its own time on, never before.
+Every batch of states taken from the pipe is acknowledged (``("states",
+t_ns)``), so that the main process can tell a backend that does not read them
+and hold them back instead of blocking on a full pipe.
+
 When an advisory carries a fix made in this step, the process tells the main
 process (over the pipe) its vehicle, sequence numbers and that fix's time (the
 newest frame it was made of), so the frame → advisory latency is measured where
@@ -27,6 +36,7 @@ from __future__ import annotations
 import logging
 import math
 import time
+from collections import deque
 from dataclasses import dataclass, field
 from multiprocessing.connection import Connection
 from pathlib import Path
@@ -37,6 +47,7 @@ import numpy as np
 from rfsas_hw.apps.backend import BackendApp, BackendAppConfig, SettingsOverrides
 from rfsas_hw.backend.encounter import assess_encounters
 from rfsas_hw.backend.service import BackendConfig
+from rfsas_hw.backend.tracking import Tracker, predict_tracks
 from rfsas_hw.backend.triangulation import triangulate_batch
 from rfsas_hw.backend.vehicle import VehicleState
 from rfsas_hw.city.clock import SimClock, cpu_s
@@ -145,6 +156,9 @@ class CityBackend:
         self.signer = self.app.store.signer()
         self.sinks: dict[str, AdvisorySink] = {}
         self.vehicles: VehicleStates | None = None
+        """The newest vehicle states whose time has come (the ones judged)."""
+        self.coming: deque[VehicleStates] = deque()
+        """Vehicle states received ahead of their time, oldest first."""
         self.counters = BackendCounters()
         self._seen: dict[int, Any] = {}
         self._shown: dict[int, Any] = {}
@@ -166,6 +180,22 @@ class CityBackend:
         triangulate_batch(
             stations, np.array([[45.0, 315.0]]), np.array([[2.0, 2.0]]), settings.triangulation
         )
+        # a track started, then updated and predicted: the tracker's kernels
+        tracker = Tracker(settings.tracker)
+        for t_ns in (NS_PER_S, 2 * NS_PER_S):
+            tracker.update_many([1], [t_ns], np.zeros((1, 2)), np.eye(2)[None], [("a", "b")])
+        predict_tracks(list(tracker.tracks.values()), 3 * NS_PER_S, 1.0)
+
+    def take_states(self, states: VehicleStates) -> None:
+        """Hold vehicle states that arrived (ahead of their time, see :meth:`states_at`)."""
+        self.coming.append(states)
+
+    def states_at(self, now_ns: int) -> VehicleStates | None:
+        """The newest vehicle states of ``now_ns`` or before (those of a later time wait for
+        it: a backend learns where a vehicle is when the vehicle says so, not earlier)."""
+        while self.coming and self.coming[0].t_ns <= now_ns:
+            self.vehicles = self.coming.popleft()
+        return self.vehicles
 
     def _sink(self, vehicle_id: str) -> AdvisorySink:
         sink = self.sinks.get(vehicle_id)
@@ -210,7 +240,7 @@ class CityBackend:
             e: f.t_ns for e, f in service.fixes.items() if f.ok and self._stepped.get(e) is not f
         }
         self._stepped = dict(service.fixes)
-        states = self.vehicles
+        states = self.states_at(now_ns)
         if states is None or not len(states.ids) or not service.assessments:
             self._forget(set() if states is None else set(states.ids))
             return []
@@ -270,9 +300,10 @@ class CityBackend:
         """Receive and judge, reporting to ``conn``, until ``None`` arrives on it.
 
         Every ``step_s`` (0.1 s) every vehicle near a live emitter is judged; between
-        those steps, when bearings arrived and :attr:`BackendWork.quick_s` has passed
-        since the last step, the service steps again and the vehicles near an emitter
-        it fixed are judged against it at once (a new fix does not wait for the tick).
+        those steps, once bearings were verified since the last step and
+        :attr:`BackendWork.quick_s` has passed since it, the service steps again and
+        the vehicles near an emitter it fixed are judged against it at once (a new fix
+        does not wait for the tick, nor for more bearings).
         """
         receiver = self.app.receiver
         service = self.app.service
@@ -281,32 +312,48 @@ class CityBackend:
         quick_ns = int(self.work.quick_s * NS_PER_S)
         next_ns = clock() + step_ns
         last_ns = 0
+        unstepped = False
+        """Bearings were verified since the last step."""
         while True:
-            wait_s = clock.wall_s(max(next_ns - clock(), 0) / NS_PER_S)
+            due_ns = min(next_ns, last_ns + quick_ns) if unstepped else next_ns
+            wait_s = clock.wall_s(max(due_ns - clock(), 0) / NS_PER_S)
             got = receiver.receive(timeout=min(wait_s, clock.wall_s(self.work.quick_s)))
             for message in got:
                 service.on_verified(message)
-            while conn.poll():
-                msg: Any = conn.recv()
-                if msg is None:
-                    return
-                self.vehicles = msg
+            unstepped = unstepped or bool(got)
+            if not self._take_pipe(conn):
+                return
             now = clock()
             if now >= next_ns:
                 next_ns += step_ns * max(1, math.ceil((now - next_ns) / step_ns))
                 sent = self.judge(now)
                 if self.work.dashboard:
                     self._report_dashboard(conn)
-            elif got and now - last_ns >= quick_ns:
+            elif unstepped and now - last_ns >= quick_ns:
                 sent = self.judge(now, fresh_only=True)
             else:
                 continue
             last_ns = now
+            unstepped = False
             if sent:
                 conn.send(("sent", sent))
             fixes = self.new_fixes()
             if fixes:
                 conn.send(("fixes", fixes))
+
+    def _take_pipe(self, conn: Connection) -> bool:
+        """Take what the main process sent (vehicle states, acknowledged by the time of
+        the newest); False when told to stop."""
+        newest: int | None = None
+        while conn.poll():
+            msg: Any = conn.recv()
+            if msg is None:
+                return False
+            self.take_states(msg)
+            newest = msg.t_ns
+        if newest is not None:
+            conn.send(("states", newest))
+        return True
 
     def _report_dashboard(self, conn: Connection) -> None:
         """Send the fixes made since the last report and every current assessment."""

@@ -85,6 +85,10 @@ END_TIMEOUT_S = 20.0
 """How long a worker or backend may take to stop, seconds."""
 DRAIN_S = 1.0
 """Time the backends get to take the workers' last messages before they stop, seconds."""
+STATES_BACKLOG_S = 0.5
+"""A backend whose pipe holds vehicle states it has not taken spanning more than this
+gets no new ones until it has taken them (the main process never blocks on a busy
+backend's full pipe), seconds."""
 OWNER_MEMORY_S = 1.0
 """An advisory from the backend of the tile a vehicle left this long ago still counts
 as its owner's (it was judged there and is on its way), seconds."""
@@ -121,6 +125,12 @@ class LiveConfig:
     repeat_s: float = 0.5
     """A vehicle is told an emitter's unchanged (or milder) advice again after this
     long; new emitters and more severe advice go at once, seconds."""
+    lead_s: float = 0.2
+    """The simulation runs this far ahead of the deployment's clock, seconds: a step's
+    frames are computed before they are heard, so each leaves the worker when its
+    slot is over, not when the simulator and the worker are done with the step
+    (their CPU time). Advice reaches the simulator's vehicles this much later (a
+    step already simulated cannot be changed)."""
     time_scale: float = 1.0
     """Simulated seconds per wall second the deployment's clock runs at (1: real time;
     below 1 for a machine that cannot keep up, see :mod:`rfsas_hw.city.clock`)."""
@@ -135,6 +145,8 @@ class LiveConfig:
             raise ValueError("backends and workers must be at least 1")
         if not self.epoch_s > 0 or not self.hear_m > 0 or not self.near_m > 0:
             raise ValueError("epoch_s, hear_m and near_m must be positive")
+        if not 0.0 <= self.lead_s <= 1.0:
+            raise ValueError("lead_s must be in [0, 1] seconds")
 
 
 def _context() -> Any:
@@ -218,6 +230,9 @@ class LiveStats:
     advisories_received: int = 0
     """Advisory datagrams the gateway took from the broker."""
     foreign: int = 0
+    states_held: int = 0
+    """Steps whose vehicle states a backend did not get because it had not taken
+    those of :data:`STATES_BACKLOG_S` before (it was busy)."""
     problems: list[str] = field(default_factory=list)
 
 
@@ -297,6 +312,10 @@ class DistributedRfsas:
         self._procs: list[Any] = []
         self._workers: dict[str, tuple[Connection, np.ndarray, np.ndarray]] = {}
         self._backends: dict[str, Connection] = {}
+        self._given_ns: dict[str, int] = {}
+        self._taken_ns: dict[str, int] = {}
+        """Per backend, the time of the newest vehicle states sent to it and taken by it,
+        UTC ns."""
         self._truth: dict[str, str] = {}
         self._sent: dict[str, int] = {}
         self._pending: dict[str, int] = {}
@@ -336,6 +355,8 @@ class DistributedRfsas:
         """Now is simulation time 0: its UTC in ns (whole microseconds, as the twin's
         start time is written). Call right before the first step."""
         self.t0_ns = self.clock() // 1000 * 1000
+        self._given_ns = dict.fromkeys(self._backends, self.t0_ns)
+        self._taken_ns = dict.fromkeys(self._backends, self.t0_ns)
         return self.t0_ns
 
     def _start_authority(self) -> None:
@@ -488,18 +509,22 @@ class DistributedRfsas:
         tiles = self._tiles(cars)
         for b, conn in self._backends.items():
             sel = [i for i, t in enumerate(tiles) if self.owner.get(t) == b]
-            conn.send(
-                VehicleStates(
-                    now_ns,
-                    tuple(cars.ids[i] for i in sel),
-                    cars.x_m[sel],
-                    cars.y_m[sel],
-                    cars.heading_deg[sel],
-                    cars.speed_mps[sel],
-                    cars.length_m[sel],
-                    cars.width_m[sel],
+            if self._given_ns[b] - self._taken_ns[b] > STATES_BACKLOG_S * NS_PER_S:
+                self.stats.states_held += 1  # busy: it has older states to take first
+            else:
+                self._given_ns[b] = now_ns
+                conn.send(
+                    VehicleStates(
+                        now_ns,
+                        tuple(cars.ids[i] for i in sel),
+                        cars.x_m[sel],
+                        cars.y_m[sel],
+                        cars.heading_deg[sel],
+                        cars.speed_mps[sel],
+                        cars.length_m[sel],
+                        cars.width_m[sel],
+                    )
                 )
-            )
             for i in sel:
                 vid = cars.ids[i]
                 for memory, name in ((self._owners, b), (self._tiles_of, tiles[i])):
@@ -548,6 +573,8 @@ class DistributedRfsas:
                                 sigma,
                             )
                         )
+                elif msg[0] == "states":
+                    self._taken_ns[b] = max(self._taken_ns[b], int(msg[1]))
                 elif msg[0] == "dashboard":
                     out.dashboard.append((b, msg[1], msg[2]))
                 elif msg[0] == "error":

@@ -445,8 +445,8 @@ def _run_loop(
         for k in range(1, steps + 1):
             t = k * STEP_S
             if live is not None:
-                # one step ahead of the wall clock: the workers send each frame on time
-                ahead = live.clock.wall_s(t - STEP_S) - (time.monotonic() - wall0)
+                # ahead of the clock (LiveConfig.lead_s): the workers send each frame on time
+                ahead = live.clock.wall_s(t - live.config.lead_s) - (time.monotonic() - wall0)
                 if ahead > 0:
                     time.sleep(ahead)
                 runtime.behind_s = max(runtime.behind_s, -ahead)
@@ -569,6 +569,7 @@ def _costs(
         "bearings": sum(w.bearings for w in stats.workers.values()),
         "phones": sum(w.phones for w in stats.workers.values()),
         "vehicles_judged": sum(b.vehicles_judged for b in stats.backends.values()),
+        "vehicle_states_held": stats.states_held,
     }
     for b in stats.backends.values():
         for k, v in b.stats.items():

@@ -40,7 +40,7 @@ from collections import deque
 from dataclasses import dataclass, field
 from multiprocessing.connection import Connection
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 
@@ -60,7 +60,14 @@ from rfsas_hw.link.topics import TopicRouter
 NS_PER_S = 1_000_000_000
 _SEVERITY = {"brake": 3, "caution": 2, "clear": 1, "none": 0}
 
-__all__ = ["BackendWork", "VehicleStates", "backend_main"]
+__all__ = [
+    "BackendWork",
+    "Cadence",
+    "StatesByTime",
+    "VehicleStates",
+    "backend_main",
+    "warm_kernels",
+]
 
 log = logging.getLogger(__name__)
 
@@ -127,6 +134,97 @@ class BackendCounters:
     problems: list[str] = field(default_factory=list)
 
 
+def warm_kernels(settings: BackendConfig) -> None:
+    """Load (or compile, the first time on a machine) every numeric kernel a backend's
+    step uses — triangulation, the tracker's update and prediction, the encounter
+    model — before the run: a first fix must not wait for them (seconds, during
+    which the backend takes no bearings)."""
+    assess_encounters(
+        VehicleState(x_m=0.0, y_m=-30.0, heading_deg=0.0, speed_mps=10.0),
+        np.array([[0.0, 0.0, 1.0, 0.0]]),
+        np.eye(4)[None, :, :],
+        settings.encounter,
+    )
+    stations = np.array([[[-10.0, 0.0], [10.0, 0.0]]])
+    triangulate_batch(
+        stations, np.array([[45.0, 315.0]]), np.array([[2.0, 2.0]]), settings.triangulation
+    )
+    # a track started, then updated, then predicted
+    tracker = Tracker(settings.tracker)
+    for t_ns in (NS_PER_S, 2 * NS_PER_S):
+        tracker.update_many([1], [t_ns], np.zeros((1, 2)), np.eye(2)[None], [("a", "b")])
+    predict_tracks(list(tracker.tracks.values()), 3 * NS_PER_S, settings.tracker.accel_sigma_mps2)
+
+
+class StatesByTime:
+    """Vehicle states that arrive ahead of their time (the simulation runs ahead of the
+    clock), each used from its own time on: a backend learns where a vehicle is when
+    the vehicle says so, not earlier."""
+
+    def __init__(self) -> None:
+        self.current: VehicleStates | None = None
+        self.coming: deque[VehicleStates] = deque()
+        """States not of now yet, oldest first."""
+
+    def add(self, states: VehicleStates) -> None:
+        """Take states that arrived (in time order, as the simulation steps)."""
+        self.coming.append(states)
+
+    def at(self, now_ns: int) -> VehicleStates | None:
+        """The newest states of ``now_ns`` (UTC ns) or before; None before the first."""
+        while self.coming and self.coming[0].t_ns <= now_ns:
+            self.current = self.coming.popleft()
+        return self.current
+
+
+class Cadence:
+    """When a district backend steps: every ``step_ns`` (a tick: every vehicle near a
+    live emitter is judged), and between ticks once bearings were verified since the
+    last step and ``quick_ns`` has passed since it (a quick step: the vehicles near a
+    new fix are judged at once). Times are UTC ns of the deployment's clock.
+
+    Args:
+        step_ns: time between ticks, ns.
+        quick_ns: shortest time between two steps when bearings arrive, ns.
+        now_ns: now; the first tick is one ``step_ns`` later.
+    """
+
+    def __init__(self, step_ns: int, quick_ns: int, now_ns: int) -> None:
+        self.step_ns = step_ns
+        self.quick_ns = quick_ns
+        self.next_ns = now_ns + step_ns
+        """The next tick."""
+        self.last_ns = 0
+        """The last step (tick or quick)."""
+        self.unstepped = False
+        """Bearings were verified since the last step."""
+
+    def bearings(self) -> None:
+        """Bearings were verified."""
+        self.unstepped = True
+
+    def wait_ns(self, now_ns: int) -> int:
+        """How long to wait for bearings before the next step may be due, ns (≥ 0)."""
+        due = self.next_ns
+        if self.unstepped:
+            due = min(due, self.last_ns + self.quick_ns)
+        return max(due - now_ns, 0)
+
+    def due(self, now_ns: int) -> Literal["tick", "quick"] | None:
+        """The step due at ``now_ns`` (then counted as made), or None."""
+        if now_ns >= self.next_ns:
+            # a tick missed (a long step) is not made up for
+            self.next_ns += self.step_ns * max(1, math.ceil((now_ns - self.next_ns) / self.step_ns))
+            what: Literal["tick", "quick"] = "tick"
+        elif self.unstepped and now_ns - self.last_ns >= self.quick_ns:
+            what = "quick"
+        else:
+            return None
+        self.last_ns = now_ns
+        self.unstepped = False
+        return what
+
+
 class CityBackend:
     """One district backend (see the module docstring); :meth:`run` until told to stop.
 
@@ -155,10 +253,8 @@ class CityBackend:
         self.home_tile = self.router.tile_of(0.0, 0.0)
         self.signer = self.app.store.signer()
         self.sinks: dict[str, AdvisorySink] = {}
-        self.vehicles: VehicleStates | None = None
-        """The newest vehicle states whose time has come (the ones judged)."""
-        self.coming: deque[VehicleStates] = deque()
-        """Vehicle states received ahead of their time, oldest first."""
+        self.vehicles = StatesByTime()
+        """The vehicles' states, each used from its own time on."""
         self.counters = BackendCounters()
         self._seen: dict[int, Any] = {}
         self._shown: dict[int, Any] = {}
@@ -168,34 +264,8 @@ class CityBackend:
 
     def warm(self) -> None:
         """Load (or compile, the first time on a machine) the numeric kernels before the
-        run: a first vehicle judged must not wait for the compiler."""
-        settings = self.app.service.config
-        assess_encounters(
-            VehicleState(x_m=0.0, y_m=-30.0, heading_deg=0.0, speed_mps=10.0),
-            np.array([[0.0, 0.0, 1.0, 0.0]]),
-            np.eye(4)[None, :, :],
-            settings.encounter,
-        )
-        stations = np.array([[[-10.0, 0.0], [10.0, 0.0]]])
-        triangulate_batch(
-            stations, np.array([[45.0, 315.0]]), np.array([[2.0, 2.0]]), settings.triangulation
-        )
-        # a track started, then updated and predicted: the tracker's kernels
-        tracker = Tracker(settings.tracker)
-        for t_ns in (NS_PER_S, 2 * NS_PER_S):
-            tracker.update_many([1], [t_ns], np.zeros((1, 2)), np.eye(2)[None], [("a", "b")])
-        predict_tracks(list(tracker.tracks.values()), 3 * NS_PER_S, 1.0)
-
-    def take_states(self, states: VehicleStates) -> None:
-        """Hold vehicle states that arrived (ahead of their time, see :meth:`states_at`)."""
-        self.coming.append(states)
-
-    def states_at(self, now_ns: int) -> VehicleStates | None:
-        """The newest vehicle states of ``now_ns`` or before (those of a later time wait for
-        it: a backend learns where a vehicle is when the vehicle says so, not earlier)."""
-        while self.coming and self.coming[0].t_ns <= now_ns:
-            self.vehicles = self.coming.popleft()
-        return self.vehicles
+        run (:func:`warm_kernels`)."""
+        warm_kernels(self.app.service.config)
 
     def _sink(self, vehicle_id: str) -> AdvisorySink:
         sink = self.sinks.get(vehicle_id)
@@ -240,7 +310,7 @@ class CityBackend:
             e: f.t_ns for e, f in service.fixes.items() if f.ok and self._stepped.get(e) is not f
         }
         self._stepped = dict(service.fixes)
-        states = self.states_at(now_ns)
+        states = self.vehicles.at(now_ns)
         if states is None or not len(states.ids) or not service.assessments:
             self._forget(set() if states is None else set(states.ids))
             return []
@@ -308,33 +378,25 @@ class CityBackend:
         receiver = self.app.receiver
         service = self.app.service
         clock = self.clock
-        step_ns = int(service.config.step_s * NS_PER_S)
-        quick_ns = int(self.work.quick_s * NS_PER_S)
-        next_ns = clock() + step_ns
-        last_ns = 0
-        unstepped = False
-        """Bearings were verified since the last step."""
+        cadence = Cadence(
+            int(service.config.step_s * NS_PER_S), int(self.work.quick_s * NS_PER_S), clock()
+        )
         while True:
-            due_ns = min(next_ns, last_ns + quick_ns) if unstepped else next_ns
-            wait_s = clock.wall_s(max(due_ns - clock(), 0) / NS_PER_S)
+            wait_s = clock.wall_s(cadence.wait_ns(clock()) / NS_PER_S)
             got = receiver.receive(timeout=min(wait_s, clock.wall_s(self.work.quick_s)))
             for message in got:
                 service.on_verified(message)
-            unstepped = unstepped or bool(got)
+            if got:
+                cadence.bearings()
             if not self._take_pipe(conn):
                 return
             now = clock()
-            if now >= next_ns:
-                next_ns += step_ns * max(1, math.ceil((now - next_ns) / step_ns))
-                sent = self.judge(now)
-                if self.work.dashboard:
-                    self._report_dashboard(conn)
-            elif unstepped and now - last_ns >= quick_ns:
-                sent = self.judge(now, fresh_only=True)
-            else:
+            what = cadence.due(now)
+            if what is None:
                 continue
-            last_ns = now
-            unstepped = False
+            sent = self.judge(now, fresh_only=what == "quick")
+            if what == "tick" and self.work.dashboard:
+                self._report_dashboard(conn)
             if sent:
                 conn.send(("sent", sent))
             fixes = self.new_fixes()
@@ -349,7 +411,7 @@ class CityBackend:
             msg: Any = conn.recv()
             if msg is None:
                 return False
-            self.take_states(msg)
+            self.vehicles.add(msg)
             newest = msg.t_ns
         if newest is not None:
             conn.send(("states", newest))

@@ -446,7 +446,8 @@ def _run_loop(
             t = k * STEP_S
             if live is not None:
                 # ahead of the clock (LiveConfig.lead_s): the workers send each frame on time
-                ahead = live.clock.wall_s(t - live.config.lead_s) - (time.monotonic() - wall0)
+                due_s = max(t - live.config.lead_s, 0.0)
+                ahead = live.clock.wall_s(due_s) - (time.monotonic() - wall0)
                 if ahead > 0:
                     time.sleep(ahead)
                 runtime.behind_s = max(runtime.behind_s, -ahead)

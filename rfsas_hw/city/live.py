@@ -13,7 +13,7 @@ this machine:
 - the backends (:mod:`rfsas_hw.city.backendproc`), each a process owning the
   tiles of its group in the tile plan (:mod:`rfsas_hw.city.partition`),
   advising every vehicle in its tiles on the vehicle's own topic;
-- the vehicles' receivers behind the gateway connection
+- the vehicles' receivers behind the gateway connection, a process of their own
   (:mod:`rfsas_hw.city.vehicles`).
 
 :meth:`DistributedRfsas.step` takes the simulation's vehicles and VRUs of one
@@ -40,7 +40,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from cryptography.hazmat.primitives.asymmetric import ec
+from cryptography.hazmat.primitives import serialization
 
 from rfsas_hw.backend.service import BackendConfig
 from rfsas_hw.bridges.bridge import fitted_calibration
@@ -64,7 +64,7 @@ from rfsas_hw.city.tileworker import (
     unit_sensor,
     worker_main,
 )
-from rfsas_hw.city.vehicles import Arrival, VehicleGateway
+from rfsas_hw.city.vehicles import Arrival, GatewayStats, GatewayWork, gateway_main
 from rfsas_hw.errors import SimulationError
 from rfsas_hw.fleet.broker import BrokerFiles
 from rfsas_hw.fleet.tiles import TilePlan
@@ -155,7 +155,9 @@ def _context() -> Any:
     seconds on a busy machine)."""
     ctx = mp.get_context("forkserver")
     # numba: the backends' kernels (imported when first needed, so not by backendproc)
-    ctx.set_forkserver_preload(["rfsas_hw.city.tileworker", "rfsas_hw.city.backendproc", "numba"])
+    ctx.set_forkserver_preload(
+        ["rfsas_hw.city.tileworker", "rfsas_hw.city.backendproc", "rfsas_hw.city.vehicles", "numba"]
+    )
     return ctx
 
 
@@ -236,18 +238,16 @@ class LiveStats:
     problems: list[str] = field(default_factory=list)
 
 
-class _BackendKeys:
-    """The backends' signing keys, as every vehicle holds them."""
-
-    def __init__(self, deployment: Deployment) -> None:
-        self.keys: dict[str, ec.EllipticCurvePublicKey] = {}
-        for b, store in deployment.backends.items():
-            key = store.card.sign_public
-            if key is not None:
-                self.keys[b] = key
-
-    def backend_key(self, backend_id: str) -> ec.EllipticCurvePublicKey | None:
-        return self.keys.get(backend_id)
+def _backend_keys(deployment: Deployment) -> dict[str, bytes]:
+    """The backends' public signing keys (DER), as every vehicle holds them."""
+    out = {}
+    for b, store in deployment.backends.items():
+        key = store.card.sign_public
+        if key is not None:
+            out[b] = key.public_bytes(
+                serialization.Encoding.DER, serialization.PublicFormat.SubjectPublicKeyInfo
+            )
+    return out
 
 
 def _proc_cpu_s(pid: int) -> float:
@@ -327,7 +327,10 @@ class DistributedRfsas:
         self._tiles_of: dict[str, dict[str, float]] = {}
         """Per vehicle, the tiles it was in lately, with when (sim s)."""
         self.broker: LocalBroker | None = None
-        self.gateway: VehicleGateway | None = None
+        self._gateway: Connection | None = None
+        """The pipe to the vehicles' gateway process."""
+        self._present: frozenset[str] = frozenset()
+        """The vehicles the gateway was last told of."""
         self._auth_transport: Any = None
         self._closed = False
         self.late: list[Arrival] = []
@@ -339,12 +342,13 @@ class DistributedRfsas:
             ctx = _context()
             self._start_backends(ctx, backend_ids, settings)
             self._start_workers(ctx, units, buildings, bridge)
-            self._wait_ready()
-            gw_url = self.deployment.url(GATEWAY_ID, sub=f"{ROOT}/vehicle/+/advisory")
-            self.gateway = VehicleGateway(
-                _BackendKeys(self.deployment), open_mqtt(gw_url, "recv"), clock=self.clock
+            gateway = GatewayWork(
+                url=self.deployment.url(GATEWAY_ID, sub=f"{ROOT}/vehicle/+/advisory"),
+                backend_keys=_backend_keys(self.deployment),
+                clock=self.clock,
             )
-            self.gateway.start()
+            self._gateway = self._spawn(ctx, gateway_main, gateway, "vehicles")
+            self._wait_ready()
         except BaseException:
             self.close()
             raise
@@ -445,6 +449,8 @@ class DistributedRfsas:
 
     def _wait_ready(self) -> None:
         conns = {**{w: c for w, (c, _, _) in self._workers.items()}, **self._backends}
+        if self._gateway is not None:
+            conns["vehicles' gateway"] = self._gateway
         deadline = time.monotonic() + READY_TIMEOUT_S
         for name, conn in conns.items():
             while not conn.poll(0.1):
@@ -535,9 +541,12 @@ class DistributedRfsas:
                             del held[old]
         out = StepOut()
         self._from_backends(out)
-        assert self.gateway is not None
-        self.gateway.vehicles(cars.ids)
-        for arrival in self.gateway.drain():
+        present = frozenset(cars.ids)
+        if present != self._present:
+            assert self._gateway is not None
+            self._gateway.send(tuple(present))
+            self._present = present
+        for arrival in self._arrivals():
             key = (arrival.message.sender_id, arrival.message.seq)
             self._arrived[key] = arrival.t_ns
             owned = arrival.message.sender_id in self._owners.get(arrival.vehicle_id, {})
@@ -547,6 +556,19 @@ class DistributedRfsas:
         self._match(out, now_ns)
         out.messages = self._wait_workers(t_s)
         self.stats.foreign += out.foreign
+        return out
+
+    def _arrivals(self) -> list[Arrival]:
+        """The advisories the gateway verified since the last call, oldest first."""
+        out: list[Arrival] = []
+        conn = self._gateway
+        assert conn is not None
+        while conn.poll():
+            msg = conn.recv()
+            if msg[0] == "arrivals":
+                out += msg[1]
+            elif msg[0] == "error":
+                raise SimulationError(str(msg[1]))
         return out
 
     def _from_backends(self, out: StepOut) -> None:
@@ -644,6 +666,36 @@ class DistributedRfsas:
                 self.stats.problems.append(f"{name} ended without its counters")
             conn.close()
 
+    def _stop_gateway(self, conn: Connection, deadline: float) -> list[Arrival]:
+        """Tell the gateway to stop; the advisories it verified since the last step (its
+        counters go to :attr:`stats`)."""
+        late: list[Arrival] = []
+        with contextlib.suppress(OSError):
+            conn.send(None)
+        try:
+            while conn.poll(max(deadline - time.monotonic(), 0.0)):
+                msg = conn.recv()
+                if msg[0] == "arrivals":
+                    late += msg[1]
+                    continue
+                if msg[0] == "end":
+                    totals: GatewayStats = msg[1]
+                    self.stats.gateway = {
+                        "datagrams": totals.datagrams,
+                        "verified": totals.verified,
+                        "unknown_vehicle": totals.unknown_vehicle,
+                        "rejected": dict(totals.rejected),
+                        "cpu_s": float(msg[2]),
+                    }
+                    self.stats.advisories_received = totals.datagrams
+                elif msg[0] == "error":
+                    self.stats.problems.append(str(msg[1]))
+                break
+        except (EOFError, OSError):
+            self.stats.problems.append("the vehicles' gateway ended without its counters")
+        conn.close()
+        return late
+
     def close(self) -> LiveStats:
         """Stop every process and the broker; the counters (collected once). Idempotent."""
         if self._closed:
@@ -654,9 +706,9 @@ class DistributedRfsas:
         self._stop({w: c for w, (c, _, _) in self._workers.items()}, deadline)
         time.sleep(DRAIN_S)
         self._stop(dict(self._backends), deadline)
-        if self.gateway is not None:
+        if self._gateway is not None:
             time.sleep(DRAIN_S)
-            for arrival in self.gateway.drain():
+            for arrival in self._stop_gateway(self._gateway, deadline):
                 owned = arrival.message.sender_id in self._owners.get(arrival.vehicle_id, {})
                 self.stats.foreign += not owned
                 lately = tuple(self._tiles_of.get(arrival.vehicle_id, {}))
@@ -666,18 +718,6 @@ class DistributedRfsas:
             if proc.is_alive():
                 proc.terminate()
                 proc.join(5)
-        if self.gateway is not None:
-            totals = self.gateway.totals()
-            self.stats.gateway = {
-                "datagrams": totals.datagrams,
-                "verified": totals.verified,
-                "unknown_vehicle": totals.unknown_vehicle,
-                "rejected": dict(totals.rejected),
-                "cpu_s": self.gateway.cpu_s,
-            }
-            self.stats.advisories_received = totals.datagrams
-            self.gateway.close()
-            self.stats.gateway["cpu_s"] = self.gateway.cpu_s
         if self._auth_transport is not None:
             self._auth_transport.close()
         if self.broker is not None:

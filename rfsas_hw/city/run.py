@@ -12,8 +12,9 @@ One run (:func:`run_city`):
 3. steps: SUMO, everyone's state (:class:`~rfsas_hw.city.sumoio.SumoDistrict`),
    the scorer (:class:`~rfsas_hw.city.scoring.CityScorer`), the distributed
    path, and each vehicle's own advisories acted on in SUMO. With RF-SAS on
-   the loop is paced so that simulation time runs one step ahead of the wall
-   clock (the twin workers send each frame when its time comes); with RF-SAS
+   the loop is paced so that simulation time runs ``LiveConfig.lead_s`` ahead of
+   the deployment's clock (the twin workers send each frame when its time
+   comes); with RF-SAS
    off it runs as fast as SUMO goes;
 4. writes the run log (JSON lines: start, one line per advisory that reached a
    vehicle, one per simulated second, the end), the summary (JSON) and the map

@@ -137,7 +137,8 @@ class Runtime:
     realtime_factor: float = 0.0
     """Simulated seconds per wall second."""
     behind_s: float = 0.0
-    """Largest lag of a step behind its wall-clock time, seconds (RF-SAS on)."""
+    """Largest lag of a step behind its wall-clock time (``LiveConfig.lead_s`` before its
+    simulated time), wall seconds (RF-SAS on)."""
     cpu_s: dict[str, float] = field(default_factory=dict)
     """CPU seconds per component: sumo, read, scoring, path (this process's share of
     the distributed path: snapshots, pipes, acting), vehicles (the vehicles' receivers),

@@ -53,6 +53,7 @@ __all__ = [
     "Arrival",
     "GatewayStats",
     "GatewayWork",
+    "KnownBackends",
     "VehicleGateway",
     "gateway_main",
     "most_severe",
@@ -195,7 +196,14 @@ class GatewayWork:
     """An advisory older than this is ``stale`` at a vehicle, seconds."""
 
 
-class _Keys:
+class KnownBackends:
+    """The backends' public signing keys given as DER (as they cross to the gateway
+    process), for :class:`~rfsas_hw.fleet.advisory.AdvisoryReceiver`.
+
+    Raises (from the constructor):
+        ValueError: a key is not DER.
+    """
+
     def __init__(self, der: dict[str, bytes]) -> None:
         self.keys: dict[str, ec.EllipticCurvePublicKey] = {}
         for backend, blob in der.items():
@@ -204,6 +212,7 @@ class _Keys:
                 self.keys[backend] = key
 
     def backend_key(self, backend_id: str) -> ec.EllipticCurvePublicKey | None:
+        """The signing key of ``backend_id``, or None when it is not enrolled."""
         return self.keys.get(backend_id)
 
 
@@ -215,7 +224,7 @@ def gateway_main(work: GatewayWork, conn: Connection) -> None:
     gateway: VehicleGateway | None = None
     try:
         gateway = VehicleGateway(
-            _Keys(work.backend_keys),
+            KnownBackends(work.backend_keys),
             open_mqtt(work.url, "recv"),
             max_age_s=work.max_age_s,
             clock=work.clock,

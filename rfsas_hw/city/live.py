@@ -98,6 +98,7 @@ __all__ = [
     "FixRecord",
     "LiveConfig",
     "LiveStats",
+    "StatesFlow",
     "StepOut",
     "backend_names",
     "prestart",
@@ -238,6 +239,41 @@ class LiveStats:
     problems: list[str] = field(default_factory=list)
 
 
+class StatesFlow:
+    """Which backends get a step's vehicle states: each backend acknowledges the newest
+    states it has taken from its pipe, and one that has left states spanning more than
+    ``backlog_s`` untaken (it is busy) gets none until it has taken them, so the
+    simulator never blocks on a busy backend's full pipe.
+
+    Args:
+        t0_ns: UTC of the first states, ns.
+        backlog_s: most untaken states a backend may have, seconds of their times.
+    """
+
+    def __init__(self, t0_ns: int = 0, backlog_s: float = STATES_BACKLOG_S) -> None:
+        self.t0_ns = t0_ns
+        self.backlog_ns = round(backlog_s * NS_PER_S)
+        self.given: dict[str, int] = {}
+        """Per backend, the time of the newest states sent to it, UTC ns."""
+        self.taken_ns: dict[str, int] = {}
+        """Per backend, the time of the newest states it has taken, UTC ns."""
+        self.held = 0
+        """States not sent to a busy backend."""
+
+    def may_send(self, backend: str, t_ns: int) -> bool:
+        """Whether ``backend`` gets the states of ``t_ns`` (then counted as sent)."""
+        given = self.given.get(backend, self.t0_ns)
+        if given - self.taken_ns.get(backend, self.t0_ns) > self.backlog_ns:
+            self.held += 1
+            return False
+        self.given[backend] = t_ns
+        return True
+
+    def taken(self, backend: str, t_ns: int) -> None:
+        """``backend`` has taken the states of ``t_ns`` and every earlier one."""
+        self.taken_ns[backend] = max(self.taken_ns.get(backend, self.t0_ns), t_ns)
+
+
 def _backend_keys(deployment: Deployment) -> dict[str, bytes]:
     """The backends' public signing keys (DER), as every vehicle holds them."""
     out = {}
@@ -312,10 +348,8 @@ class DistributedRfsas:
         self._procs: list[Any] = []
         self._workers: dict[str, tuple[Connection, np.ndarray, np.ndarray]] = {}
         self._backends: dict[str, Connection] = {}
-        self._given_ns: dict[str, int] = {}
-        self._taken_ns: dict[str, int] = {}
-        """Per backend, the time of the newest vehicle states sent to it and taken by it,
-        UTC ns."""
+        self._states = StatesFlow()
+        """Which backends get the vehicles' states (a busy one does not)."""
         self._truth: dict[str, str] = {}
         self._sent: dict[str, int] = {}
         self._pending: dict[str, int] = {}
@@ -359,8 +393,7 @@ class DistributedRfsas:
         """Now is simulation time 0: its UTC in ns (whole microseconds, as the twin's
         start time is written). Call right before the first step."""
         self.t0_ns = self.clock() // 1000 * 1000
-        self._given_ns = dict.fromkeys(self._backends, self.t0_ns)
-        self._taken_ns = dict.fromkeys(self._backends, self.t0_ns)
+        self._states = StatesFlow(self.t0_ns)
         return self.t0_ns
 
     def _start_authority(self) -> None:
@@ -515,10 +548,7 @@ class DistributedRfsas:
         tiles = self._tiles(cars)
         for b, conn in self._backends.items():
             sel = [i for i, t in enumerate(tiles) if self.owner.get(t) == b]
-            if self._given_ns[b] - self._taken_ns[b] > STATES_BACKLOG_S * NS_PER_S:
-                self.stats.states_held += 1  # busy: it has older states to take first
-            else:
-                self._given_ns[b] = now_ns
+            if self._states.may_send(b, now_ns):
                 conn.send(
                     VehicleStates(
                         now_ns,
@@ -596,7 +626,7 @@ class DistributedRfsas:
                             )
                         )
                 elif msg[0] == "states":
-                    self._taken_ns[b] = max(self._taken_ns[b], int(msg[1]))
+                    self._states.taken(b, int(msg[1]))
                 elif msg[0] == "dashboard":
                     out.dashboard.append((b, msg[1], msg[2]))
                 elif msg[0] == "error":
@@ -723,6 +753,7 @@ class DistributedRfsas:
         if self.broker is not None:
             self.stats.broker_cpu_s = _proc_cpu_s(self.broker.pid)
             self.broker.close()
+        self.stats.states_held = self._states.held
         for w in self.stats.workers.values():
             self.stats.bearing_messages += w.messages
             self.stats.problems += w.send_problems

@@ -13,7 +13,7 @@ import pytest
 
 from rfsas_hw.backend.service import BackendConfig
 from rfsas_hw.city.backendproc import Cadence, StatesByTime, VehicleStates, warm_kernels
-from rfsas_hw.city.live import LiveConfig
+from rfsas_hw.city.live import LiveConfig, StatesFlow
 from rfsas_hw.city.slots import SlotSender
 from rfsas_hw.records import BearingBatch
 
@@ -177,3 +177,22 @@ def test_the_simulation_runs_ahead_of_the_clock_by_a_bounded_lead() -> None:
         LiveConfig(lead_s=-0.1)
     with pytest.raises(ValueError, match="lead_s"):
         LiveConfig(lead_s=2.0)
+
+
+def test_a_backend_that_does_not_take_its_states_gets_none_until_it_has() -> None:
+    flow = StatesFlow(t0_ns=0, backlog_s=0.5)
+    for k in range(1, 7):  # be-1 takes nothing: 0.1 … 0.6 s are given
+        assert flow.may_send("be-1", k * 100 * MS)
+        assert flow.may_send("be-2", k * 100 * MS)
+        flow.taken("be-2", k * 100 * MS)
+    # be-1 has 0.6 s of states untaken: held back, and counted; be-2 goes on
+    assert not flow.may_send("be-1", 700 * MS)
+    assert not flow.may_send("be-1", 800 * MS)
+    assert flow.may_send("be-2", 700 * MS)
+    assert flow.held == 2
+    flow.taken("be-1", 300 * MS)  # an old acknowledgement: still 0.3 s untaken
+    assert flow.may_send("be-1", 900 * MS)
+    flow.taken("be-1", 200 * MS)  # acknowledgements never go back
+    flow.taken("be-1", 900 * MS)
+    assert flow.may_send("be-1", 1_000 * MS)
+    assert flow.held == 2

@@ -573,6 +573,10 @@ def _costs(
         "phones": sum(w.phones for w in stats.workers.values()),
         "vehicles_judged": sum(b.vehicles_judged for b in stats.backends.values()),
         "vehicle_states_held": stats.states_held,
+        # groups of bearings (a unit's frames of one 20 ms slot) the workers published
+        # more than a slot after their time (the loop behind its lead)
+        "bearing_slots": sum(w.slot_groups for w in stats.workers.values()),
+        "bearing_slots_late": sum(w.slots_late for w in stats.workers.values()),
     }
     for b in stats.backends.values():
         for k, v in b.stats.items():

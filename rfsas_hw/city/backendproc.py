@@ -15,6 +15,15 @@ backend judges every vehicle in its tiles, not one. Every 0.1 s
    topic ``rfsas/v1/vehicle/<id>/advisory`` through a per-vehicle
    :class:`~rfsas_hw.fleet.advisory.AdvisorySink` (its limits hold per vehicle).
 
+Between two ticks, bearings verified since the last step make the service step
+again once :attr:`BackendWork.quick_s` has passed since that step (a new fix
+does not wait for the tick), and the vehicles near an emitter it fixed are
+judged at once. The vehicles' states arrive ahead of their time (the simulation
+runs ahead of the clock); each is used from its own time on, never before.
+Every batch of states taken from the pipe is acknowledged (``("states",
+t_ns)``), so that the main process can tell a backend that does not read them
+and hold them back instead of blocking on a full pipe.
+
 When an advisory carries a fix made in this step, the process tells the main
 process (over the pipe) its vehicle, sequence numbers and that fix's time (the
 newest frame it was made of), so the frame → advisory latency is measured where
@@ -27,16 +36,18 @@ from __future__ import annotations
 import logging
 import math
 import time
+from collections import deque
 from dataclasses import dataclass, field
 from multiprocessing.connection import Connection
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 
 from rfsas_hw.apps.backend import BackendApp, BackendAppConfig, SettingsOverrides
 from rfsas_hw.backend.encounter import assess_encounters
 from rfsas_hw.backend.service import BackendConfig
+from rfsas_hw.backend.tracking import Tracker, predict_tracks
 from rfsas_hw.backend.triangulation import triangulate_batch
 from rfsas_hw.backend.vehicle import VehicleState
 from rfsas_hw.city.clock import SimClock, cpu_s
@@ -49,7 +60,14 @@ from rfsas_hw.link.topics import TopicRouter
 NS_PER_S = 1_000_000_000
 _SEVERITY = {"brake": 3, "caution": 2, "clear": 1, "none": 0}
 
-__all__ = ["BackendWork", "VehicleStates", "backend_main"]
+__all__ = [
+    "BackendWork",
+    "Cadence",
+    "StatesByTime",
+    "VehicleStates",
+    "backend_main",
+    "warm_kernels",
+]
 
 log = logging.getLogger(__name__)
 
@@ -116,6 +134,97 @@ class BackendCounters:
     problems: list[str] = field(default_factory=list)
 
 
+def warm_kernels(settings: BackendConfig) -> None:
+    """Load (or compile, the first time on a machine) every numeric kernel a backend's
+    step uses — triangulation, the tracker's update and prediction, the encounter
+    model — before the run: a first fix must not wait for them (seconds, during
+    which the backend takes no bearings)."""
+    assess_encounters(
+        VehicleState(x_m=0.0, y_m=-30.0, heading_deg=0.0, speed_mps=10.0),
+        np.array([[0.0, 0.0, 1.0, 0.0]]),
+        np.eye(4)[None, :, :],
+        settings.encounter,
+    )
+    stations = np.array([[[-10.0, 0.0], [10.0, 0.0]]])
+    triangulate_batch(
+        stations, np.array([[45.0, 315.0]]), np.array([[2.0, 2.0]]), settings.triangulation
+    )
+    # a track started, then updated, then predicted
+    tracker = Tracker(settings.tracker)
+    for t_ns in (NS_PER_S, 2 * NS_PER_S):
+        tracker.update_many([1], [t_ns], np.zeros((1, 2)), np.eye(2)[None], [("a", "b")])
+    predict_tracks(list(tracker.tracks.values()), 3 * NS_PER_S, settings.tracker.accel_sigma_mps2)
+
+
+class StatesByTime:
+    """Vehicle states that arrive ahead of their time (the simulation runs ahead of the
+    clock), each used from its own time on: a backend learns where a vehicle is when
+    the vehicle says so, not earlier."""
+
+    def __init__(self) -> None:
+        self.current: VehicleStates | None = None
+        self.coming: deque[VehicleStates] = deque()
+        """States not of now yet, oldest first."""
+
+    def add(self, states: VehicleStates) -> None:
+        """Take states that arrived (in time order, as the simulation steps)."""
+        self.coming.append(states)
+
+    def at(self, now_ns: int) -> VehicleStates | None:
+        """The newest states of ``now_ns`` (UTC ns) or before; None before the first."""
+        while self.coming and self.coming[0].t_ns <= now_ns:
+            self.current = self.coming.popleft()
+        return self.current
+
+
+class Cadence:
+    """When a district backend steps: every ``step_ns`` (a tick: every vehicle near a
+    live emitter is judged), and between ticks once bearings were verified since the
+    last step and ``quick_ns`` has passed since it (a quick step: the vehicles near a
+    new fix are judged at once). Times are UTC ns of the deployment's clock.
+
+    Args:
+        step_ns: time between ticks, ns.
+        quick_ns: shortest time between two steps when bearings arrive, ns.
+        now_ns: now; the first tick is one ``step_ns`` later.
+    """
+
+    def __init__(self, step_ns: int, quick_ns: int, now_ns: int) -> None:
+        self.step_ns = step_ns
+        self.quick_ns = quick_ns
+        self.next_ns = now_ns + step_ns
+        """The next tick."""
+        self.last_ns = 0
+        """The last step (tick or quick)."""
+        self.unstepped = False
+        """Bearings were verified since the last step."""
+
+    def bearings(self) -> None:
+        """Bearings were verified."""
+        self.unstepped = True
+
+    def wait_ns(self, now_ns: int) -> int:
+        """How long to wait for bearings before the next step may be due, ns (≥ 0)."""
+        due = self.next_ns
+        if self.unstepped:
+            due = min(due, self.last_ns + self.quick_ns)
+        return max(due - now_ns, 0)
+
+    def due(self, now_ns: int) -> Literal["tick", "quick"] | None:
+        """The step due at ``now_ns`` (then counted as made), or None."""
+        if now_ns >= self.next_ns:
+            # a tick missed (a long step) is not made up for
+            self.next_ns += self.step_ns * max(1, math.ceil((now_ns - self.next_ns) / self.step_ns))
+            what: Literal["tick", "quick"] = "tick"
+        elif self.unstepped and now_ns - self.last_ns >= self.quick_ns:
+            what = "quick"
+        else:
+            return None
+        self.last_ns = now_ns
+        self.unstepped = False
+        return what
+
+
 class CityBackend:
     """One district backend (see the module docstring); :meth:`run` until told to stop.
 
@@ -144,7 +253,8 @@ class CityBackend:
         self.home_tile = self.router.tile_of(0.0, 0.0)
         self.signer = self.app.store.signer()
         self.sinks: dict[str, AdvisorySink] = {}
-        self.vehicles: VehicleStates | None = None
+        self.vehicles = StatesByTime()
+        """The vehicles' states, each used from its own time on."""
         self.counters = BackendCounters()
         self._seen: dict[int, Any] = {}
         self._shown: dict[int, Any] = {}
@@ -154,18 +264,8 @@ class CityBackend:
 
     def warm(self) -> None:
         """Load (or compile, the first time on a machine) the numeric kernels before the
-        run: a first vehicle judged must not wait for the compiler."""
-        settings = self.app.service.config
-        assess_encounters(
-            VehicleState(x_m=0.0, y_m=-30.0, heading_deg=0.0, speed_mps=10.0),
-            np.array([[0.0, 0.0, 1.0, 0.0]]),
-            np.eye(4)[None, :, :],
-            settings.encounter,
-        )
-        stations = np.array([[[-10.0, 0.0], [10.0, 0.0]]])
-        triangulate_batch(
-            stations, np.array([[45.0, 315.0]]), np.array([[2.0, 2.0]]), settings.triangulation
-        )
+        run (:func:`warm_kernels`)."""
+        warm_kernels(self.app.service.config)
 
     def _sink(self, vehicle_id: str) -> AdvisorySink:
         sink = self.sinks.get(vehicle_id)
@@ -210,7 +310,7 @@ class CityBackend:
             e: f.t_ns for e, f in service.fixes.items() if f.ok and self._stepped.get(e) is not f
         }
         self._stepped = dict(service.fixes)
-        states = self.vehicles
+        states = self.vehicles.at(now_ns)
         if states is None or not len(states.ids) or not service.assessments:
             self._forget(set() if states is None else set(states.ids))
             return []
@@ -270,43 +370,52 @@ class CityBackend:
         """Receive and judge, reporting to ``conn``, until ``None`` arrives on it.
 
         Every ``step_s`` (0.1 s) every vehicle near a live emitter is judged; between
-        those steps, when bearings arrived and :attr:`BackendWork.quick_s` has passed
-        since the last step, the service steps again and the vehicles near an emitter
-        it fixed are judged against it at once (a new fix does not wait for the tick).
+        those steps, once bearings were verified since the last step and
+        :attr:`BackendWork.quick_s` has passed since it, the service steps again and
+        the vehicles near an emitter it fixed are judged against it at once (a new fix
+        does not wait for the tick, nor for more bearings).
         """
         receiver = self.app.receiver
         service = self.app.service
         clock = self.clock
-        step_ns = int(service.config.step_s * NS_PER_S)
-        quick_ns = int(self.work.quick_s * NS_PER_S)
-        next_ns = clock() + step_ns
-        last_ns = 0
+        cadence = Cadence(
+            int(service.config.step_s * NS_PER_S), int(self.work.quick_s * NS_PER_S), clock()
+        )
         while True:
-            wait_s = clock.wall_s(max(next_ns - clock(), 0) / NS_PER_S)
+            wait_s = clock.wall_s(cadence.wait_ns(clock()) / NS_PER_S)
             got = receiver.receive(timeout=min(wait_s, clock.wall_s(self.work.quick_s)))
             for message in got:
                 service.on_verified(message)
-            while conn.poll():
-                msg: Any = conn.recv()
-                if msg is None:
-                    return
-                self.vehicles = msg
+            if got:
+                cadence.bearings()
+            if not self._take_pipe(conn):
+                return
             now = clock()
-            if now >= next_ns:
-                next_ns += step_ns * max(1, math.ceil((now - next_ns) / step_ns))
-                sent = self.judge(now)
-                if self.work.dashboard:
-                    self._report_dashboard(conn)
-            elif got and now - last_ns >= quick_ns:
-                sent = self.judge(now, fresh_only=True)
-            else:
+            what = cadence.due(now)
+            if what is None:
                 continue
-            last_ns = now
+            sent = self.judge(now, fresh_only=what == "quick")
+            if what == "tick" and self.work.dashboard:
+                self._report_dashboard(conn)
             if sent:
                 conn.send(("sent", sent))
             fixes = self.new_fixes()
             if fixes:
                 conn.send(("fixes", fixes))
+
+    def _take_pipe(self, conn: Connection) -> bool:
+        """Take what the main process sent (vehicle states, acknowledged by the time of
+        the newest); False when told to stop."""
+        newest: int | None = None
+        while conn.poll():
+            msg: Any = conn.recv()
+            if msg is None:
+                return False
+            self.vehicles.add(msg)
+            newest = msg.t_ns
+        if newest is not None:
+            conn.send(("states", newest))
+        return True
 
     def _report_dashboard(self, conn: Connection) -> None:
         """Send the fixes made since the last report and every current assessment."""

@@ -13,7 +13,7 @@ this machine:
 - the backends (:mod:`rfsas_hw.city.backendproc`), each a process owning the
   tiles of its group in the tile plan (:mod:`rfsas_hw.city.partition`),
   advising every vehicle in its tiles on the vehicle's own topic;
-- the vehicles' receivers behind the gateway connection
+- the vehicles' receivers behind the gateway connection, a process of their own
   (:mod:`rfsas_hw.city.vehicles`).
 
 :meth:`DistributedRfsas.step` takes the simulation's vehicles and VRUs of one
@@ -40,7 +40,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from cryptography.hazmat.primitives.asymmetric import ec
+from cryptography.hazmat.primitives import serialization
 
 from rfsas_hw.backend.service import BackendConfig
 from rfsas_hw.bridges.bridge import fitted_calibration
@@ -64,7 +64,7 @@ from rfsas_hw.city.tileworker import (
     unit_sensor,
     worker_main,
 )
-from rfsas_hw.city.vehicles import Arrival, VehicleGateway
+from rfsas_hw.city.vehicles import Arrival, GatewayStats, GatewayWork, gateway_main
 from rfsas_hw.errors import SimulationError
 from rfsas_hw.fleet.broker import BrokerFiles
 from rfsas_hw.fleet.tiles import TilePlan
@@ -85,6 +85,10 @@ END_TIMEOUT_S = 20.0
 """How long a worker or backend may take to stop, seconds."""
 DRAIN_S = 1.0
 """Time the backends get to take the workers' last messages before they stop, seconds."""
+STATES_BACKLOG_S = 0.5
+"""A backend whose pipe holds vehicle states it has not taken spanning more than this
+gets no new ones until it has taken them (the main process never blocks on a busy
+backend's full pipe), seconds."""
 OWNER_MEMORY_S = 1.0
 """An advisory from the backend of the tile a vehicle left this long ago still counts
 as its owner's (it was judged there and is on its way), seconds."""
@@ -94,6 +98,7 @@ __all__ = [
     "FixRecord",
     "LiveConfig",
     "LiveStats",
+    "StatesFlow",
     "StepOut",
     "backend_names",
     "prestart",
@@ -121,6 +126,12 @@ class LiveConfig:
     repeat_s: float = 0.5
     """A vehicle is told an emitter's unchanged (or milder) advice again after this
     long; new emitters and more severe advice go at once, seconds."""
+    lead_s: float = 0.2
+    """The simulation runs this far ahead of the deployment's clock, seconds: a step's
+    frames are computed before they are heard, so each leaves the worker when its
+    slot is over, not when the simulator and the worker are done with the step
+    (their CPU time). Advice reaches the simulator's vehicles this much later (a
+    step already simulated cannot be changed)."""
     time_scale: float = 1.0
     """Simulated seconds per wall second the deployment's clock runs at (1: real time;
     below 1 for a machine that cannot keep up, see :mod:`rfsas_hw.city.clock`)."""
@@ -135,6 +146,8 @@ class LiveConfig:
             raise ValueError("backends and workers must be at least 1")
         if not self.epoch_s > 0 or not self.hear_m > 0 or not self.near_m > 0:
             raise ValueError("epoch_s, hear_m and near_m must be positive")
+        if not 0.0 <= self.lead_s <= 1.0:
+            raise ValueError("lead_s must be in [0, 1] seconds")
 
 
 def _context() -> Any:
@@ -143,7 +156,9 @@ def _context() -> Any:
     seconds on a busy machine)."""
     ctx = mp.get_context("forkserver")
     # numba: the backends' kernels (imported when first needed, so not by backendproc)
-    ctx.set_forkserver_preload(["rfsas_hw.city.tileworker", "rfsas_hw.city.backendproc", "numba"])
+    ctx.set_forkserver_preload(
+        ["rfsas_hw.city.tileworker", "rfsas_hw.city.backendproc", "rfsas_hw.city.vehicles", "numba"]
+    )
     return ctx
 
 
@@ -218,21 +233,57 @@ class LiveStats:
     advisories_received: int = 0
     """Advisory datagrams the gateway took from the broker."""
     foreign: int = 0
+    states_held: int = 0
+    """Steps whose vehicle states a backend did not get because it had not taken
+    those of :data:`STATES_BACKLOG_S` before (it was busy)."""
     problems: list[str] = field(default_factory=list)
 
 
-class _BackendKeys:
-    """The backends' signing keys, as every vehicle holds them."""
+class StatesFlow:
+    """Which backends get a step's vehicle states: each backend acknowledges the newest
+    states it has taken from its pipe, and one that has left states spanning more than
+    ``backlog_s`` untaken (it is busy) gets none until it has taken them, so the
+    simulator never blocks on a busy backend's full pipe.
 
-    def __init__(self, deployment: Deployment) -> None:
-        self.keys: dict[str, ec.EllipticCurvePublicKey] = {}
-        for b, store in deployment.backends.items():
-            key = store.card.sign_public
-            if key is not None:
-                self.keys[b] = key
+    Args:
+        t0_ns: UTC of the first states, ns.
+        backlog_s: most untaken states a backend may have, seconds of their times.
+    """
 
-    def backend_key(self, backend_id: str) -> ec.EllipticCurvePublicKey | None:
-        return self.keys.get(backend_id)
+    def __init__(self, t0_ns: int = 0, backlog_s: float = STATES_BACKLOG_S) -> None:
+        self.t0_ns = t0_ns
+        self.backlog_ns = round(backlog_s * NS_PER_S)
+        self.given: dict[str, int] = {}
+        """Per backend, the time of the newest states sent to it, UTC ns."""
+        self.taken_ns: dict[str, int] = {}
+        """Per backend, the time of the newest states it has taken, UTC ns."""
+        self.held = 0
+        """States not sent to a busy backend."""
+
+    def may_send(self, backend: str, t_ns: int) -> bool:
+        """Whether ``backend`` gets the states of ``t_ns`` (then counted as sent)."""
+        given = self.given.get(backend, self.t0_ns)
+        if given - self.taken_ns.get(backend, self.t0_ns) > self.backlog_ns:
+            self.held += 1
+            return False
+        self.given[backend] = t_ns
+        return True
+
+    def taken(self, backend: str, t_ns: int) -> None:
+        """``backend`` has taken the states of ``t_ns`` and every earlier one."""
+        self.taken_ns[backend] = max(self.taken_ns.get(backend, self.t0_ns), t_ns)
+
+
+def _backend_keys(deployment: Deployment) -> dict[str, bytes]:
+    """The backends' public signing keys (DER), as every vehicle holds them."""
+    out = {}
+    for b, store in deployment.backends.items():
+        key = store.card.sign_public
+        if key is not None:
+            out[b] = key.public_bytes(
+                serialization.Encoding.DER, serialization.PublicFormat.SubjectPublicKeyInfo
+            )
+    return out
 
 
 def _proc_cpu_s(pid: int) -> float:
@@ -297,6 +348,8 @@ class DistributedRfsas:
         self._procs: list[Any] = []
         self._workers: dict[str, tuple[Connection, np.ndarray, np.ndarray]] = {}
         self._backends: dict[str, Connection] = {}
+        self._states = StatesFlow()
+        """Which backends get the vehicles' states (a busy one does not)."""
         self._truth: dict[str, str] = {}
         self._sent: dict[str, int] = {}
         self._pending: dict[str, int] = {}
@@ -308,7 +361,10 @@ class DistributedRfsas:
         self._tiles_of: dict[str, dict[str, float]] = {}
         """Per vehicle, the tiles it was in lately, with when (sim s)."""
         self.broker: LocalBroker | None = None
-        self.gateway: VehicleGateway | None = None
+        self._gateway: Connection | None = None
+        """The pipe to the vehicles' gateway process."""
+        self._present: frozenset[str] = frozenset()
+        """The vehicles the gateway was last told of."""
         self._auth_transport: Any = None
         self._closed = False
         self.late: list[Arrival] = []
@@ -320,12 +376,13 @@ class DistributedRfsas:
             ctx = _context()
             self._start_backends(ctx, backend_ids, settings)
             self._start_workers(ctx, units, buildings, bridge)
-            self._wait_ready()
-            gw_url = self.deployment.url(GATEWAY_ID, sub=f"{ROOT}/vehicle/+/advisory")
-            self.gateway = VehicleGateway(
-                _BackendKeys(self.deployment), open_mqtt(gw_url, "recv"), clock=self.clock
+            gateway = GatewayWork(
+                url=self.deployment.url(GATEWAY_ID, sub=f"{ROOT}/vehicle/+/advisory"),
+                backend_keys=_backend_keys(self.deployment),
+                clock=self.clock,
             )
-            self.gateway.start()
+            self._gateway = self._spawn(ctx, gateway_main, gateway, "vehicles")
+            self._wait_ready()
         except BaseException:
             self.close()
             raise
@@ -336,6 +393,7 @@ class DistributedRfsas:
         """Now is simulation time 0: its UTC in ns (whole microseconds, as the twin's
         start time is written). Call right before the first step."""
         self.t0_ns = self.clock() // 1000 * 1000
+        self._states = StatesFlow(self.t0_ns)
         return self.t0_ns
 
     def _start_authority(self) -> None:
@@ -424,6 +482,8 @@ class DistributedRfsas:
 
     def _wait_ready(self) -> None:
         conns = {**{w: c for w, (c, _, _) in self._workers.items()}, **self._backends}
+        if self._gateway is not None:
+            conns["vehicles' gateway"] = self._gateway
         deadline = time.monotonic() + READY_TIMEOUT_S
         for name, conn in conns.items():
             while not conn.poll(0.1):
@@ -488,18 +548,19 @@ class DistributedRfsas:
         tiles = self._tiles(cars)
         for b, conn in self._backends.items():
             sel = [i for i, t in enumerate(tiles) if self.owner.get(t) == b]
-            conn.send(
-                VehicleStates(
-                    now_ns,
-                    tuple(cars.ids[i] for i in sel),
-                    cars.x_m[sel],
-                    cars.y_m[sel],
-                    cars.heading_deg[sel],
-                    cars.speed_mps[sel],
-                    cars.length_m[sel],
-                    cars.width_m[sel],
+            if self._states.may_send(b, now_ns):
+                conn.send(
+                    VehicleStates(
+                        now_ns,
+                        tuple(cars.ids[i] for i in sel),
+                        cars.x_m[sel],
+                        cars.y_m[sel],
+                        cars.heading_deg[sel],
+                        cars.speed_mps[sel],
+                        cars.length_m[sel],
+                        cars.width_m[sel],
+                    )
                 )
-            )
             for i in sel:
                 vid = cars.ids[i]
                 for memory, name in ((self._owners, b), (self._tiles_of, tiles[i])):
@@ -510,9 +571,12 @@ class DistributedRfsas:
                             del held[old]
         out = StepOut()
         self._from_backends(out)
-        assert self.gateway is not None
-        self.gateway.vehicles(cars.ids)
-        for arrival in self.gateway.drain():
+        present = frozenset(cars.ids)
+        if present != self._present:
+            assert self._gateway is not None
+            self._gateway.send(tuple(present))
+            self._present = present
+        for arrival in self._arrivals():
             key = (arrival.message.sender_id, arrival.message.seq)
             self._arrived[key] = arrival.t_ns
             owned = arrival.message.sender_id in self._owners.get(arrival.vehicle_id, {})
@@ -522,6 +586,19 @@ class DistributedRfsas:
         self._match(out, now_ns)
         out.messages = self._wait_workers(t_s)
         self.stats.foreign += out.foreign
+        return out
+
+    def _arrivals(self) -> list[Arrival]:
+        """The advisories the gateway verified since the last call, oldest first."""
+        out: list[Arrival] = []
+        conn = self._gateway
+        assert conn is not None
+        while conn.poll():
+            msg = conn.recv()
+            if msg[0] == "arrivals":
+                out += msg[1]
+            elif msg[0] == "error":
+                raise SimulationError(str(msg[1]))
         return out
 
     def _from_backends(self, out: StepOut) -> None:
@@ -548,6 +625,8 @@ class DistributedRfsas:
                                 sigma,
                             )
                         )
+                elif msg[0] == "states":
+                    self._states.taken(b, int(msg[1]))
                 elif msg[0] == "dashboard":
                     out.dashboard.append((b, msg[1], msg[2]))
                 elif msg[0] == "error":
@@ -617,6 +696,36 @@ class DistributedRfsas:
                 self.stats.problems.append(f"{name} ended without its counters")
             conn.close()
 
+    def _stop_gateway(self, conn: Connection, deadline: float) -> list[Arrival]:
+        """Tell the gateway to stop; the advisories it verified since the last step (its
+        counters go to :attr:`stats`)."""
+        late: list[Arrival] = []
+        with contextlib.suppress(OSError):
+            conn.send(None)
+        try:
+            while conn.poll(max(deadline - time.monotonic(), 0.0)):
+                msg = conn.recv()
+                if msg[0] == "arrivals":
+                    late += msg[1]
+                    continue
+                if msg[0] == "end":
+                    totals: GatewayStats = msg[1]
+                    self.stats.gateway = {
+                        "datagrams": totals.datagrams,
+                        "verified": totals.verified,
+                        "unknown_vehicle": totals.unknown_vehicle,
+                        "rejected": dict(totals.rejected),
+                        "cpu_s": float(msg[2]),
+                    }
+                    self.stats.advisories_received = totals.datagrams
+                elif msg[0] == "error":
+                    self.stats.problems.append(str(msg[1]))
+                break
+        except (EOFError, OSError):
+            self.stats.problems.append("the vehicles' gateway ended without its counters")
+        conn.close()
+        return late
+
     def close(self) -> LiveStats:
         """Stop every process and the broker; the counters (collected once). Idempotent."""
         if self._closed:
@@ -627,9 +736,9 @@ class DistributedRfsas:
         self._stop({w: c for w, (c, _, _) in self._workers.items()}, deadline)
         time.sleep(DRAIN_S)
         self._stop(dict(self._backends), deadline)
-        if self.gateway is not None:
+        if self._gateway is not None:
             time.sleep(DRAIN_S)
-            for arrival in self.gateway.drain():
+            for arrival in self._stop_gateway(self._gateway, deadline):
                 owned = arrival.message.sender_id in self._owners.get(arrival.vehicle_id, {})
                 self.stats.foreign += not owned
                 lately = tuple(self._tiles_of.get(arrival.vehicle_id, {}))
@@ -639,23 +748,12 @@ class DistributedRfsas:
             if proc.is_alive():
                 proc.terminate()
                 proc.join(5)
-        if self.gateway is not None:
-            totals = self.gateway.totals()
-            self.stats.gateway = {
-                "datagrams": totals.datagrams,
-                "verified": totals.verified,
-                "unknown_vehicle": totals.unknown_vehicle,
-                "rejected": dict(totals.rejected),
-                "cpu_s": self.gateway.cpu_s,
-            }
-            self.stats.advisories_received = totals.datagrams
-            self.gateway.close()
-            self.stats.gateway["cpu_s"] = self.gateway.cpu_s
         if self._auth_transport is not None:
             self._auth_transport.close()
         if self.broker is not None:
             self.stats.broker_cpu_s = _proc_cpu_s(self.broker.pid)
             self.broker.close()
+        self.stats.states_held = self._states.held
         for w in self.stats.workers.values():
             self.stats.bearing_messages += w.messages
             self.stats.problems += w.send_problems

@@ -12,8 +12,9 @@ One run (:func:`run_city`):
 3. steps: SUMO, everyone's state (:class:`~rfsas_hw.city.sumoio.SumoDistrict`),
    the scorer (:class:`~rfsas_hw.city.scoring.CityScorer`), the distributed
    path, and each vehicle's own advisories acted on in SUMO. With RF-SAS on
-   the loop is paced so that simulation time runs one step ahead of the wall
-   clock (the twin workers send each frame when its time comes); with RF-SAS
+   the loop is paced so that simulation time runs ``LiveConfig.lead_s`` ahead of
+   the deployment's clock (the twin workers send each frame when its time
+   comes); with RF-SAS
    off it runs as fast as SUMO goes;
 4. writes the run log (JSON lines: start, one line per advisory that reached a
    vehicle, one per simulated second, the end), the summary (JSON) and the map
@@ -136,7 +137,8 @@ class Runtime:
     realtime_factor: float = 0.0
     """Simulated seconds per wall second."""
     behind_s: float = 0.0
-    """Largest lag of a step behind its wall-clock time, seconds (RF-SAS on)."""
+    """Largest lag of a step behind its wall-clock time (``LiveConfig.lead_s`` before its
+    simulated time), wall seconds (RF-SAS on)."""
     cpu_s: dict[str, float] = field(default_factory=dict)
     """CPU seconds per component: sumo, read, scoring, path (this process's share of
     the distributed path: snapshots, pipes, acting), vehicles (the vehicles' receivers),
@@ -445,8 +447,9 @@ def _run_loop(
         for k in range(1, steps + 1):
             t = k * STEP_S
             if live is not None:
-                # one step ahead of the wall clock: the workers send each frame on time
-                ahead = live.clock.wall_s(t - STEP_S) - (time.monotonic() - wall0)
+                # ahead of the clock (LiveConfig.lead_s): the workers send each frame on time
+                due_s = max(t - live.config.lead_s, 0.0)
+                ahead = live.clock.wall_s(due_s) - (time.monotonic() - wall0)
                 if ahead > 0:
                     time.sleep(ahead)
                 runtime.behind_s = max(runtime.behind_s, -ahead)
@@ -569,6 +572,11 @@ def _costs(
         "bearings": sum(w.bearings for w in stats.workers.values()),
         "phones": sum(w.phones for w in stats.workers.values()),
         "vehicles_judged": sum(b.vehicles_judged for b in stats.backends.values()),
+        "vehicle_states_held": stats.states_held,
+        # groups of bearings (a unit's frames of one 20 ms slot) the workers published
+        # more than a slot after their time (the loop behind its lead)
+        "bearing_slots": sum(w.slot_groups for w in stats.workers.values()),
+        "bearing_slots_late": sum(w.slots_late for w in stats.workers.values()),
     }
     for b in stats.backends.values():
         for k, v in b.stats.items():

@@ -22,9 +22,11 @@ the main process sends it, over a pipe, the VRUs with a phone near its units
 3. signs each unit's bearings with that unit's key and publishes them on its
    bearing topic (:class:`~rfsas_hw.link.publisher.Publisher`, version 2 with
    the pre-authentication tag), each in the :data:`SLOT_S` slot of its frame's
-   time, when that slot is over on the wall clock: the main process runs the
-   simulation one step ahead of the wall clock, so a step's frames are known
-   before they are "heard" and go out as a sensor would send them.
+   time, when that slot is over on the deployment's clock, stamped with that
+   time (:class:`~rfsas_hw.city.slots.SlotSender`, a thread of its own): the
+   main process runs the simulation ahead of the clock, so a step's frames are
+   known before they are "heard" and go out as a sensor would send them, while
+   the worker computes the next step.
 
 Raw MACs exist only inside this process, as in a sensor. The worker answers
 every step with ``("step", t_s, frames, bearings)`` so the main process knows it
@@ -44,6 +46,7 @@ from __future__ import annotations
 import datetime as dt
 import logging
 import math
+import threading
 import time
 from dataclasses import dataclass, field
 from multiprocessing.connection import Connection
@@ -55,6 +58,7 @@ import numpy as np
 from rfsas_hw.bridges.bridge import device_mac
 from rfsas_hw.bridges.config import BridgeConfig, UnitSpec
 from rfsas_hw.city.clock import SimClock, cpu_s
+from rfsas_hw.city.slots import SlotSender
 from rfsas_hw.df.calibration import Calibration
 from rfsas_hw.df.fovchannels import ChannelConsistency
 from rfsas_hw.df.fovguard import MAX_EMITTERS, FovGuard
@@ -156,6 +160,12 @@ class WorkerCounters:
     """Phones handed out (each MAC rotation counts again)."""
     sent: int = 0
     """Bearings the publishers sent."""
+    slot_groups: int = 0
+    """Groups of bearings (a unit's frames of one slot) published."""
+    slots_late: int = 0
+    """Of them, published more than a slot after their time."""
+    slot_late_max_s: float = 0.0
+    """The largest delay of a group behind its time, seconds of the deployment's clock."""
     messages: int = 0
     """Signed messages the publishers sent."""
     send_problems: list[str] = field(default_factory=list)
@@ -326,9 +336,12 @@ class TwinWorker:
         self.t0_ns = 0
         self._started = False
         self._now_ns = 0
+        """Simulation time of the last step, UTC ns."""
         self.air = _UnitsTwin(self)
         """The worker's units and the phones near them, twinned."""
         self.publishers: dict[str, Publisher] = {}
+        self.sender = SlotSender(self.publishers, work.clock, late_s=SLOT_S)
+        """Publishes each slot's bearings when its time has come."""
         first = work.units[0].id
         store = KeyStore.open(work.keys[first])
         schedule = EpochSchedule(work.epoch_s, min(5.0, work.epoch_s / 4))
@@ -344,7 +357,9 @@ class TwinWorker:
         # in the pipeline (as a live sensor does) instead of stopping the worker
         self.inbox.nonce_for(schedule.epoch_of(work.clock()))
         self.inbox.wait_s = 0.0
-        self.hasher = MacHasher(self.inbox, work.epoch_s)
+        self.nonces = _SharedNonces(self.inbox)
+        """The inbox as the pipelines (this thread) and the publishers (the sender's) ask it."""
+        self.hasher = MacHasher(self.nonces, work.epoch_s)
         self.pipelines: dict[str, SensorPipeline] = {}
         # one field-of-view guard for all units (each unit's emitters under its own key),
         # so that the level rule judges every unit's frames of a step in one pass
@@ -366,15 +381,10 @@ class TwinWorker:
                 signer,
                 pose,
                 epoch_s=work.epoch_s,
-                clock=self._clock,
-                preauth=self.inbox,
+                clock=self.sender.stamp_ns,
+                preauth=self.nonces,
             )
         self._reported: dict[tuple[str, int], int] = {}
-        self._due: list[tuple[int, str, BearingBatch]] = []
-        """Bearings of the last step waiting for their time: (UTC ns, unit id, rows)."""
-
-    def _clock(self) -> int:
-        return self._now_ns
 
     def truth(self) -> list[tuple[str, str]]:
         """(emitter id, VRU id) of every phone whose id in this epoch was not told yet.
@@ -412,6 +422,7 @@ class TwinWorker:
             return 0, 0
         frames = bearings = 0
         slot_ns = round(SLOT_S * NS_PER_S)
+        due_groups: list[tuple[int, str, BearingBatch]] = []
         if air.phones or air.was_busy:  # else nothing near, nothing in flight
             air.was_busy = bool(air.phones)
             assert air.twin is not None
@@ -434,25 +445,21 @@ class TwinWorker:
                 # what it has heard as it hears it (not at the end of the simulator's step)
                 due = -(-batch.t_ns // slot_ns) * slot_ns
                 for when in np.unique(due).tolist():
-                    self._due.append((int(when), sid, batch.select(due == when)))
-        self._due.sort(key=lambda d: d[0])
+                    due_groups.append((int(when), sid, batch.select(due == when)))
+        self.sender.put(due_groups)
         self.counters.frames += frames
         self.counters.bearings += bearings
         return frames, bearings
 
-    def send_due(self, clock: SimClock) -> None:
-        """Publish the bearings of the last step, each group when its time has come on
-        ``clock``, sleeping in between; late groups go at once."""
-        for when, sid, batch in self._due:
-            wait_ns = when - clock()
-            if wait_ns > 0:
-                time.sleep(clock.wall_s(wait_ns / NS_PER_S))
-            self._now_ns = max(when, self._now_ns)
-            self.publishers[sid].on_bearings(batch)
-        self._due.clear()
-
     def close(self) -> WorkerCounters:
-        """Close the publishers, sources and the nonce inbox; the counters. Idempotent."""
+        """Publish what is still due (each at its time), close the publishers, sources and
+        the nonce inbox; the counters. Idempotent."""
+        self.sender.close(
+            lambda left: self.counters.send_problems.append(f"{left} groups of bearings unsent")
+        )
+        self.counters.slot_groups = self.sender.stats.groups
+        self.counters.slots_late = self.sender.stats.late
+        self.counters.slot_late_max_s = self.sender.stats.late_max_s
         for pub in self.publishers.values():
             pub.close()
             self.counters.sent += pub.stats.bearings
@@ -464,6 +471,24 @@ class TwinWorker:
         self.air.close()
         self.inbox.close()
         return self.counters
+
+
+class _SharedNonces:
+    """A nonce inbox asked from two threads (the pipelines' hasher and the publishers'
+    pre-authentication keys): one at a time."""
+
+    def __init__(self, inbox: NonceInbox) -> None:
+        self.inbox = inbox
+        self._lock = threading.Lock()
+
+    def nonce_for(self, epoch: int) -> bytes:
+        """The nonce of ``epoch`` (:meth:`NonceInbox.nonce_for`).
+
+        Raises:
+            NonceUnavailableError: not received, or expired.
+        """
+        with self._lock:
+            return self.inbox.nonce_for(epoch)
 
 
 def worker_main(work: TileWork, conn: Connection) -> None:
@@ -483,7 +508,7 @@ def worker_main(work: TileWork, conn: Connection) -> None:
             spent = time.perf_counter() - t0
             sent = sum(p.stats.messages for p in worker.publishers.values())
             conn.send(("step", msg.t_s, frames, bearings, spent, worker.truth(), sent))
-            worker.send_due(work.clock)
+            worker.sender.check()
         counters = worker.close()
         worker = None
         counters.cpu_s = cpu_s()

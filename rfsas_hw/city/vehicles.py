@@ -9,16 +9,31 @@ addressed to, to that vehicle's own
 backends' keys exactly as a vehicle would (structure, addressee, enrolled
 backend, replay, signature, age). Messages for a vehicle not in the simulation
 are counted and dropped; receivers of vehicles that left are dropped.
+
+The gateway runs in a process of its own (:func:`gateway_main`), as the cars'
+receivers are devices of their own: in the simulator's process it would wait
+for the simulator's steps (SUMO holds the interpreter for tens of ms per step)
+before it could take and stamp an advisory, and that wait would count as the
+path's latency. The process tells the main process every verified advisory,
+with when it was verified, over a pipe; the main process tells it which
+vehicles are in the simulation.
 """
 
 from __future__ import annotations
 
+import logging
 import threading
 import time
-from collections import Counter, deque
+from collections import Counter
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
+from multiprocessing.connection import Connection
+from typing import Any
 
+from cryptography.hazmat.primitives import serialization
+from cryptography.hazmat.primitives.asymmetric import ec
+
+from rfsas_hw.city.clock import SimClock, cpu_s
 from rfsas_hw.fleet.advisory import (
     AdvisoryMessage,
     AdvisoryReceiver,
@@ -26,13 +41,25 @@ from rfsas_hw.fleet.advisory import (
     peek_advisory,
 )
 from rfsas_hw.link.message import MessageFormatError
+from rfsas_hw.link.mqtt import open_mqtt
 from rfsas_hw.link.transport import Transport
 
-QUEUE_MAX = 100_000
-"""Most arrivals the thread holds for the caller (the oldest go first)."""
+POLL_S = 0.02
+"""The gateway process waits this long for advisories before it looks at its pipe, wall
+seconds (an advisory is taken as it arrives; the vehicles' list waits up to this)."""
 _SEVERITY = {"brake": 3, "caution": 2, "clear": 1, "none": 0}
 
-__all__ = ["Arrival", "GatewayStats", "VehicleGateway", "most_severe"]
+__all__ = [
+    "Arrival",
+    "GatewayStats",
+    "GatewayWork",
+    "KnownBackends",
+    "VehicleGateway",
+    "gateway_main",
+    "most_severe",
+]
+
+log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True, slots=True)
@@ -91,11 +118,6 @@ class VehicleGateway:
         self.stats = GatewayStats()
         self._present: set[str] = set()
         self._lock = threading.Lock()
-        self._queue: deque[Arrival] = deque(maxlen=QUEUE_MAX)
-        self._thread: threading.Thread | None = None
-        self._stop = threading.Event()
-        self.cpu_s = 0.0
-        """CPU time of the receiving thread, seconds."""
 
     def vehicles(self, present: Iterable[str]) -> None:
         """The vehicles in the simulation now (receivers of the others are dropped)."""
@@ -103,26 +125,6 @@ class VehicleGateway:
             self._present = set(present)
             for vid in [v for v in self.receivers if v not in self._present]:
                 self._retire(self.receivers.pop(vid))
-
-    def start(self) -> None:
-        """Receive in a thread of its own from now on (arrival times are then taken when
-        a message arrives, not when the caller next looks); :meth:`drain` takes them."""
-        if self._thread is None:
-            self._thread = threading.Thread(target=self._loop, name="vehicle-gateway", daemon=True)
-            self._thread.start()
-
-    def _loop(self) -> None:
-        start = time.thread_time()
-        while not self._stop.is_set():
-            self._queue.extend(self.receive(0.05))
-            self.cpu_s = time.thread_time() - start
-
-    def drain(self) -> list[Arrival]:
-        """The arrivals the thread has taken since the last call, oldest first."""
-        out = []
-        while self._queue:
-            out.append(self._queue.popleft())
-        return out
 
     def _retire(self, rx: AdvisoryReceiver) -> None:
         self.stats.rejected.update(rx.stats.rejected)
@@ -176,9 +178,85 @@ class VehicleGateway:
         return total
 
     def close(self) -> None:
-        """Stop the thread and close the transport; idempotent."""
-        self._stop.set()
-        if self._thread is not None:
-            self._thread.join(5.0)
-            self._thread = None
+        """Close the transport; idempotent."""
         self.transport.close()
+
+
+@dataclass(frozen=True)
+class GatewayWork:
+    """What the gateway process runs."""
+
+    url: str
+    """Broker URL as the gateway identity, subscribed to every vehicle's advisory topic."""
+    backend_keys: dict[str, bytes]
+    """Each backend's public signing key (DER), as every vehicle holds them."""
+    clock: SimClock
+    """The deployment's clock."""
+    max_age_s: float = 1.0
+    """An advisory older than this is ``stale`` at a vehicle, seconds."""
+
+
+class KnownBackends:
+    """The backends' public signing keys given as DER (as they cross to the gateway
+    process), for :class:`~rfsas_hw.fleet.advisory.AdvisoryReceiver`.
+
+    Raises (from the constructor):
+        ValueError: a key is not DER.
+    """
+
+    def __init__(self, der: dict[str, bytes]) -> None:
+        self.keys: dict[str, ec.EllipticCurvePublicKey] = {}
+        for backend, blob in der.items():
+            key = serialization.load_der_public_key(blob)
+            if isinstance(key, ec.EllipticCurvePublicKey):
+                self.keys[backend] = key
+
+    def backend_key(self, backend_id: str) -> ec.EllipticCurvePublicKey | None:
+        """The signing key of ``backend_id``, or None when it is not enrolled."""
+        return self.keys.get(backend_id)
+
+
+def gateway_main(work: GatewayWork, conn: Connection) -> None:
+    """The body of the gateway process: connect, answer ``("ready",)``; then take every
+    advisory and send the verified ones as ``("arrivals", [Arrival, ...])``, and take the
+    vehicles in the simulation (a tuple of ids) from ``conn``, until ``None``; answer
+    ``("end", GatewayStats, cpu_s)``. A failure is answered ``("error", message)``."""
+    gateway: VehicleGateway | None = None
+    try:
+        gateway = VehicleGateway(
+            KnownBackends(work.backend_keys),
+            open_mqtt(work.url, "recv"),
+            max_age_s=work.max_age_s,
+            clock=work.clock,
+        )
+        conn.send(("ready",))
+        while True:
+            arrivals = gateway.receive(POLL_S)
+            if arrivals:
+                conn.send(("arrivals", arrivals))
+            stop = False
+            while conn.poll():
+                msg: Any = conn.recv()
+                if msg is None:
+                    stop = True
+                    break
+                gateway.vehicles(msg)
+            if stop:
+                break
+        last = gateway.receive(0)
+        if last:
+            conn.send(("arrivals", last))
+        totals = gateway.totals()
+        gateway.close()
+        gateway = None
+        conn.send(("end", totals, cpu_s()))
+    except Exception as err:  # reported to the main process, which ends the run
+        log.debug("the vehicles' gateway failed", exc_info=True)
+        if gateway is not None:
+            try:
+                gateway.close()
+            except Exception:  # already failing: the first error is the one to report
+                log.debug("closing the gateway failed too", exc_info=True)
+        conn.send(("error", f"vehicles' gateway: {type(err).__name__}: {err}"))
+    finally:
+        conn.close()

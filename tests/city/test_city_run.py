@@ -175,6 +175,9 @@ def test_small_district_end_to_end(grid_net: Path, tmp_path: Path) -> None:
     assert counts["bearing_messages_received"] == counts["bearing_messages_sent"] > 0
     assert counts["bearing_messages_verified"] > 0.5 * counts["bearing_messages_sent"]
     assert counts["advisories_received"] == counts["advisories_sent"] > 0
+    # the workers published their slots (some late when the machine is loaded)
+    assert counts["bearing_slots"] > 0
+    assert 0 <= counts["bearing_slots_late"] <= counts["bearing_slots"]
 
     # every advisory that reached a vehicle: signed by a backend owning a tile it was in
     advisories = [r for r in records if r["record"] == "advisory"]

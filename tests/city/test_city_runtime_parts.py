@@ -15,7 +15,7 @@ from rfsas_hw.backend.service import BackendService
 from rfsas_hw.backend.vehicle import VehicleState
 from rfsas_hw.city.clock import SimClock
 from rfsas_hw.city.partition import plan_tiles, split_units
-from rfsas_hw.city.vehicles import VehicleGateway
+from rfsas_hw.city.vehicles import KnownBackends, VehicleGateway
 from rfsas_hw.errors import ConfigError
 from rfsas_hw.fleet.advisory import AdvisorySink
 from rfsas_hw.fleet.broker import Identity, acl_lines
@@ -202,6 +202,36 @@ def test_the_gateway_hands_each_advisory_to_its_own_vehicle() -> None:
     assert sum(totals.rejected.values()) == 1
     gateway.vehicles(["car-2"])
     assert list(gateway.receivers) == ["car-2"]
+
+
+def test_the_gateway_process_verifies_with_keys_given_as_der_and_its_arrivals_cross_a_pipe() -> (
+    None
+):
+    import pickle
+
+    from cryptography.hazmat.primitives import serialization
+
+    now = time.time_ns()
+    car = VehicleState(x_m=1.0, y_m=-10.0, heading_deg=0.0, speed_mps=12.0, t_ns=now)
+    judged = _fixed_service(now).assess_for(car, [7], now)
+    key, other = ec.generate_private_key(ec.SECP256R1()), ec.generate_private_key(ec.SECP256R1())
+    sent = _Collect()
+    router = TopicRouter(SiteOrigin(52.43, 13.53))
+    for backend, signing in (("be-1", key), ("be-2", other)):
+        sink = AdvisorySink(
+            Signer(backend, signing), sent, router, "0" * 16, vehicle_id="car-1", tile_topics=False
+        )
+        sink.on_results([], judged)
+    der = key.public_key().public_bytes(
+        serialization.Encoding.DER, serialization.PublicFormat.SubjectPublicKeyInfo
+    )
+    # be-2 is enrolled with be-1's key: its advisory must not verify
+    gateway = VehicleGateway(KnownBackends({"be-1": der, "be-2": der}), _Queue(sent.datagrams))
+    gateway.vehicles(["car-1"])
+    got = gateway.receive(0)
+    assert [a.message.sender_id for a in got] == ["be-1"]
+    assert gateway.totals().rejected["bad_signature"] == 1
+    assert pickle.loads(pickle.dumps(got)) == got
 
 
 def test_a_unit_hears_the_phones_near_any_unit_of_its_junction() -> None:

@@ -1,12 +1,13 @@
-"""The compiled per-threat geometry of :func:`rfsas_hw.backend.encounter.assess_encounters`.
+"""The compiled per-pair geometry of :func:`rfsas_hw.backend.encounter.assess_pairs`.
 
-Vehicle and threat move at constant velocity. The closest approach is at
-``t* = −r·w/|w|²`` (relative position ``r``, relative velocity ``w``) clipped to
-``[0, horizon]``; there the threat's position covariance is ``J·P·Jᵀ`` with
-``J = [I, t*·I]``. The threat's box lies along its velocity (north when it moves
-slower than the moving speed); the along-track gap from the vehicle's front to
-the near side of that box is the distance to contact (inf when the box is
-behind the vehicle's front).
+Each threat is judged against its own vehicle (many vehicles in one call; one
+vehicle is the batch of one). Vehicle and threat move at constant velocity. The
+closest approach is at ``t* = −r·w/|w|²`` (relative position ``r``, relative
+velocity ``w``) clipped to ``[0, horizon]``; there the threat's position
+covariance is ``J·P·Jᵀ`` with ``J = [I, t*·I]``. The threat's box lies along its
+velocity (north when it moves slower than the moving speed); the along-track gap
+from the vehicle's front to the near side of that box is the distance to contact
+(inf when the box is behind the vehicle's front).
 
 The path test of a brake: with ``n`` the unit normal left of the vehicle's
 heading, the threat's lateral offset is ``d = (x − p_v)·n``, its speed towards
@@ -34,19 +35,20 @@ Array = npt.NDArray[np.float64]
 def encounter_geometry(
     x: Array,
     P: Array,
+    vehicle_of: npt.NDArray[np.int64],
     pv: Array,
     vv: Array,
     u_hat: Array,
+    vehicle_size: Array,
     horizon_s: float,
-    vehicle_length_m: float,
-    vehicle_width_m: float,
     threat_length_m: float,
     threat_width_m: float,
     moving_mps: float,
     path_sigmas: float,
 ) -> tuple[Any, ...]:
-    """Per threat (states ``x`` (B, 4), covariances ``P`` (B, 4, 4)) against the vehicle
-    at ``pv`` moving at ``vv`` along the unit vector ``u_hat``.
+    """Per threat (states ``x`` (B, 4), covariances ``P`` (B, 4, 4)) against its vehicle
+    ``v = vehicle_of[b]`` (B,): at ``pv[v]`` moving at ``vv[v]`` along the unit vector
+    ``u_hat[v]``, of length and width ``vehicle_size[v]`` (each of shape (V, 2)).
 
     Returns:
         The first row whose state or covariance is not finite (−1: none; the other
@@ -71,9 +73,13 @@ def encounter_geometry(
     towards = np.empty(B)
     towards_sigma = np.empty(B)
     path = np.empty(B, np.bool_)
-    nx, ny = -u_hat[1], u_hat[0]
-    half_widths = vehicle_width_m / 2 + max(threat_length_m, threat_width_m) / 2
+    threat_half_m = max(threat_length_m, threat_width_m) / 2
     for b in range(B):
+        v = vehicle_of[b]
+        ux_v, uy_v = u_hat[v, 0], u_hat[v, 1]
+        px, py = pv[v, 0], pv[v, 1]
+        nx, ny = -uy_v, ux_v
+        half_widths = vehicle_size[v, 1] / 2 + threat_half_m
         if bad < 0:
             for i in range(4):
                 finite = math.isfinite(x[b, i])
@@ -81,8 +87,8 @@ def encounter_geometry(
                     finite = finite and math.isfinite(P[b, i, j])
                 if not finite:
                     bad = b
-        rx, ry = x[b, 0] - pv[0], x[b, 1] - pv[1]
-        wx, wy = x[b, 2] - vv[0], x[b, 3] - vv[1]
+        rx, ry = x[b, 0] - px, x[b, 1] - py
+        wx, wy = x[b, 2] - vv[v, 0], x[b, 3] - vv[v, 1]
         ww = wx * wx + wy * wy
         t = 0.0 if ww == 0 else min(max(-(rx * wx + ry * wy) / ww, 0.0), horizon_s)
         t_star[b] = t
@@ -93,7 +99,7 @@ def encounter_geometry(
                 )
         off = (cov[b, 0, 1] + cov[b, 1, 0]) / 2
         cov[b, 0, 1] = cov[b, 1, 0] = off
-        vehicle_at[b, 0], vehicle_at[b, 1] = pv[0] + t * vv[0], pv[1] + t * vv[1]
+        vehicle_at[b, 0], vehicle_at[b, 1] = px + t * vv[v, 0], py + t * vv[v, 1]
         tx, ty = x[b, 0] + t * x[b, 2], x[b, 1] + t * x[b, 3]
         where[b, 0], where[b, 1] = tx, ty
         speed = math.hypot(x[b, 2], x[b, 3])
@@ -101,11 +107,11 @@ def encounter_geometry(
         heading[b] = math.atan2(x[b, 3], x[b, 2]) if moving[b] else math.pi / 2
         ux, uy = (x[b, 2] / speed, x[b, 3] / speed) if moving[b] else (0.0, 1.0)
         reach = (
-            vehicle_length_m / 2
-            + threat_length_m / 2 * abs(ux * u_hat[0] + uy * u_hat[1])
-            + threat_width_m / 2 * abs(-uy * u_hat[0] + ux * u_hat[1])
+            vehicle_size[v, 0] / 2
+            + threat_length_m / 2 * abs(ux * ux_v + uy * uy_v)
+            + threat_width_m / 2 * abs(-uy * ux_v + ux * uy_v)
         )
-        along = (tx - pv[0]) * u_hat[0] + (ty - pv[1]) * u_hat[1]
+        along = (tx - px) * ux_v + (ty - py) * uy_v
         contact[b] = max(along - reach, 0.0) if along + reach >= 0 else math.inf
         d = rx * nx + ry * ny
         side = 1.0 if d >= 0 else -1.0

@@ -42,14 +42,14 @@ from rfsas_hw.backend.risk import (
     advise,
     fatality_risk_of,
     impact_speed_of,
-    stopping_distance,
+    stopping_distance_of,
 )
 from rfsas_hw.backend.vehicle import VehicleState
 from rfsas_hw.errors import BackendError
 
 Array = npt.NDArray[np.float64]
 
-__all__ = ["Encounter", "EncounterConfig", "assess_encounter", "assess_encounters"]
+__all__ = ["Encounter", "EncounterConfig", "assess_encounter", "assess_encounters", "assess_pairs"]
 
 MOVING_MPS = 0.3
 """Below this speed a threat's heading is taken as north (its velocity direction is noise)."""
@@ -168,7 +168,8 @@ def assess_encounters(
     link_alarm: bool = False,
     track_fixes: Sequence[int] | None = None,
 ) -> list[Encounter]:
-    """Judge ``B`` threats against the vehicle at once, one array operation per stage.
+    """Judge ``B`` threats against one vehicle: :func:`assess_pairs` with that vehicle
+    in every pair.
 
     Args:
         vehicle: the vehicle's state.
@@ -182,8 +183,54 @@ def assess_encounters(
             (default: enough for any brake).
 
     Raises:
+        BackendError: as :func:`assess_pairs`.
+    """
+    x = np.asarray(threat_states, np.float64)
+    return assess_pairs(
+        (vehicle,),
+        np.zeros(len(x), np.int64),
+        x,
+        threat_covs,
+        config,
+        fix_ok=fix_ok,
+        fix_reason=fix_reason,
+        link_alarm=link_alarm,
+        track_fixes=track_fixes,
+    )
+
+
+def assess_pairs(
+    vehicles: Sequence[VehicleState],
+    vehicle_of: Sequence[int] | npt.NDArray[np.int64],
+    threat_states: Array,
+    threat_covs: Array,
+    config: EncounterConfig | None = None,
+    *,
+    fix_ok: Sequence[bool] | None = None,
+    fix_reason: Sequence[str] | None = None,
+    link_alarm: bool = False,
+    track_fixes: Sequence[int] | None = None,
+) -> list[Encounter]:
+    """Judge ``B`` (vehicle, threat) pairs at once, one array operation per stage: threat
+    ``b`` against ``vehicles[vehicle_of[b]]`` (a backend serving many vehicles judges
+    all of them in one call; a pair gets what it gets alone).
+
+    Args:
+        vehicles: the vehicles' states.
+        vehicle_of: per threat, the index of its vehicle in ``vehicles``, shape (B,).
+        threat_states: ``[x_m, y_m, vx_mps, vy_mps]`` per threat, shape (B, 4).
+        threat_covs: 4×4 covariance per threat, shape (B, 4, 4).
+        config: threat kind, horizon, reaction delay, thresholds.
+        fix_ok: per threat, whether its latest fix was trustworthy (default: all).
+        fix_reason: per threat, why not (default: empty).
+        link_alarm: whether the link's latency watch is alarmed.
+        track_fixes: per threat, fixes its track took since it (re)started
+            (default: enough for any brake).
+
+    Raises:
         BackendError: states or covariances of the wrong shape or not finite
-            (the first bad row is named), or per-threat lists of the wrong length.
+            (the first bad row is named), per-threat lists of the wrong length, or a
+            vehicle index outside ``vehicles``.
     """
     cfg = config or EncounterConfig()
     x = np.asarray(threat_states, np.float64)
@@ -194,6 +241,7 @@ def assess_encounters(
             f"got {x.shape} and {P.shape}"
         )
     B = len(x)
+    owner = np.asarray(vehicle_of, np.int64)
     oks = [True] * B if fix_ok is None else [bool(v) for v in fix_ok]
     whys = [""] * B if fix_reason is None else list(fix_reason)
     fixes = None if track_fixes is None else [int(n) for n in track_fixes]
@@ -201,11 +249,20 @@ def assess_encounters(
         raise BackendError(
             f"fix_ok, fix_reason and track_fixes must have one entry per threat ({B})"
         )
+    if owner.shape != (B,):
+        raise BackendError(f"vehicle_of must have one entry per threat ({B}), got {owner.shape}")
     if B == 0:
         return []
+    V = len(vehicles)
+    if int(owner.min()) < 0 or int(owner.max()) >= V:
+        raise BackendError(f"vehicle_of must index the {V} vehicle(s)")
     from rfsas_hw.backend import _encounter_kernel as k
 
-    u_hat = vehicle.direction
+    # per vehicle: position, unit heading, size, speed, heading, position covariance
+    u_hat = np.array([v.direction for v in vehicles])
+    speed = np.array([v.speed_mps for v in vehicles])
+    size = np.array([v.size for v in vehicles], np.float64)
+    heading = np.array([v.heading_deg for v in vehicles], np.float64)
     size_t = cfg.threat_size
     (
         bad,
@@ -223,12 +280,12 @@ def assess_encounters(
     ) = k.encounter_geometry(
         np.ascontiguousarray(x),
         np.ascontiguousarray(P),
-        np.array([vehicle.x_m, vehicle.y_m]),
-        u_hat * vehicle.speed_mps,
+        owner,
+        np.array([[v.x_m, v.y_m] for v in vehicles]),
+        u_hat * speed[:, None],
         u_hat,
+        size,
         cfg.horizon_s,
-        vehicle.length_m,
-        vehicle.width_m,
         size_t[0],
         size_t[1],
         MOVING_MPS,
@@ -238,29 +295,28 @@ def assess_encounters(
         raise BackendError(f"threat {bad}: state and covariance must be finite")
     p_coll = collision_probability_batch(
         vehicle_xy,
-        vehicle.heading_deg,
-        vehicle.covariance,
-        vehicle.size,
+        heading[owner],
+        np.array([v.covariance for v in vehicles])[owner],
+        size[owner],
         threat_xy,
         np.where(moving, math_rad_to_compass(heading_rad), 0.0),
         cov,
         size_t,
     )
-    d_stop = stopping_distance(vehicle.speed_mps, cfg.decel_mps2, cfg.reaction_s)
-    # the inputs are valid by construction (vehicle state, config, kernel): no checks
+    # the inputs are valid by construction (vehicle states, config, kernel): no checks
+    d_stop = stopping_distance_of(speed, cfg.decel_mps2, cfg.reaction_s)[owner]
+    u = speed[owner]
     ahead = contact < np.inf
     v_imp = np.where(
         ahead,
-        impact_speed_of(
-            vehicle.speed_mps, np.where(ahead, contact, 0.0), cfg.decel_mps2, cfg.reaction_s
-        ),
+        impact_speed_of(u, np.where(ahead, contact, 0.0), cfg.decel_mps2, cfg.reaction_s),
         0.0,
     )
     p_f = fatality_risk_of(v_imp)
     risk = p_coll * p_f
     held = _brake_held(cfg, fixes, path, gap, towards, towards_sigma)
     out = []
-    for i, (pc, rk, ct, t_i, v_i, pf_i) in enumerate(
+    for i, (pc, rk, ct, t_i, v_i, pf_i, ds) in enumerate(
         zip(
             p_coll.tolist(),
             risk.tolist(),
@@ -268,6 +324,7 @@ def assess_encounters(
             t_star.tolist(),
             v_imp.tolist(),
             p_f.tolist(),
+            d_stop.tolist(),
             strict=True,
         )
     ):
@@ -275,7 +332,7 @@ def assess_encounters(
             pc,
             rk,
             ct,
-            d_stop,
+            ds,
             fix_ok=oks[i],
             fix_reason=whys[i],
             link_alarm=link_alarm,
@@ -287,7 +344,7 @@ def assess_encounters(
                 p_collision=pc,
                 t_closest_s=t_i,
                 distance_to_contact_m=ct,
-                stopping_distance_m=d_stop,
+                stopping_distance_m=ds,
                 impact_speed_mps=v_i,
                 fatality_risk=pf_i,
                 risk=rk,

@@ -35,6 +35,7 @@ __all__ = [
     "impact_speed",
     "impact_speed_of",
     "stopping_distance",
+    "stopping_distance_of",
 ]
 
 G_MPS2 = 9.80665
@@ -78,7 +79,14 @@ def stopping_distance(
     """
     u = np.asarray(speed_mps, np.float64)
     _check(u, decel_mps2, reaction_s)
-    return _same_kind(speed_mps, u * reaction_s + u * u / (2 * decel_mps2))  # type: ignore[no-any-return]
+    return _same_kind(speed_mps, stopping_distance_of(u, decel_mps2, reaction_s))  # type: ignore[no-any-return]
+
+
+def stopping_distance_of(speed_mps: Array, decel_mps2: float, reaction_s: float) -> Array:
+    """:func:`stopping_distance` of inputs already known to be valid (the caller checked
+    them), as an array: the computation without the checks."""
+    d: Array = speed_mps * reaction_s + speed_mps * speed_mps / (2 * decel_mps2)
+    return d
 
 
 @overload

@@ -34,10 +34,10 @@ import numpy as np
 
 from rfsas_hw.angles import compass_to_math_rad
 from rfsas_hw.backend.association import AssociationConfig, Associator
-from rfsas_hw.backend.encounter import Encounter, EncounterConfig, assess_encounters
+from rfsas_hw.backend.encounter import Encounter, EncounterConfig, assess_pairs
 from rfsas_hw.backend.risk import Advisory
 from rfsas_hw.backend.site import SiteConfig, site_from_mapping
-from rfsas_hw.backend.tracking import Tracker, TrackerConfig, predict_tracks
+from rfsas_hw.backend.tracking import Track, Tracker, TrackerConfig, predict_tracks
 from rfsas_hw.backend.triangulation import (
     FixStatus,
     TriangulationOptions,
@@ -382,7 +382,8 @@ class BackendService:
         keep = now - int(self.config.tracker.drop_after_s * NS_PER_S)
         for emitter in [e for e, f in self.fixes.items() if f.t_ns < keep]:
             del self.fixes[emitter]
-        assessments = self._assess(now, self._vehicle_at(now))
+        held = list(self.fixes.items())
+        assessments = self._assess(now, [self._vehicle_at(now)], held, [range(len(held))])[0]
         self.assessments = {int(a.emitter, 16): a for a in assessments}
         for sink in self.sinks:
             try:
@@ -449,27 +450,51 @@ class BackendService:
         self, vehicle: VehicleState, emitters: Iterable[int], now_ns: int | None = None
     ) -> list[Assessment]:
         """Judge the live ``emitters`` (ids as integers) against another ``vehicle`` than
-        the service's own, at ``now_ns`` (UTC ns; default: the clock). Nothing is kept
-        and no sink is fed: a backend serving many vehicles calls it once per vehicle
-        with the emitters near that vehicle.
+        the service's own, at ``now_ns`` (UTC ns; default: the clock): :meth:`assess_many`
+        of one vehicle.
 
         Returns:
             The assessments of those emitters, highest risk first (unknown ids are skipped).
         """
+        return self.assess_many([(vehicle, emitters)], now_ns)[0]
+
+    def assess_many(
+        self,
+        requests: Sequence[tuple[VehicleState, Iterable[int]]],
+        now_ns: int | None = None,
+    ) -> list[list[Assessment]]:
+        """Judge, for each ``(vehicle, emitters)`` of ``requests``, the live ``emitters``
+        (ids as integers) against that vehicle (not the service's own), at ``now_ns``
+        (UTC ns; default: the clock). Nothing is kept and no sink is fed: a backend
+        serving many vehicles calls it once per step with the emitters near each
+        vehicle; the tracks are predicted once and every (vehicle, emitter) pair is
+        judged in one batch, each pair as it would be alone.
+
+        Returns:
+            Per request, the assessments of its emitters, highest risk first (unknown
+            ids are skipped).
+        """
         now = self.clock() if now_ns is None else int(now_ns)
-        keep = set(emitters)
-        return self._assess(now, vehicle, [(e, f) for e, f in self.fixes.items() if e in keep])
+        wanted = [set(emitters) for _, emitters in requests]
+        union = set().union(*wanted)
+        fixes = [(e, f) for e, f in self.fixes.items() if e in union]
+        row_of = {e: i for i, (e, _) in enumerate(fixes)}
+        rows = [sorted(row_of[e] for e in keep if e in row_of) for keep in wanted]
+        return self._assess(now, [v for v, _ in requests], fixes, rows)
 
     def _assess(
         self,
         now: int,
-        vehicle: VehicleState | None,
-        chosen: list[tuple[int, Fix]] | None = None,
-    ) -> list[Assessment]:
+        vehicles: Sequence[VehicleState | None],
+        fixes: list[tuple[int, Fix]],
+        rows: Sequence[Sequence[int]],
+    ) -> list[list[Assessment]]:
+        """Per vehicle (None: no vehicle state), the assessments of its ``rows`` of
+        ``fixes``, highest risk first. The tracks of ``fixes`` are predicted once;
+        the encounters of every vehicle with its tracked rows are one batch."""
         alarm = bool(self.link_alarm()) if self.link_alarm is not None else False
         nan = math.nan
         accel = self.config.tracker.accel_sigma_mps2
-        fixes = list(self.fixes.items()) if chosen is None else chosen
         tracks = [self.tracker.tracks.get(emitter) for emitter, _ in fixes]
         live = [(i, t) for i, t in enumerate(tracks) if t is not None]
         tracked = [i for i, _ in live]
@@ -480,16 +505,22 @@ class BackendService:
             covs = np.full((len(fixes), 4, 4), nan)
             if live:
                 states[tracked], covs[tracked] = predict_tracks([t for _, t in live], now, accel)
-        encounters: dict[int, Encounter] = {}
-        if vehicle is not None and tracked:
-            updates = [t.updates for _, t in live]
-            encounters = dict(
-                zip(
-                    tracked,
-                    self._encounters(vehicle, states, covs, fixes, tracked, alarm, updates),
-                    strict=True,
-                )
-            )
+        # every (vehicle, tracked row) pair, judged in one batch
+        owner: list[int] = []
+        pair_rows: list[int] = []
+        judged = [v for v in vehicles if v is not None]
+        index = 0
+        for vehicle, chosen in zip(vehicles, rows, strict=True):
+            if vehicle is None:
+                continue
+            for i in chosen:
+                if tracks[i] is not None:
+                    owner.append(index)
+                    pair_rows.append(i)
+            index += 1
+        encounters = iter(
+            self._encounters(judged, owner, states, covs, fixes, pair_rows, alarm, tracks)
+        )
         for i, (_, fix) in enumerate(fixes):
             if tracks[i] is None:  # not tracked: the fix's position, nothing else
                 states[i, 0], states[i, 1] = fix.x_m, fix.y_m
@@ -497,91 +528,117 @@ class BackendService:
         state_rows = states.tolist()
         cov_rows = covs[:, :2, :2].reshape(-1, 4).tolist()
         th = self.config.encounter.thresholds
-        unjudged = Advisory.CLEAR.value
-        if vehicle is None:
-            unjudged = "none"
-        elif th.caution_on_bad_fix or (alarm and th.caution_on_link_alarm):
-            unjudged = Advisory.CAUTION.value
         out = []
-        for i, (_, fix) in enumerate(fixes):
-            track = tracks[i]
-            state, cov = state_rows[i], cov_rows[i]
-            if track is not None:
-                age_s = (now - track.t_ns) / NS_PER_S
-                sensors = track.sensors
-            else:
-                age_s = (now - fix.t_ns) / NS_PER_S
-                sensors = fix.sensors
-            enc = encounters.get(i)
-            if enc is not None:
-                p_coll, t_closest, contact = (
-                    enc.p_collision,
-                    enc.t_closest_s,
-                    enc.distance_to_contact_m,
+        for vehicle, chosen in zip(vehicles, rows, strict=True):
+            unjudged = Advisory.CLEAR.value
+            if vehicle is None:
+                unjudged = "none"
+            elif th.caution_on_bad_fix or (alarm and th.caution_on_link_alarm):
+                unjudged = Advisory.CAUTION.value
+            mine = []
+            for i in chosen:
+                fix = fixes[i][1]
+                track = tracks[i]
+                enc = next(encounters) if vehicle is not None and track is not None else None
+                mine.append(
+                    self._assessment(
+                        now, fix, track, state_rows[i], cov_rows[i], enc, alarm, vehicle, unjudged
+                    )
                 )
-                impact, fatal, risk = enc.impact_speed_mps, enc.fatality_risk, enc.risk
-                advisory, reasons = enc.advisory.value, enc.reasons
-            else:
-                p_coll = t_closest = contact = impact = fatal = risk = nan
-                advisory = unjudged
-                if vehicle is None:
-                    reasons = ("no vehicle state",)
-                else:
-                    unlocated = ("emitter not located: " + fix.reason,)
-                    reasons = unlocated + (("link latency alarm",) if alarm else ())
-            self.stats.assessments[advisory] += 1
-            out.append(
-                Assessment(
-                    t_ns=now,
-                    emitter=fix.emitter,
-                    x_m=state[0],
-                    y_m=state[1],
-                    cov_xx_m2=cov[0],
-                    cov_xy_m2=cov[1],
-                    cov_yy_m2=cov[3],
-                    vx_mps=state[2],
-                    vy_mps=state[3],
-                    age_s=age_s,
-                    sensors=sensors,
-                    fix_ok=fix.ok,
-                    fix_reason=fix.reason,
-                    link_alarm=alarm,
-                    p_collision=p_coll,
-                    t_closest_s=t_closest,
-                    distance_to_contact_m=contact,
-                    impact_speed_mps=impact,
-                    fatality_risk=fatal,
-                    risk=risk,
-                    advisory=advisory,
-                    reasons=reasons,
-                )
-            )
-        out.sort(key=lambda a: -a.risk if math.isfinite(a.risk) else 1.0)
+            mine.sort(key=lambda a: -a.risk if math.isfinite(a.risk) else 1.0)
+            out.append(mine)
         return out
+
+    def _assessment(
+        self,
+        now: int,
+        fix: Fix,
+        track: Track | None,
+        state: list[float],
+        cov: list[float],
+        enc: Encounter | None,
+        alarm: bool,
+        vehicle: VehicleState | None,
+        unjudged: str,
+    ) -> Assessment:
+        """One emitter's assessment from its fix, track, predicted state and encounter."""
+        nan = math.nan
+        reasons: tuple[str, ...]
+        if track is not None:
+            age_s = (now - track.t_ns) / NS_PER_S
+            sensors = track.sensors
+        else:
+            age_s = (now - fix.t_ns) / NS_PER_S
+            sensors = fix.sensors
+        if enc is not None:
+            p_coll, t_closest, contact = (
+                enc.p_collision,
+                enc.t_closest_s,
+                enc.distance_to_contact_m,
+            )
+            impact, fatal, risk = enc.impact_speed_mps, enc.fatality_risk, enc.risk
+            advisory, reasons = enc.advisory.value, enc.reasons
+        else:
+            p_coll = t_closest = contact = impact = fatal = risk = nan
+            advisory = unjudged
+            if vehicle is None:
+                reasons = ("no vehicle state",)
+            else:
+                unlocated = ("emitter not located: " + fix.reason,)
+                reasons = unlocated + (("link latency alarm",) if alarm else ())
+        self.stats.assessments[advisory] += 1
+        return Assessment(
+            t_ns=now,
+            emitter=fix.emitter,
+            x_m=state[0],
+            y_m=state[1],
+            cov_xx_m2=cov[0],
+            cov_xy_m2=cov[1],
+            cov_yy_m2=cov[3],
+            vx_mps=state[2],
+            vy_mps=state[3],
+            age_s=age_s,
+            sensors=sensors,
+            fix_ok=fix.ok,
+            fix_reason=fix.reason,
+            link_alarm=alarm,
+            p_collision=p_coll,
+            t_closest_s=t_closest,
+            distance_to_contact_m=contact,
+            impact_speed_mps=impact,
+            fatality_risk=fatal,
+            risk=risk,
+            advisory=advisory,
+            reasons=reasons,
+        )
 
     def _encounters(
         self,
-        vehicle: VehicleState,
+        vehicles: Sequence[VehicleState],
+        owner: list[int],
         states: np.ndarray,
         covs: np.ndarray,
         fixes: list[tuple[int, Fix]],
         rows: list[int],
         alarm: bool,
-        updates: list[int],
+        tracks: Sequence[Track | None],
     ) -> list[Encounter]:
-        """The encounter of each tracked emitter (``rows``, whose tracks took ``updates``
-        fixes since they started) with the vehicle."""
+        """The encounter of each pair: the tracked emitter of ``rows[b]`` (its track took
+        ``updates`` fixes since it started) with ``vehicles[owner[b]]``."""
+        if not rows:
+            return []
         cfg = self.config.encounter
-        every = len(rows) == len(states)  # rows are then 0, 1, …: no copy
-        return assess_encounters(
-            vehicle,
+        every = rows == list(range(len(states)))  # rows are then 0, 1, …: no copy
+        return assess_pairs(
+            vehicles,
+            owner,
             states if every else states[rows],
             covs if every else covs[rows],
             cfg,
             fix_ok=[fixes[i][1].ok for i in rows],
             fix_reason=[fixes[i][1].reason for i in rows],
             link_alarm=alarm,
-            track_fixes=updates,
+            track_fixes=[tracks[i].updates for i in rows],  # type: ignore[union-attr]
         )
 
     def run(

@@ -10,10 +10,13 @@ backend judges every vehicle in its tiles, not one. Every 0.1 s
 2. for each vehicle in its tiles (the states the vehicles report, arriving on a
    pipe from the simulator, which stands for their cooperative-awareness
    messages), the live emitters within :attr:`BackendWork.near_m` are judged
-   against that vehicle (:meth:`BackendService.assess_for`, the same encounter
-   model), and the assessments are signed and published on that vehicle's own
-   topic ``rfsas/v1/vehicle/<id>/advisory`` through a per-vehicle
-   :class:`~rfsas_hw.fleet.advisory.AdvisorySink` (its limits hold per vehicle).
+   against that vehicle — every such vehicle of the step in one batch
+   (:meth:`BackendService.assess_many`: the tracks predicted once, every
+   vehicle–emitter pair in one call of the same encounter model, each pair as it
+   would be judged alone) —, and the assessments are signed and published on
+   that vehicle's own topic ``rfsas/v1/vehicle/<id>/advisory`` through a
+   per-vehicle :class:`~rfsas_hw.fleet.advisory.AdvisorySink` (its limits hold
+   per vehicle).
 
 Between two ticks, bearings verified since the last step make the service step
 again once :attr:`BackendWork.quick_s` has passed since that step (a new fix
@@ -116,6 +119,36 @@ class VehicleStates:
     speed_mps: np.ndarray
     length_m: np.ndarray
     width_m: np.ndarray
+
+    def near(
+        self, emitters: np.ndarray, x_m: np.ndarray, y_m: np.ndarray, near_m: float, now_ns: int
+    ) -> list[tuple[int, VehicleState, list[int]]]:
+        """The vehicles with an emitter (ids ``emitters`` at ``x_m``, ``y_m``, rfsas frame,
+        metres) closer than ``near_m`` metres to their box centre: per such vehicle, in
+        the order of :attr:`ids`, its index, its state at ``now_ns`` (UTC ns; moved
+        along its heading at its speed since :attr:`t_ns`) and those emitters' ids."""
+        # every vehicle against every emitter at once
+        close = (x_m[None, :] - self.x_m[:, None]) ** 2 + (
+            y_m[None, :] - self.y_m[:, None]
+        ) ** 2 < near_m**2
+        dt_s = max(now_ns - self.t_ns, 0) / NS_PER_S
+        out = []
+        for i in np.flatnonzero(close.any(axis=1)).tolist():
+            vx, vy = float(self.x_m[i]), float(self.y_m[i])
+            speed = float(self.speed_mps[i])
+            heading = float(self.heading_deg[i])
+            a = math.radians(heading)
+            vehicle = VehicleState(
+                x_m=vx + math.sin(a) * speed * dt_s,
+                y_m=vy + math.cos(a) * speed * dt_s,
+                heading_deg=heading % 360.0,
+                speed_mps=max(speed, 0.0),
+                length_m=float(self.length_m[i]),
+                width_m=float(self.width_m[i]),
+                t_ns=now_ns,
+            )
+            out.append((i, vehicle, emitters[close[i]].tolist()))
+        return out
 
 
 @dataclass
@@ -324,28 +357,12 @@ class CityBackend:
         located = np.isfinite(ax) & np.isfinite(ay)
         emitters, ax, ay = emitters[located], ax[located], ay[located]
         out: list[tuple[str, int, int, int]] = []
-        dt_s = max(now_ns - states.t_ns, 0) / NS_PER_S
-        near2 = self.work.near_m**2
-        for i, vid in enumerate(states.ids):
-            vx, vy = float(states.x_m[i]), float(states.y_m[i])
-            close = (ax - vx) ** 2 + (ay - vy) ** 2 < near2
-            if not close.any():
-                continue
-            speed = float(states.speed_mps[i])
-            heading = float(states.heading_deg[i])
-            a = math.radians(heading)
-            vehicle = VehicleState(
-                x_m=vx + math.sin(a) * speed * dt_s,
-                y_m=vy + math.cos(a) * speed * dt_s,
-                heading_deg=heading % 360.0,
-                speed_mps=max(speed, 0.0),
-                length_m=float(states.length_m[i]),
-                width_m=float(states.width_m[i]),
-                t_ns=now_ns,
-            )
-            judged = service.assess_for(vehicle, emitters[close].tolist(), now_ns)
+        near = states.near(emitters, ax, ay, self.work.near_m, now_ns)
+        requests = [(vehicle, close) for _, vehicle, close in near]
+        for (i, _, _), judged in zip(near, service.assess_many(requests, now_ns), strict=True):
             if not judged:
                 continue
+            vid = states.ids[i]
             self.counters.vehicles_judged += 1
             sink = self._sink(vid)
             first, sent = sink.seq, sink.stats.messages

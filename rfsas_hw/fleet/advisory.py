@@ -400,13 +400,17 @@ class AdvisorySink:
             return
         chosen = self.limiter.select([AdvisoryItem.of(a) for a in assessments], self.monotonic())
         self.stats.limited = self.limiter.limited
+        if not self.tile_topics:  # the vehicle's topic only: no tiles to sort them into
+            if self.vehicle_id and chosen:
+                self._send(Route(vehicle_topic(self.vehicle_id)), chosen, self.vehicle_id)
+            return
         by_tile: dict[str, list[AdvisoryItem]] = {}
         for item in chosen:
             located = math.isfinite(item.x_m) and math.isfinite(item.y_m)
             tile = self.router.tile_of(item.x_m, item.y_m) if located else self.home_tile
             by_tile.setdefault(tile, []).append(item)
         items = [it for group in by_tile.values() for it in group]
-        for tile, group in by_tile.items() if self.tile_topics else ():
+        for tile, group in by_tile.items():
             self._send(Route(advisory_topic(tile)), group, "")
         if self.vehicle_id:
             self._send(Route(vehicle_topic(self.vehicle_id)), items, self.vehicle_id)

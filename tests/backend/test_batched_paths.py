@@ -8,7 +8,12 @@ import math
 import numpy as np
 import pytest
 
-from rfsas_hw.backend.encounter import EncounterConfig, assess_encounter, assess_encounters
+from rfsas_hw.backend.encounter import (
+    EncounterConfig,
+    assess_encounter,
+    assess_encounters,
+    assess_pairs,
+)
 from rfsas_hw.backend.risk import AdvisoryThresholds
 from rfsas_hw.backend.tracking import Track, predict_tracks
 from rfsas_hw.backend.vehicle import VehicleState
@@ -156,3 +161,70 @@ def test_stacked_filter_updates_equal_one_after_the_other() -> None:
             np.eye(2)[None].repeat(2, 0),
             [(), ()],
         )
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_a_pair_judged_among_many_vehicles_is_what_its_vehicle_alone_gets(seed: int) -> None:
+    """Many vehicles in one call: each (vehicle, threat) pair gets what the threat gets
+    judged alone against its own vehicle, whatever the other vehicles are."""
+    rng = np.random.default_rng(100 + seed)
+    cfg = EncounterConfig(
+        threat_kind=("pedestrian", "cyclist", "vehicle")[seed % 3],
+        reaction_s=float(rng.uniform(0, 1)),
+        thresholds=AdvisoryThresholds(brake_min_fixes=3, brake_needs_path=seed % 2 == 0),
+    )
+    vehicles = [
+        VehicleState(
+            float(rng.uniform(-30, 30)),
+            float(rng.uniform(-30, 30)),
+            float(rng.uniform(0, 360)),
+            float(rng.choice([0.0, rng.uniform(0, 18)])),
+            length_m=float(rng.uniform(3, 12)),
+            width_m=float(rng.uniform(1.5, 2.6)),
+            sigma_along_m=float(rng.uniform(0.5, 4)),
+        )
+        for _ in range(7)
+    ]
+    n = 80
+    states, covs = _random_threats(rng, n)
+    owner = rng.integers(0, len(vehicles), n)
+    ok = (rng.random(n) < 0.8).tolist()
+    why = [f"reason {i}" for i in range(n)]
+    fixes = rng.integers(1, 6, n).tolist()
+    batch = assess_pairs(
+        vehicles, owner, states, covs, cfg, fix_ok=ok, fix_reason=why, track_fixes=fixes
+    )
+    assert len(batch) == n
+    advisories = set()
+    for i, got in enumerate(batch):
+        ref = assess_encounter(
+            vehicles[owner[i]],
+            states[i],
+            covs[i],
+            cfg,
+            fix_ok=bool(ok[i]),
+            fix_reason=why[i],
+            track_fixes=fixes[i],
+        )
+        advisories.add(got.advisory)
+        assert got.advisory is ref.advisory, i
+        assert got.p_collision == pytest.approx(ref.p_collision, rel=1e-9, abs=1e-14)
+        assert got.stopping_distance_m == pytest.approx(ref.stopping_distance_m, rel=1e-12)
+        for name in ("t_closest_s", "impact_speed_mps", "risk"):
+            assert getattr(got, name) == pytest.approx(getattr(ref, name), rel=1e-9, abs=1e-14)
+        if ref.p_collision > 1e-9:
+            assert got.reasons == ref.reasons
+    assert len(advisories) >= 2
+    # the vehicles differ enough that a pair judged against another vehicle would differ
+    other = assess_pairs(vehicles, (owner + 1) % len(vehicles), states, covs, cfg)
+    assert [a.p_collision for a in other] != [a.p_collision for a in batch]
+
+
+def test_pairs_refuse_a_vehicle_index_outside_the_vehicles() -> None:
+    car = VehicleState(0.0, 0.0, 90.0, 10.0)
+    covs = np.broadcast_to(np.eye(4), (2, 4, 4)).copy()
+    with pytest.raises(BackendError, match="index the 1 vehicle"):
+        assess_pairs([car], [0, 1], np.zeros((2, 4)), covs)
+    with pytest.raises(BackendError, match="one entry per threat"):
+        assess_pairs([car], [0], np.zeros((2, 4)), covs)
+    assert assess_pairs([], [], np.zeros((0, 4)), np.zeros((0, 4, 4))) == []

@@ -162,6 +162,50 @@ def test_service_judges_a_pedestrian_in_the_vehicle_path() -> None:
     assert len(lone.tracker) == 0
 
 
+def test_many_vehicles_judged_at_once_get_what_each_gets_alone() -> None:
+    """A backend serving many cars judges all of them in one batch: each car gets what
+    it gets alone, and what the service gives when that car is its own vehicle."""
+    now = 1_763_800_030 * S
+    walkers = {11: np.array([4.0, 15.0]), 12: np.array([-6.0, 22.0]), 13: np.array([9.0, 8.0])}
+    service = BackendService(clock=lambda: now)
+    for k in range(8):
+        t = now - (8 - k) * S // 10
+        for sid, pose in STATIONS.items():
+            az = [true_azimuth(pose, p + np.array([0.3 * k, 0.0])) for p in walkers.values()]
+            # parallel lines of bearing: a flagged fix, never tracked
+            service.on_bearings(bearing_batch(sid, t, [*az, 0.0], [*walkers, OTHER]), pose)
+        service.step(t)
+    assert set(service.fixes) == {11, 12, 13, OTHER} and OTHER not in service.tracker.tracks
+    cars = [
+        VehicleState(x_m=-12.0, y_m=15.5, heading_deg=90.0, speed_mps=12.0, t_ns=now),
+        VehicleState(x_m=-6.0, y_m=-5.0, heading_deg=0.0, speed_mps=9.0, t_ns=now),
+        VehicleState(x_m=30.0, y_m=8.0, heading_deg=270.0, speed_mps=3.0, t_ns=now),
+    ]
+    asked = [[11, 12, OTHER, 999], [12, 13, 11], [13]]
+    before = sum(service.stats.assessments.values())
+    many = service.assess_many(list(zip(cars, asked, strict=True)), now)
+    assert sum(service.stats.assessments.values()) - before == 3 + 3 + 1
+    assert [sorted(a.emitter for a in got) for got in many] == [
+        sorted(f"{e:016x}" for e in ems if e != 999) for ems in asked
+    ]
+    advice = set()
+    for car, emitters, got in zip(cars, asked, many, strict=True):
+        alone = service.assess_for(car, emitters, now)
+        service.set_vehicle(car)
+        own = {a.emitter: a for a in service.step(now)}
+        for a, b in zip(got, alone, strict=True):
+            assert a.emitter == b.emitter and a.advisory == b.advisory
+            close = pytest.approx(b.p_collision, rel=1e-9, abs=1e-15, nan_ok=True)
+            assert a.p_collision == close
+            assert a.risk == pytest.approx(b.risk, rel=1e-9, abs=1e-15, nan_ok=True)
+            c = own[a.emitter]
+            assert a.advisory == c.advisory and a.reasons == c.reasons
+            assert c.p_collision == close
+            advice.add(a.advisory)
+    assert {"brake", "caution"} <= advice
+    assert service.assess_many([], now) == []
+
+
 def test_vehicle_state_from_a_file_and_a_udp_feed(tmp_path: Path) -> None:
     path = tmp_path / "vehicle.yaml"
     path.write_text("x_m: -40\ny_m: 0\nheading_deg: 90\nspeed_mps: 10\n")

@@ -13,6 +13,7 @@ from cryptography.hazmat.primitives.asymmetric import ec
 
 from rfsas_hw.backend.service import BackendService
 from rfsas_hw.backend.vehicle import VehicleState
+from rfsas_hw.city.backendproc import VehicleStates
 from rfsas_hw.city.clock import SimClock
 from rfsas_hw.city.partition import plan_tiles, split_units
 from rfsas_hw.city.vehicles import KnownBackends, VehicleGateway
@@ -120,6 +121,39 @@ def test_assess_for_judges_another_vehicle_as_the_service_judges_its_own() -> No
     assert own[0].p_collision == pytest.approx(mine[0].p_collision, rel=1e-9)
     assert service.assess_for(far, [7], now)[0].advisory != "brake"
     assert service.assess_for(car, [], now) == []
+
+
+def test_the_cars_near_emitters_are_those_within_reach_moved_to_now() -> None:
+    rng = np.random.default_rng(5)
+    n = 40
+    states = VehicleStates(
+        t_ns=10 * S,
+        ids=tuple(f"car-{i}" for i in range(n)),
+        x_m=rng.uniform(-300, 300, n),
+        y_m=rng.uniform(-300, 300, n),
+        heading_deg=rng.uniform(-10, 370, n),
+        speed_mps=rng.uniform(0, 15, n),
+        length_m=np.full(n, 4.5),
+        width_m=np.full(n, 1.8),
+    )
+    emitters = np.arange(100, 160, dtype=np.uint64)
+    ex, ey = rng.uniform(-300, 300, 60), rng.uniform(-300, 300, 60)
+    near = states.near(emitters, ex, ey, 60.0, 10 * S + S // 2)
+    want = {}
+    for i in range(n):
+        d = np.hypot(ex - states.x_m[i], ey - states.y_m[i])
+        if (d < 60.0).any():
+            want[i] = sorted(int(e) for e in emitters[d < 60.0])
+    assert 5 < len(want) < n
+    assert [i for i, _, _ in near] == sorted(want)
+    for i, car, close in near:
+        assert sorted(close) == want[i]
+        a = np.radians(states.heading_deg[i])
+        half_s = 0.5 * states.speed_mps[i]
+        assert car.x_m == pytest.approx(states.x_m[i] + np.sin(a) * half_s, abs=1e-9)
+        assert car.y_m == pytest.approx(states.y_m[i] + np.cos(a) * half_s, abs=1e-9)
+        assert 0 <= car.heading_deg < 360 and car.t_ns == 10 * S + S // 2
+    assert states.near(emitters[:0], ex[:0], ey[:0], 60.0, 10 * S) == []
 
 
 class _Topics:

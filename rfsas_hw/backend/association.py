@@ -130,6 +130,8 @@ class StationBearing(NamedTuple):
     """Sensor position east, metres."""
     y_m: float
     """Sensor position north, metres."""
+    heading_deg: float
+    """Compass azimuth of the sensor's boresight, degrees."""
 
 
 @dataclass(slots=True)
@@ -139,6 +141,7 @@ class _Latest:
     sigma_deg: float
     x_m: float
     y_m: float
+    heading_deg: float
 
 
 @dataclass(slots=True)
@@ -182,6 +185,7 @@ class Associator:
                 sigmas[i],
                 pose.x_m,
                 pose.y_m,
+                pose.heading_deg,
             )
             self._dirty.add(emitter)
 
@@ -252,7 +256,7 @@ class Associator:
         out at the last :meth:`prune`), oldest first."""
         per_sensor = self._latest.get(emitter, {})
         out = [
-            StationBearing(s, b.t_ns, b.azimuth_deg, b.sigma_deg, b.x_m, b.y_m)
+            StationBearing(s, b.t_ns, b.azimuth_deg, b.sigma_deg, b.x_m, b.y_m, b.heading_deg)
             for s, b in per_sensor.items()
         ]
         out.sort(key=lambda b: (b.t_ns, b.sensor))

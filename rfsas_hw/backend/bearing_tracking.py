@@ -18,8 +18,11 @@ whatever the fix of the moment:
   on the wrapped residual from the prediction; ``iterations = 1`` is the EKF),
   the covariance in Joseph form; the prediction is the fix-fed tracker's own
   (:meth:`~rfsas_hw.backend.tracking.Track.predict`);
-- a bearing whose innovation exceeds ``gate_sigmas`` of its predicted sigma is
-  not applied and counted; a track whose last ``lost_after`` bearings were all
+- a bearing more than ``max_off_boresight_deg`` from its sensor's boresight
+  (outside the field of view its calibration and sigma hold for: a two-antenna
+  unit folds a direction from its side or back into its front) is not applied
+  and counted; a bearing whose innovation exceeds ``gate_sigmas`` of its
+  predicted sigma is not applied and counted; a track whose last ``lost_after`` bearings were all
   outside the gate is dropped, and the next trustworthy fix starts a new one.
 
 Only the newest bearing of each sensor per step is used (the associator keeps
@@ -38,6 +41,7 @@ from typing import Literal
 import numpy as np
 import numpy.typing as npt
 
+from rfsas_hw.angles import wrap_deg_180
 from rfsas_hw.backend.association import Associator, StationBearing
 from rfsas_hw.backend.tracking import Tracker
 from rfsas_hw.errors import BackendError
@@ -67,9 +71,12 @@ class BearingUpdateConfig:
         station_sigma_m: one-sigma error of a sensor's reported position, metres
             (a moving unit's pose error); enters as ``σ_s/r`` across the line of sight.
         iterations: Gauss-Newton iterations of the update (1: the extended Kalman
-            filter; more re-linearise at the updated position, which matters when
-            the position sigma is not small against the range).
+            filter; more re-linearise at the updated position, the iterated filter,
+            for a position sigma not small against the range; on the Euro NCAP
+            matrix's true negatives 3 braked more often than 1, docs/ncap.md).
         lost_after: bearings in a row outside the gate after which the track is dropped.
+        max_off_boresight_deg: bearings further than this from their sensor's
+            boresight are not used, degrees (180: every bearing).
 
     Raises:
         BackendError: a non-positive gate, iteration count or loss count, or a
@@ -78,8 +85,9 @@ class BearingUpdateConfig:
 
     gate_sigmas: float = 3.0
     station_sigma_m: float = 0.0
-    iterations: int = 3
+    iterations: int = 1
     lost_after: int = 10
+    max_off_boresight_deg: float = 180.0
 
     def __post_init__(self) -> None:
         if not self.gate_sigmas > 0:
@@ -90,6 +98,11 @@ class BearingUpdateConfig:
             raise BackendError(f"bearings iterations must be ≥ 1, got {self.iterations}")
         if self.lost_after < 1:
             raise BackendError(f"bearings lost_after must be ≥ 1, got {self.lost_after}")
+        if not 0 < self.max_off_boresight_deg <= 180:
+            raise BackendError(
+                f"bearings max_off_boresight_deg must be in (0, 180], "
+                f"got {self.max_off_boresight_deg}"
+            )
 
 
 @dataclass(frozen=True, slots=True)
@@ -190,6 +203,8 @@ class BearingTrackerStats:
     """Bearings outside the innovation gate, not applied."""
     out_of_order: int = 0
     """Bearings older than their track, not applied."""
+    off_boresight: int = 0
+    """Bearings beyond ``max_off_boresight_deg`` from their sensor's boresight, not applied."""
     lost: int = 0
     """Tracks dropped after ``lost_after`` gated bearings in a row."""
 
@@ -200,6 +215,7 @@ class BearingTrackerStats:
             "applied": self.applied,
             "gated": self.gated,
             "out_of_order": self.out_of_order,
+            "off_boresight": self.off_boresight,
             "lost": self.lost,
         }
 
@@ -267,11 +283,15 @@ class BearingTracker:
         if not fresh:
             return
         accel = self.tracker.config.accel_sigma_mps2
+        limit = self.config.max_off_boresight_deg
         applied: list[str] = []
         for b in fresh:  # oldest first
             used[b.sensor] = b.t_ns
             if b.t_ns < track.t_ns:
                 self.stats.out_of_order += 1
+                continue
+            if abs(wrap_deg_180(b.azimuth_deg - b.heading_deg)) > limit:
+                self.stats.off_boresight += 1
                 continue
             x, P = track.predict(b.t_ns, accel)
             out = bearing_update(x, P, (b.x_m, b.y_m), b.azimuth_deg, b.sigma_deg, self.config)

@@ -38,8 +38,10 @@ least 5 fixes since it (re)started), ``urban-intersection-path`` (the same, and 
 brake only for a threat in the vehicle's path or moving into it by more than
 2 sigma of its speed, see :class:`~rfsas_hw.backend.risk.AdvisoryThresholds`:
 for units that see the threat at 10 Hz from its first steps, as in the Euro NCAP
-matrix; too strict for threats that appear late and are seen only a few times)
-and ``backend-defaults``
+matrix; too strict for threats that appear late and are seen only a few times),
+``urban-intersection-bearings`` (the same as ``-path``, the tracks fed by each
+unit's bearing instead of by fixes, see :mod:`rfsas_hw.backend.bearing_tracking`:
+what the Euro NCAP matrix uses) and ``backend-defaults``
 (the backend's own defaults, tuned for longer ranges).
 """
 
@@ -222,9 +224,14 @@ def _urban_path() -> BackendConfig:
     return replace(base, encounter=replace(base.encounter, thresholds=th))
 
 
+def _urban_bearings() -> BackendConfig:
+    return replace(_urban_path(), tracking="bearings")
+
+
 BACKEND_PROFILES: dict[str, BackendConfig] = {
     "urban-intersection": _urban(),
     "urban-intersection-path": _urban_path(),
+    "urban-intersection-bearings": _urban_bearings(),
     "backend-defaults": BackendConfig(),
 }
 """Named backend settings (see the module docstring)."""

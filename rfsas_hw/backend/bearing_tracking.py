@@ -6,16 +6,17 @@ keeps or refuses a fix depending on the sign of its error where the error
 ellipse is long (a fix that errs towards the nearest unit shortens its range
 and is refused): the accepted fixes are biased, and a track over them sees
 motion that is not there. Here a track starts from the first trustworthy fix
-and from then on every new bearing is a measurement of the track on its own,
-whatever the fix of the moment:
+(its position sigma widened by ``start_sigma_scale``: that fix is itself one
+the test selected) and from then on every new bearing is a measurement of the
+track on its own, whatever the fix of the moment:
 
 - ``h(x) = atan2(x − x_s, y − y_s)``, the compass azimuth from the sensor at
   ``(x_s, y_s)`` to the track's position;
 - measurement variance ``σ_θ² + σ_s²/r²`` (rad²): the bearing's own one-sigma
   error (its site floor included) and the sensor's position error
   ``station_sigma_m`` across the line of sight at range ``r``;
-- the update is the iterated extended Kalman filter on this scalar (Gauss-Newton
-  on the wrapped residual from the prediction; ``iterations = 1`` is the EKF),
+- the update is the extended Kalman filter on this scalar (``iterations`` > 1:
+  the iterated one, Gauss-Newton on the wrapped residual from the prediction),
   the covariance in Joseph form; the prediction is the fix-fed tracker's own
   (:meth:`~rfsas_hw.backend.tracking.Track.predict`);
 - a bearing more than ``max_off_boresight_deg`` from its sensor's boresight
@@ -77,6 +78,11 @@ class BearingUpdateConfig:
         lost_after: bearings in a row outside the gate after which the track is dropped.
         max_off_boresight_deg: bearings further than this from their sensor's
             boresight are not used, degrees (180: every bearing).
+        start_sigma_scale: factor on the one-sigma position of the fix that starts
+            a track. That fix is the first to pass triangulation's acceptance
+            test, which keeps long fixes by the sign of their error: its error is
+            larger than its covariance says, and a start that claims too much
+            leaks the bearings' correction into a false velocity (docs/ncap.md).
 
     Raises:
         BackendError: a non-positive gate, iteration count or loss count, or a
@@ -88,6 +94,7 @@ class BearingUpdateConfig:
     iterations: int = 1
     lost_after: int = 10
     max_off_boresight_deg: float = 180.0
+    start_sigma_scale: float = 1.0
 
     def __post_init__(self) -> None:
         if not self.gate_sigmas > 0:
@@ -98,6 +105,10 @@ class BearingUpdateConfig:
             raise BackendError(f"bearings iterations must be ≥ 1, got {self.iterations}")
         if self.lost_after < 1:
             raise BackendError(f"bearings lost_after must be ≥ 1, got {self.lost_after}")
+        if not self.start_sigma_scale >= 1:
+            raise BackendError(
+                f"bearings start_sigma_scale must be ≥ 1, got {self.start_sigma_scale}"
+            )
         if not 0 < self.max_off_boresight_deg <= 180:
             raise BackendError(
                 f"bearings max_off_boresight_deg must be in (0, 180], "
@@ -267,7 +278,7 @@ class BearingTracker:
             [emitters[i] for i in new],
             [t_ns[i] for i in new],
             np.asarray(positions, np.float64)[new],
-            np.asarray(covs, np.float64)[new],
+            np.asarray(covs, np.float64)[new] * self.config.start_sigma_scale**2,
             [sensors[i] for i in new],
         )
         for i in new:

@@ -40,9 +40,9 @@ brake only for a threat in the vehicle's path or moving into it by more than
 for units that see the threat at 10 Hz from its first steps, as in the Euro NCAP
 matrix; too strict for threats that appear late and are seen only a few times),
 ``urban-intersection-bearings`` (the same as ``-path``, the tracks fed by each
-unit's bearing instead of by fixes, see :mod:`rfsas_hw.backend.bearing_tracking`:
-what the Euro NCAP matrix uses) and ``backend-defaults``
-(the backend's own defaults, tuned for longer ranges).
+unit's bearing instead of by fixes and started with twice the start fix's sigma,
+see :mod:`rfsas_hw.backend.bearing_tracking`: what the Euro NCAP matrix uses)
+and ``backend-defaults`` (the backend's own defaults, tuned for longer ranges).
 """
 
 from __future__ import annotations
@@ -53,6 +53,7 @@ from pathlib import Path
 from typing import Any, Literal
 
 from rfsas_hw.backend.association import AssociationConfig
+from rfsas_hw.backend.bearing_tracking import BearingUpdateConfig
 from rfsas_hw.backend.encounter import EncounterConfig
 from rfsas_hw.backend.risk import AdvisoryThresholds
 from rfsas_hw.backend.service import BackendConfig, load_backend_config
@@ -225,7 +226,10 @@ def _urban_path() -> BackendConfig:
 
 
 def _urban_bearings() -> BackendConfig:
-    return replace(_urban_path(), tracking="bearings")
+    # the start fix's sigma doubled: measured on the Euro NCAP matrix (docs/ncap.md)
+    return replace(
+        _urban_path(), tracking="bearings", bearings=BearingUpdateConfig(start_sigma_scale=2.0)
+    )
 
 
 BACKEND_PROFILES: dict[str, BackendConfig] = {

@@ -216,6 +216,8 @@ class BearingTrackerStats:
     """Bearings older than their track, not applied."""
     off_boresight: int = 0
     """Bearings beyond ``max_off_boresight_deg`` from their sensor's boresight, not applied."""
+    invalid: int = 0
+    """Bearings with a non-finite azimuth or a sigma that is not positive, not applied."""
     lost: int = 0
     """Tracks dropped after ``lost_after`` gated bearings in a row."""
 
@@ -227,6 +229,7 @@ class BearingTrackerStats:
             "gated": self.gated,
             "out_of_order": self.out_of_order,
             "off_boresight": self.off_boresight,
+            "invalid": self.invalid,
             "lost": self.lost,
         }
 
@@ -300,6 +303,11 @@ class BearingTracker:
             used[b.sensor] = b.t_ns
             if b.t_ns < track.t_ns:
                 self.stats.out_of_order += 1
+                continue
+            if not (
+                math.isfinite(b.azimuth_deg) and math.isfinite(b.sigma_deg) and b.sigma_deg > 0
+            ):
+                self.stats.invalid += 1  # one bad bearing must not stop the service
                 continue
             if abs(wrap_deg_180(b.azimuth_deg - b.heading_deg)) > limit:
                 self.stats.off_boresight += 1

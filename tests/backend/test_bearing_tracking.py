@@ -209,6 +209,10 @@ def test_bearings_older_than_the_track_are_counted_not_applied() -> None:
     svc.on_bearings(_batch("c", 2 * S - S // 5, late, 1.0), Pose(-10.0, 0.0, 0))
     svc.step(2 * S + S // 2)
     assert svc.all_stats()["tracking.out_of_order"] == 1
+    # a bearing without a finite azimuth is counted and skipped, the step goes on
+    svc.on_bearings(_batch("a", 3 * S, math.nan, 1.0), Pose(-10.0, 0.0, 0))
+    svc.step(3 * S + 1)
+    assert svc.all_stats()["tracking.invalid"] == 1
     assert svc.tracker.tracks[EMITTER].updates == 3
 
 

@@ -19,10 +19,11 @@ track on its own, whatever the fix of the moment:
   the iterated one, Gauss-Newton on the wrapped residual from the prediction),
   the covariance in Joseph form; the prediction is the fix-fed tracker's own
   (:meth:`~rfsas_hw.backend.tracking.Track.predict`);
-- a bearing more than ``max_off_boresight_deg`` from its sensor's boresight
-  (outside the field of view its calibration and sigma hold for: a two-antenna
-  unit folds a direction from its side or back into its front) is not applied
-  and counted; a bearing whose innovation exceeds ``gate_sigmas`` of its
+- a bearing measured, or of a track predicted, more than
+  ``max_off_boresight_deg`` from its sensor's boresight (outside the field of
+  view its calibration and sigma hold for; a two-antenna unit folds a direction
+  from its side or back into its front, where only the track's prediction
+  shows it) is not applied and counted; a bearing whose innovation exceeds ``gate_sigmas`` of its
   predicted sigma is not applied and counted; a track whose last ``lost_after`` bearings were all
   outside the gate is dropped, and the next trustworthy fix starts a new one.
 
@@ -76,8 +77,9 @@ class BearingUpdateConfig:
             for a position sigma not small against the range; on the Euro NCAP
             matrix's true negatives 3 braked more often than 1, docs/ncap.md).
         lost_after: bearings in a row outside the gate after which the track is dropped.
-        max_off_boresight_deg: bearings further than this from their sensor's
-            boresight are not used, degrees (180: every bearing).
+        max_off_boresight_deg: bearings measured, or of a track predicted, further
+            than this from their sensor's boresight are not used, degrees (180:
+            every bearing).
         start_sigma_scale: factor on the one-sigma position of the fix that starts
             a track. That fix is the first to pass triangulation's acceptance
             test, which keeps long fixes by the sign of their error: its error is
@@ -309,10 +311,19 @@ class BearingTracker:
             ):
                 self.stats.invalid += 1  # one bad bearing must not stop the service
                 continue
-            if abs(wrap_deg_180(b.azimuth_deg - b.heading_deg)) > limit:
+            x, P = track.predict(b.t_ns, accel)
+            # the measured direction, and the track's: a unit that folds a direction
+            # from its side or back reports it in front, where only the track shows it
+            toward = math.degrees(math.atan2(x[0] - b.x_m, x[1] - b.y_m))
+            if (
+                max(
+                    abs(wrap_deg_180(b.azimuth_deg - b.heading_deg)),
+                    abs(wrap_deg_180(toward - b.heading_deg)),
+                )
+                > limit
+            ):
                 self.stats.off_boresight += 1
                 continue
-            x, P = track.predict(b.t_ns, accel)
             out = bearing_update(x, P, (b.x_m, b.y_m), b.azimuth_deg, b.sigma_deg, self.config)
             if not out.applied:
                 self.stats.gated += 1

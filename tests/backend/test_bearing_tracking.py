@@ -290,3 +290,24 @@ def test_bearings_from_outside_a_units_field_of_view_are_counted_not_applied() -
         BearingUpdateConfig(max_off_boresight_deg=0)
     with pytest.raises(BackendError, match="start_sigma_scale"):
         BearingUpdateConfig(start_sigma_scale=0.5)
+
+
+def test_a_bearing_folded_into_the_front_is_left_out_by_the_tracks_direction() -> None:
+    # both units look east; the emitter at (0, −10) m is 45° off unit a's boresight and
+    # 135° off unit b's, which then reports it mirrored into its front (135° instead of
+    # 225°, 45° off boresight): the measured direction passes, the track's does not
+    cfg = BackendConfig(tracking="bearings", bearings=BearingUpdateConfig(max_off_boresight_deg=60))
+    svc = BackendService(cfg)
+    target = np.array([0.0, -10.0])
+    units = {"a": np.array([-10.0, 0.0]), "b": np.array([10.0, 0.0])}
+    for k in range(4):
+        for sensor, pos in units.items():
+            az = _azimuth_deg(pos, target)
+            if sensor == "b" and k == 3:
+                az = 90.0 - (az - 90.0)  # the front/back mirror about the boresight
+            svc.on_bearings(_batch(sensor, k * S // 10, az, 1.0), Pose(float(pos[0]), 0.0, 90.0))
+        svc.step(k * S // 10 + 1)
+    stats = svc.all_stats()
+    assert stats["tracking.started"] == 1
+    assert stats["tracking.off_boresight"] == 3 and stats["tracking.gated"] == 0
+    np.testing.assert_allclose(svc.tracker.tracks[EMITTER].position, target, atol=1e-6)

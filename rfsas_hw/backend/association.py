@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 import numpy.typing as npt
@@ -26,7 +27,13 @@ from rfsas_hw.records import BearingBatch, Pose
 
 Array = npt.NDArray[np.float64]
 
-__all__ = ["AssociationConfig", "AssociationStats", "Associator", "BearingGroups"]
+__all__ = [
+    "AssociationConfig",
+    "AssociationStats",
+    "Associator",
+    "BearingGroups",
+    "StationBearing",
+]
 
 
 @dataclass(frozen=True, slots=True)
@@ -108,6 +115,25 @@ class BearingGroups:
         return int(self.emitter.shape[0])
 
 
+class StationBearing(NamedTuple):
+    """One sensor's newest bearing of an emitter, with where the sensor was."""
+
+    sensor: str
+    """Sensor id."""
+    t_ns: int
+    """Capture time, UTC ns."""
+    azimuth_deg: float
+    """Compass azimuth, degrees."""
+    sigma_deg: float
+    """One-sigma bearing error, degrees."""
+    x_m: float
+    """Sensor position east, metres."""
+    y_m: float
+    """Sensor position north, metres."""
+    heading_deg: float
+    """Compass azimuth of the sensor's boresight, degrees."""
+
+
 @dataclass(slots=True)
 class _Latest:
     t_ns: int
@@ -115,6 +141,7 @@ class _Latest:
     sigma_deg: float
     x_m: float
     y_m: float
+    heading_deg: float
 
 
 @dataclass(slots=True)
@@ -158,6 +185,7 @@ class Associator:
                 sigmas[i],
                 pose.x_m,
                 pose.y_m,
+                pose.heading_deg,
             )
             self._dirty.add(emitter)
 
@@ -222,6 +250,17 @@ class Associator:
             bearing_t_ns=bt,
             sensors=tuple(tuple(s for s, _ in m) for _, _, m in chosen),
         )
+
+    def newest(self, emitter: int) -> list[StationBearing]:
+        """The newest bearing of ``emitter`` from each sensor that heard it (not yet aged
+        out at the last :meth:`prune`), oldest first."""
+        per_sensor = self._latest.get(emitter, {})
+        out = [
+            StationBearing(s, b.t_ns, b.azimuth_deg, b.sigma_deg, b.x_m, b.y_m, b.heading_deg)
+            for s, b in per_sensor.items()
+        ]
+        out.sort(key=lambda b: (b.t_ns, b.sensor))
+        return out
 
     def __len__(self) -> int:
         """Emitters with at least one live bearing."""

@@ -7,7 +7,9 @@ Each verified safety message hands the sender's pose and bearings to the
    triangulated together (:func:`~rfsas_hw.backend.triangulation.triangulate_batch`),
    each giving a :class:`~rfsas_hw.records.Fix`;
 2. trustworthy fixes update the emitter's constant-velocity track;
-   flagged fixes are reported, never used as positions;
+   flagged fixes are reported, never used as positions (with ``tracking:
+   bearings`` a fix only starts a track, and each unit's bearings update it:
+   :mod:`~rfsas_hw.backend.bearing_tracking`);
 3. every live track is judged against the vehicle state (if one is known),
    giving an :class:`~rfsas_hw.records.Assessment` with P(collision), impact
    speed, risk and the advisory;
@@ -34,6 +36,7 @@ import numpy as np
 
 from rfsas_hw.angles import compass_to_math_rad
 from rfsas_hw.backend.association import AssociationConfig, Associator
+from rfsas_hw.backend.bearing_tracking import BearingTracker, BearingUpdateConfig, TrackingMode
 from rfsas_hw.backend.encounter import Encounter, EncounterConfig, assess_pairs
 from rfsas_hw.backend.risk import Advisory
 from rfsas_hw.backend.site import SiteConfig, site_from_mapping
@@ -77,6 +80,10 @@ class BackendConfig:
         step_s: period of triangulation and assessment in :meth:`BackendService.run`, s.
         site: the site's origin on WGS-84, declared sensors, map and tile URL
             (:mod:`rfsas_hw.backend.site`).
+        tracking: what updates a track: ``fixes`` (each trustworthy fix, the
+            default) or ``bearings`` (a fix starts the track, then each unit's
+            bearing updates it; :mod:`rfsas_hw.backend.bearing_tracking`).
+        bearings: how a bearing updates a track (``tracking: bearings`` only).
 
     Raises:
         BackendError: a non-positive step.
@@ -88,6 +95,8 @@ class BackendConfig:
     encounter: EncounterConfig = field(default_factory=EncounterConfig)
     step_s: float = 0.1
     site: SiteConfig = field(default_factory=SiteConfig)
+    tracking: TrackingMode = "fixes"
+    bearings: BearingUpdateConfig = field(default_factory=BearingUpdateConfig)
 
     def __post_init__(self) -> None:
         if not self.step_s > 0:
@@ -311,6 +320,11 @@ class BackendService:
         self.clock = clock
         self.associator = Associator(self.config.association)
         self.tracker = Tracker(self.config.tracker)
+        self.bearing_tracker = (
+            BearingTracker(self.tracker, self.config.bearings)
+            if self.config.tracking == "bearings"
+            else None
+        )
         self.stats = BackendStats()
         self.stations: dict[str, Pose] = {}
         """Latest pose of every sensor heard, by sensor id."""
@@ -395,6 +409,10 @@ class BackendService:
     def _triangulate(self, now: int) -> list[Fix]:
         groups = self.associator.groups(now)
         if len(groups) == 0:
+            if self.bearing_tracker is not None:
+                self.bearing_tracker.step(
+                    self.associator, [], [], np.empty((0, 2)), np.empty((0, 2, 2)), []
+                )
             return []
         opts = self.config.triangulation
         batch = triangulate_batch(groups.stations_xy, groups.azimuth_deg, groups.sigma_deg, opts)
@@ -426,7 +444,16 @@ class BackendService:
             self.fixes[emitter] = fix
             out.append(fix)
         good = [i for i, fix in enumerate(out) if fix.ok]
-        if good:
+        if self.bearing_tracker is not None:
+            self.bearing_tracker.step(
+                self.associator,
+                [emitters[i] for i in good],
+                [times[i] for i in good],
+                batch.position[good],
+                batch.covariance[good],
+                [out[i].sensors for i in good],
+            )
+        elif good:
             self.tracker.update_many(
                 [emitters[i] for i in good],
                 [times[i] for i in good],
@@ -685,6 +712,10 @@ class BackendService:
     def all_stats(self) -> dict[str, int]:
         """The service's counters and the link's (prefixed ``link.``), flat."""
         out = self.stats.as_dict()
+        if self.bearing_tracker is not None:
+            out.update(
+                {f"tracking.{k}": v for k, v in self.bearing_tracker.stats.as_dict().items()}
+            )
         if self.link_stats is not None:
             out.update({f"link.{k}": v for k, v in self.link_stats().items()})
         return out

@@ -38,9 +38,12 @@ least 5 fixes since it (re)started), ``urban-intersection-path`` (the same, and 
 brake only for a threat in the vehicle's path or moving into it by more than
 2 sigma of its speed, see :class:`~rfsas_hw.backend.risk.AdvisoryThresholds`:
 for units that see the threat at 10 Hz from its first steps, as in the Euro NCAP
-matrix; too strict for threats that appear late and are seen only a few times)
-and ``backend-defaults``
-(the backend's own defaults, tuned for longer ranges).
+matrix; too strict for threats that appear late and are seen only a few times),
+``urban-intersection-bearings`` (the same as ``-path``, the tracks fed by each
+unit's bearing within 60° of its boresight instead of by fixes, started with
+twice the start fix's sigma, see :mod:`rfsas_hw.backend.bearing_tracking`: what
+the Euro NCAP matrix uses)
+and ``backend-defaults`` (the backend's own defaults, tuned for longer ranges).
 """
 
 from __future__ import annotations
@@ -51,6 +54,7 @@ from pathlib import Path
 from typing import Any, Literal
 
 from rfsas_hw.backend.association import AssociationConfig
+from rfsas_hw.backend.bearing_tracking import BearingUpdateConfig
 from rfsas_hw.backend.encounter import EncounterConfig
 from rfsas_hw.backend.risk import AdvisoryThresholds
 from rfsas_hw.backend.service import BackendConfig, load_backend_config
@@ -222,9 +226,17 @@ def _urban_path() -> BackendConfig:
     return replace(base, encounter=replace(base.encounter, thresholds=th))
 
 
+def _urban_bearings() -> BackendConfig:
+    # the start fix's sigma doubled, and only bearings within 60° of a unit's boresight
+    # (where the site floor was measured): measured on the Euro NCAP matrix (docs/ncap.md)
+    bearings = BearingUpdateConfig(start_sigma_scale=2.0, max_off_boresight_deg=60.0)
+    return replace(_urban_path(), tracking="bearings", bearings=bearings)
+
+
 BACKEND_PROFILES: dict[str, BackendConfig] = {
     "urban-intersection": _urban(),
     "urban-intersection-path": _urban_path(),
+    "urban-intersection-bearings": _urban_bearings(),
     "backend-defaults": BackendConfig(),
 }
 """Named backend settings (see the module docstring)."""

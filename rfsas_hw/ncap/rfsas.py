@@ -9,7 +9,9 @@ Devices: every target carries the same model, ``phone-active`` (a phone in
 use) or ``phone-idle`` (probe bursts every 5 s); see
 :data:`~rfsas_hw.bridges.config.DEVICE_MODELS`. Parked vehicles attenuate
 the radio by their ``loss_db`` (:mod:`rfsas_hw.ncap.scenarios`). The backend
-uses the ``urban-intersection-path`` profile (:mod:`rfsas_hw.bridges.config`).
+uses the ``urban-intersection-bearings`` profile (:mod:`rfsas_hw.bridges.config`):
+the path rule, and tracks fed by each unit's bearing rather than by fixes, whose
+acceptance test biases a standing person's track towards the lane (docs/ncap.md).
 
 Both units carry the test track's environment floor (:data:`SITE_FLOOR_DEG`):
 their turntable calibrations know free space only, so without it a bearing's
@@ -66,7 +68,7 @@ def bridge_config(
     return BridgeConfig(
         units=units,
         seed=seed,
-        backend_profile="urban-intersection-path",
+        backend_profile="urban-intersection-bearings",
         ego_unit=EgoUnitSpec(id="vut-unit", env_floor_deg=SITE_FLOOR_DEG),
         buildings=parked,
         buildings_from_simulator=False,

@@ -1,0 +1,345 @@
+"""Tracks fed by each unit's bearing instead of by fixes.
+
+A fix-fed track (:class:`~rfsas_hw.backend.tracking.Tracker`) sees an emitter
+only through the fixes that pass triangulation's acceptance test, and that test
+keeps or refuses a fix depending on the sign of its error where the error
+ellipse is long (a fix that errs towards the nearest unit shortens its range
+and is refused): the accepted fixes are biased, and a track over them sees
+motion that is not there. Here a track starts from the first trustworthy fix
+(its position sigma widened by ``start_sigma_scale``: that fix is itself one
+the test selected) and from then on every new bearing is a measurement of the
+track on its own, whatever the fix of the moment:
+
+- ``h(x) = atan2(x − x_s, y − y_s)``, the compass azimuth from the sensor at
+  ``(x_s, y_s)`` to the track's position;
+- measurement variance ``σ_θ² + σ_s²/r²`` (rad²): the bearing's own one-sigma
+  error (its site floor included) and the sensor's position error
+  ``station_sigma_m`` across the line of sight at range ``r``;
+- the update is the extended Kalman filter on this scalar (``iterations`` > 1:
+  the iterated one, Gauss-Newton on the wrapped residual from the prediction),
+  the covariance in Joseph form; the prediction is the fix-fed tracker's own
+  (:meth:`~rfsas_hw.backend.tracking.Track.predict`);
+- a bearing measured, or of a track predicted, more than
+  ``max_off_boresight_deg`` from its sensor's boresight (outside the field of
+  view its calibration and sigma hold for; a two-antenna unit folds a direction
+  from its side or back into its front, where only the track's prediction
+  shows it) is not applied and counted; a bearing whose innovation exceeds ``gate_sigmas`` of its
+  predicted sigma is not applied and counted; a track whose last ``lost_after`` bearings were all
+  outside the gate is dropped, and the next trustworthy fix starts a new one.
+
+Only the newest bearing of each sensor per step is used (the associator keeps
+no other): the same measurements the fixes are made of, so that a sensor's
+correlated errors (multipath at a slowly changing geometry) are not counted
+many times over.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Literal
+
+import numpy as np
+import numpy.typing as npt
+
+from rfsas_hw.angles import wrap_deg_180
+from rfsas_hw.backend.association import Associator, StationBearing
+from rfsas_hw.backend.tracking import Tracker
+from rfsas_hw.errors import BackendError
+
+Array = npt.NDArray[np.float64]
+
+TrackingMode = Literal["fixes", "bearings"]
+"""What updates a track: ``fixes`` (triangulated positions) or ``bearings`` (each unit's)."""
+
+__all__ = [
+    "BearingTracker",
+    "BearingTrackerStats",
+    "BearingUpdate",
+    "BearingUpdateConfig",
+    "TrackingMode",
+    "bearing_update",
+]
+
+
+@dataclass(frozen=True, slots=True)
+class BearingUpdateConfig:
+    """How a bearing updates a track.
+
+    Args:
+        gate_sigmas: a bearing whose innovation exceeds this many of its predicted
+            one-sigma is not applied.
+        station_sigma_m: one-sigma error of a sensor's reported position, metres
+            (a moving unit's pose error); enters as ``σ_s/r`` across the line of sight.
+        iterations: Gauss-Newton iterations of the update (1: the extended Kalman
+            filter; more re-linearise at the updated position, the iterated filter,
+            for a position sigma not small against the range; on the Euro NCAP
+            matrix's true negatives 3 braked more often than 1, docs/ncap.md).
+        lost_after: bearings in a row outside the gate after which the track is dropped.
+        max_off_boresight_deg: bearings measured, or of a track predicted, further
+            than this from their sensor's boresight are not used, degrees (180:
+            every bearing).
+        start_sigma_scale: factor on the one-sigma position of the fix that starts
+            a track. That fix is the first to pass triangulation's acceptance
+            test, which keeps long fixes by the sign of their error: its error is
+            larger than its covariance says, and a start that claims too much
+            leaks the bearings' correction into a false velocity (docs/ncap.md).
+
+    Raises:
+        BackendError: a non-positive gate, iteration count or loss count, or a
+            negative station sigma.
+    """
+
+    gate_sigmas: float = 3.0
+    station_sigma_m: float = 0.0
+    iterations: int = 1
+    lost_after: int = 10
+    max_off_boresight_deg: float = 180.0
+    start_sigma_scale: float = 1.0
+
+    def __post_init__(self) -> None:
+        if not self.gate_sigmas > 0:
+            raise BackendError(f"bearings gate_sigmas must be > 0, got {self.gate_sigmas}")
+        if not self.station_sigma_m >= 0:
+            raise BackendError(f"bearings station_sigma_m must be ≥ 0, got {self.station_sigma_m}")
+        if self.iterations < 1:
+            raise BackendError(f"bearings iterations must be ≥ 1, got {self.iterations}")
+        if self.lost_after < 1:
+            raise BackendError(f"bearings lost_after must be ≥ 1, got {self.lost_after}")
+        if not self.start_sigma_scale >= 1:
+            raise BackendError(
+                f"bearings start_sigma_scale must be ≥ 1, got {self.start_sigma_scale}"
+            )
+        if not 0 < self.max_off_boresight_deg <= 180:
+            raise BackendError(
+                f"bearings max_off_boresight_deg must be in (0, 180], "
+                f"got {self.max_off_boresight_deg}"
+            )
+
+
+@dataclass(frozen=True, slots=True)
+class BearingUpdate:
+    """The outcome of one bearing applied to a predicted state."""
+
+    state: Array
+    """``[x_m, y_m, vx_mps, vy_mps]`` after the update (the prediction when gated)."""
+    cov: Array
+    """4×4 covariance after the update (the prediction's when gated)."""
+    innovation_sigmas: float
+    """Wrapped innovation at the prediction over its predicted one-sigma (signed)."""
+    applied: bool
+    """False when the bearing was outside the gate (or the target sat on the sensor)."""
+
+
+def _azimuth_and_gradient(state: Array, sx: float, sy: float) -> tuple[float, Array, float]:
+    """Compass azimuth (rad) from the sensor to the state's position, its gradient
+    ``H`` (1/m on the positions, 0 on the velocities) and the range² (m²)."""
+    dx, dy = float(state[0]) - sx, float(state[1]) - sy
+    r2 = dx * dx + dy * dy
+    H = np.array([dy / r2, -dx / r2, 0.0, 0.0]) if r2 > 0 else np.zeros(4)
+    return math.atan2(dx, dy), H, r2
+
+
+def _wrap(angle_rad: float) -> float:
+    return (angle_rad + math.pi) % (2 * math.pi) - math.pi
+
+
+def bearing_update(
+    state: Array,
+    cov: Array,
+    station_xy: tuple[float, float],
+    azimuth_deg: float,
+    sigma_deg: float,
+    config: BearingUpdateConfig,
+) -> BearingUpdate:
+    """Apply one bearing to a predicted track state (see the module docstring).
+
+    Args:
+        state: predicted ``[x_m, y_m, vx_mps, vy_mps]``.
+        cov: its 4×4 covariance.
+        station_xy: the sensor's position, metres east/north.
+        azimuth_deg: the measured compass azimuth, degrees.
+        sigma_deg: its one-sigma error, degrees.
+        config: gate, station sigma and iterations.
+
+    Raises:
+        BackendError: a non-finite bearing or sigma, or a sigma ≤ 0.
+    """
+    if not (math.isfinite(azimuth_deg) and math.isfinite(sigma_deg) and sigma_deg > 0):
+        raise BackendError(
+            f"bearing {azimuth_deg}° ± {sigma_deg}° is not a finite azimuth with a positive sigma"
+        )
+    x0 = np.asarray(state, np.float64)
+    P = np.asarray(cov, np.float64)
+    sx, sy = float(station_xy[0]), float(station_xy[1])
+    z = math.radians(azimuth_deg)
+    var_theta = math.radians(sigma_deg) ** 2
+    var_station = config.station_sigma_m**2
+    h0, H0, r2 = _azimuth_and_gradient(x0, sx, sy)
+    if not r2 > 0:
+        return BearingUpdate(x0, P, math.nan, False)
+    PH0 = P @ H0
+    S0 = float(H0 @ PH0) + var_theta + var_station / r2
+    nu0 = _wrap(z - h0)
+    ratio = nu0 / math.sqrt(S0)
+    if abs(ratio) > config.gate_sigmas:
+        return BearingUpdate(x0, P, ratio, False)
+    x, H, PH, S, R, K = x0, H0, PH0, S0, var_theta + var_station / r2, PH0 / S0
+    for i in range(config.iterations):
+        if i:
+            h, H, r2 = _azimuth_and_gradient(x, sx, sy)
+            if not r2 > 0:
+                break
+            R = var_theta + var_station / r2
+            PH = P @ H
+            S = float(H @ PH) + R
+            nu = _wrap(z - h) - float(H @ (x0 - x))
+        else:
+            nu = nu0
+        K = PH / S
+        x = x0 + K * nu
+    A = np.eye(4) - np.outer(K, H)
+    P_new = A @ P @ A.T + R * np.outer(K, K)
+    return BearingUpdate(x, 0.5 * (P_new + P_new.T), ratio, True)
+
+
+@dataclass(slots=True)
+class BearingTrackerStats:
+    """Counts of what the bearings did to the tracks."""
+
+    started: int = 0
+    """Tracks started from a trustworthy fix."""
+    applied: int = 0
+    """Bearings applied."""
+    gated: int = 0
+    """Bearings outside the innovation gate, not applied."""
+    out_of_order: int = 0
+    """Bearings older than their track, not applied."""
+    off_boresight: int = 0
+    """Bearings beyond ``max_off_boresight_deg`` from their sensor's boresight, not applied."""
+    invalid: int = 0
+    """Bearings with a non-finite azimuth or a sigma that is not positive, not applied."""
+    lost: int = 0
+    """Tracks dropped after ``lost_after`` gated bearings in a row."""
+
+    def as_dict(self) -> dict[str, int]:
+        """The counters, flat."""
+        return {
+            "started": self.started,
+            "applied": self.applied,
+            "gated": self.gated,
+            "out_of_order": self.out_of_order,
+            "off_boresight": self.off_boresight,
+            "invalid": self.invalid,
+            "lost": self.lost,
+        }
+
+
+@dataclass(slots=True)
+class BearingTracker:
+    """Starts tracks from fixes and updates them with bearings (module docstring).
+
+    The tracks live in ``tracker`` (its configuration gives the motion model, its
+    :meth:`~rfsas_hw.backend.tracking.Tracker.prune` drops stale tracks); a track's
+    ``updates`` counts the steps in which it took at least one bearing, so that the
+    brake rule's "fixes since the track started" means the same in both modes.
+    """
+
+    tracker: Tracker
+    config: BearingUpdateConfig = field(default_factory=BearingUpdateConfig)
+    stats: BearingTrackerStats = field(default_factory=BearingTrackerStats)
+    _used: dict[int, dict[str, int]] = field(default_factory=dict)
+    """Per emitter, the time of the newest bearing of each sensor already used, ns."""
+    _missed: dict[int, int] = field(default_factory=dict)
+    """Per emitter, gated bearings in a row."""
+
+    def step(
+        self,
+        associator: Associator,
+        emitters: Sequence[int],
+        t_ns: Sequence[int],
+        positions: Array,
+        covs: Array,
+        sensors: Sequence[tuple[str, ...]],
+    ) -> None:
+        """One service step: the new bearings of every tracked emitter, then tracks
+        started from this step's trustworthy fixes (``emitters``, their times in UTC
+        ns, positions in m, covariances in m², sensors) of emitters without one; a
+        fix of an emitter already tracked is not used.
+
+        Raises:
+            BackendError: a non-finite fix (nothing is started).
+        """
+        for emitter in [e for e in self._used if e not in self.tracker.tracks]:
+            del self._used[emitter]
+            self._missed.pop(emitter, None)
+        for emitter in list(self.tracker.tracks):
+            self._apply(emitter, associator.newest(emitter))
+        new = [i for i, e in enumerate(emitters) if e not in self.tracker.tracks]
+        if not new:
+            return
+        self.tracker.update_many(
+            [emitters[i] for i in new],
+            [t_ns[i] for i in new],
+            np.asarray(positions, np.float64)[new],
+            np.asarray(covs, np.float64)[new] * self.config.start_sigma_scale**2,
+            [sensors[i] for i in new],
+        )
+        for i in new:
+            e = emitters[i]
+            self.stats.started += 1
+            self._used[e] = {b.sensor: b.t_ns for b in associator.newest(e)}
+            self._missed[e] = 0
+
+    def _apply(self, emitter: int, bearings: Sequence[StationBearing]) -> None:
+        track = self.tracker.tracks[emitter]
+        used = self._used.setdefault(emitter, {})
+        fresh = [b for b in bearings if b.t_ns > used.get(b.sensor, -1)]
+        if not fresh:
+            return
+        accel = self.tracker.config.accel_sigma_mps2
+        limit = self.config.max_off_boresight_deg
+        applied: list[str] = []
+        for b in fresh:  # oldest first
+            used[b.sensor] = b.t_ns
+            if b.t_ns < track.t_ns:
+                self.stats.out_of_order += 1
+                continue
+            if not (
+                math.isfinite(b.azimuth_deg) and math.isfinite(b.sigma_deg) and b.sigma_deg > 0
+            ):
+                self.stats.invalid += 1  # one bad bearing must not stop the service
+                continue
+            x, P = track.predict(b.t_ns, accel)
+            # the measured direction, and the track's: a unit that folds a direction
+            # from its side or back reports it in front, where only the track shows it
+            toward = math.degrees(math.atan2(x[0] - b.x_m, x[1] - b.y_m))
+            if (
+                max(
+                    abs(wrap_deg_180(b.azimuth_deg - b.heading_deg)),
+                    abs(wrap_deg_180(toward - b.heading_deg)),
+                )
+                > limit
+            ):
+                self.stats.off_boresight += 1
+                continue
+            out = bearing_update(x, P, (b.x_m, b.y_m), b.azimuth_deg, b.sigma_deg, self.config)
+            if not out.applied:
+                self.stats.gated += 1
+                missed = self._missed.get(emitter, 0) + 1
+                self._missed[emitter] = missed
+                if missed >= self.config.lost_after:
+                    del self.tracker.tracks[emitter]
+                    del self._used[emitter]
+                    del self._missed[emitter]
+                    self.stats.lost += 1
+                    return
+                continue
+            self._missed[emitter] = 0
+            self.stats.applied += 1
+            track.state, track.cov, track.t_ns = out.state, out.cov, b.t_ns
+            applied.append(b.sensor)
+        if applied:
+            track.updates += 1
+            track.sensors = tuple(sorted(set(applied)))

@@ -135,22 +135,12 @@ class StationBearing(NamedTuple):
 
 
 @dataclass(slots=True)
-class _Latest:
-    t_ns: int
-    azimuth_deg: float
-    sigma_deg: float
-    x_m: float
-    y_m: float
-    heading_deg: float
-
-
-@dataclass(slots=True)
 class Associator:
     """Keeps the newest bearing per (emitter, sensor) and hands out groups to triangulate."""
 
     config: AssociationConfig = field(default_factory=AssociationConfig)
     stats: AssociationStats = field(default_factory=AssociationStats)
-    _latest: dict[int, dict[str, _Latest]] = field(default_factory=dict)
+    _latest: dict[int, dict[str, StationBearing]] = field(default_factory=dict)
     _dirty: set[int] = field(default_factory=set)
 
     def add(self, batch: BearingBatch, pose: Pose) -> None:
@@ -179,7 +169,8 @@ class Associator:
                 self.stats.superseded += 1
                 if old.t_ns > t_ns:
                     continue
-            per_sensor[sensor] = _Latest(
+            per_sensor[sensor] = StationBearing(
+                sensor,
                 t_ns,
                 azimuths[i],
                 sigmas[i],
@@ -212,7 +203,7 @@ class Associator:
         self.prune(now_ns)
         window_ns = int(self.config.window_s * NS_PER_S)
         candidates = self._dirty if only_new else set(self._latest)
-        chosen: list[tuple[int, int, list[tuple[str, _Latest]]]] = []
+        chosen: list[tuple[int, int, list[tuple[str, StationBearing]]]] = []
         for emitter in sorted(candidates):
             per_sensor = self._latest.get(emitter)
             if not per_sensor:
@@ -255,10 +246,7 @@ class Associator:
         """The newest bearing of ``emitter`` from each sensor that heard it (not yet aged
         out at the last :meth:`prune`), oldest first."""
         per_sensor = self._latest.get(emitter, {})
-        out = [
-            StationBearing(s, b.t_ns, b.azimuth_deg, b.sigma_deg, b.x_m, b.y_m, b.heading_deg)
-            for s, b in per_sensor.items()
-        ]
+        out = list(per_sensor.values())
         out.sort(key=lambda b: (b.t_ns, b.sensor))
         return out
 

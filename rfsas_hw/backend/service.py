@@ -34,7 +34,6 @@ from typing import IO, Any, Protocol
 
 import numpy as np
 
-from rfsas_hw.angles import compass_to_math_rad
 from rfsas_hw.backend.association import AssociationConfig, Associator
 from rfsas_hw.backend.bearing_tracking import BearingTracker, BearingUpdateConfig, TrackingMode
 from rfsas_hw.backend.encounter import Encounter, EncounterConfig, assess_pairs
@@ -464,14 +463,7 @@ class BackendService:
         return out
 
     def _vehicle_at(self, now: int) -> VehicleState | None:
-        v = self.vehicle
-        if v is None or v.t_ns in (0, now):  # unknown time, or the state is of now
-            return v
-        dt = max(now - v.t_ns, 0) / NS_PER_S
-        # position + velocity·dt, element by element in floats (the same operations)
-        a = compass_to_math_rad(float(v.heading_deg))
-        vx, vy = math.cos(a) * v.speed_mps, math.sin(a) * v.speed_mps
-        return replace(v, x_m=float(v.x_m + vx * dt), y_m=float(v.y_m + vy * dt), t_ns=now)
+        return None if self.vehicle is None else self.vehicle.at(now)
 
     def assess_for(
         self, vehicle: VehicleState, emitters: Iterable[int], now_ns: int | None = None

@@ -17,7 +17,7 @@ import json
 import logging
 import math
 from collections import Counter
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -34,6 +34,7 @@ from rfsas_hw.backend.collision import (
 from rfsas_hw.config import from_mapping, read_yaml
 from rfsas_hw.errors import ConfigError, RfsasError
 from rfsas_hw.link.transport import Transport, open_transport
+from rfsas_hw.privacy.epochs import NS_PER_S
 
 log = logging.getLogger(__name__)
 
@@ -99,6 +100,19 @@ class VehicleState:
     def size(self) -> tuple[float, float]:
         """``(length_m, width_m)``."""
         return (self.length_m, self.width_m)
+
+    def at(self, t_ns: int) -> VehicleState:
+        """The state moved along its heading at its speed to ``t_ns`` (UTC ns); itself
+        when its time is unknown (0) or already ``t_ns``, and never moved backwards."""
+        if self.t_ns in (0, t_ns):
+            return self
+        dt = max(t_ns - self.t_ns, 0) / NS_PER_S
+        # position + velocity·dt, element by element in floats
+        a = compass_to_math_rad(float(self.heading_deg))
+        vx, vy = math.cos(a) * self.speed_mps, math.sin(a) * self.speed_mps
+        return replace(
+            self, x_m=float(self.x_m + vx * dt), y_m=float(self.y_m + vy * dt), t_ns=t_ns
+        )
 
 
 def parse_vehicle(data: Any, where: str) -> VehicleState:

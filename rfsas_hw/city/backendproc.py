@@ -131,22 +131,17 @@ class VehicleStates:
         close = (x_m[None, :] - self.x_m[:, None]) ** 2 + (
             y_m[None, :] - self.y_m[:, None]
         ) ** 2 < near_m**2
-        dt_s = max(now_ns - self.t_ns, 0) / NS_PER_S
         out = []
         for i in np.flatnonzero(close.any(axis=1)).tolist():
-            vx, vy = float(self.x_m[i]), float(self.y_m[i])
-            speed = float(self.speed_mps[i])
-            heading = float(self.heading_deg[i])
-            a = math.radians(heading)
             vehicle = VehicleState(
-                x_m=vx + math.sin(a) * speed * dt_s,
-                y_m=vy + math.cos(a) * speed * dt_s,
-                heading_deg=heading % 360.0,
-                speed_mps=max(speed, 0.0),
+                x_m=float(self.x_m[i]),
+                y_m=float(self.y_m[i]),
+                heading_deg=float(self.heading_deg[i]) % 360.0,
+                speed_mps=max(float(self.speed_mps[i]), 0.0),
                 length_m=float(self.length_m[i]),
                 width_m=float(self.width_m[i]),
-                t_ns=now_ns,
-            )
+                t_ns=self.t_ns,
+            ).at(now_ns)
             out.append((i, vehicle, emitters[close[i]].tolist()))
         return out
 

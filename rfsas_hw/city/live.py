@@ -760,12 +760,10 @@ class DistributedRfsas:
         for bc in self.stats.backends.values():
             self.stats.bearing_messages_verified += bc.stats.get("link.verified", 0)
             # what came on the bearing topics: every datagram but the nonce envelopes
-            # (taken, or refused as nonce_rejected)
+            # (whatever became of them: taken, refused, or shed under overload)
             st = bc.stats
-            self.stats.bearing_messages_received += (
-                st.get("link.datagrams", 0)
-                - st.get("link.nonces", 0)
-                - st.get("link.rejected.nonce_rejected", 0)
+            self.stats.bearing_messages_received += st.get("link.datagrams", 0) - st.get(
+                "link.envelopes", 0
             )
             self.stats.advisories_sent += bc.advisories_sent
             self.stats.problems += bc.problems

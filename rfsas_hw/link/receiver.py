@@ -218,6 +218,10 @@ class ReceiverStats:
     bearings: int = 0
     nonces: int = 0
     """Nonce envelopes accepted."""
+    envelopes: int = 0
+    """Nonce envelopes received, whatever became of them (accepted, refused by the nonce
+    store, shed under overload, or failed): ``datagrams - envelopes`` are the safety
+    messages received."""
     rejected: Counter[str] = field(default_factory=Counter)
 
     @property
@@ -232,6 +236,7 @@ class ReceiverStats:
             "verified": self.verified,
             "bearings": self.bearings,
             "nonces": self.nonces,
+            "envelopes": self.envelopes,
         }
         out.update({f"rejected.{k}": v for k, v in sorted(self.rejected.items())})
         return out
@@ -503,6 +508,7 @@ class Receiver:
         cfg = self.config
         head = peek(datagram, cfg.max_datagram)  # MessageFormatError is a rejection too
         if head.kind == TYPE_NONCE:
+            self.stats.envelopes += 1
             if shed:  # opening one costs two key agreements
                 raise _RejectError("overload", "nonce envelope")
             self._envelope(datagram, now_ns)

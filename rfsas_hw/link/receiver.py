@@ -738,10 +738,12 @@ class Receiver:
         return out
 
     def counters(self) -> dict[str, int]:
-        """:attr:`stats` flat, plus the counters of broker transports
-        (``mqtt.sent``, ``mqtt.received``, ``mqtt.dropped``, ``mqtt.disconnects``, …;
-        summed over several)."""
+        """:attr:`stats` flat, the latency watch's state changes by the state entered
+        (``latency.to_ok``, ``latency.to_late``, ``latency.to_silent``), plus the
+        counters of broker transports (``mqtt.sent``, ``mqtt.received``,
+        ``mqtt.dropped``, ``mqtt.disconnects``, …; summed over several)."""
         out = self.stats.as_dict()
+        out.update({f"latency.to_{k}": v for k, v in sorted(self.latency.changes.items())})
         parts = getattr(self.transport, "transports", {self: self.transport})
         for transport in parts.values():
             stats = getattr(transport, "stats", None)

@@ -43,9 +43,9 @@ reason a datagram is counted under:
    message's epoch);
 6. replay: ``replay`` (sequence number already seen inside the window).
 
-Steps 1 to 3 read bytes not authenticated yet, so they only ever refuse: a
-message that fails one of them would fail the same check after its signature
-too, and is refused before the signature costs anything (about 0.1 ms of ECDSA
+Steps 1 to 3 read bytes not authenticated yet, so they only ever refuse, never
+accept: each refuses a message that must be refused whatever its signature, and
+does so before the signature costs anything (about 0.1 ms of ECDSA
 verify, against well under a microsecond for a time check: a receiver that
 falls behind refuses the messages it got too late at almost no cost, and a
 flood of old or forged-time messages costs no verify). A forged message that is

@@ -7,6 +7,7 @@ from __future__ import annotations
 import json
 import logging
 import multiprocessing as mp
+import queue
 import sys
 from pathlib import Path
 from typing import Any
@@ -17,7 +18,7 @@ sys.path.insert(0, str(Path(__file__).parent))
 
 from childhelp import warn_and_answer
 
-from rfsas_hw.city.childlog import LogRelay, child_main, redact_macs
+from rfsas_hw.city.childlog import ChildLogging, LogRelay, child_main, install, redact_macs
 
 MAC = "02:1a:2b:3c:4d:5e"
 
@@ -79,6 +80,33 @@ def test_by_default_a_childs_records_go_to_this_processs_loggers(
         ("be-1", "unit rsu-1 heard phone <mac>")
     ]
     assert MAC not in capfd.readouterr().err
+
+
+def test_a_full_queue_drops_records_and_then_says_how_many() -> None:
+    q: queue.Queue[logging.LogRecord] = queue.Queue(maxsize=2)
+    root = logging.getLogger()
+    saved = (list(root.handlers), root.level)
+    try:
+        install(ChildLogging(q, logging.WARNING))  # this process stands for a child
+        log = logging.getLogger("rfsas_hw.city.testchild")
+        for i in range(5):
+            log.warning("record %d", i)
+        got = [q.get_nowait().getMessage() for _ in range(2)]
+        log.warning("after")
+        got += [q.get_nowait().getMessage() for _ in range(2)]
+    finally:
+        for handler in list(root.handlers):
+            root.removeHandler(handler)
+        for handler in saved[0]:
+            root.addHandler(handler)
+        root.setLevel(saved[1])
+    assert got == [
+        "record 0",
+        "record 1",
+        "3 log records dropped (the queue to the main process was full)",
+        "after",
+    ]
+    assert q.empty()
 
 
 @pytest.mark.parametrize(

@@ -1,6 +1,6 @@
 """City scale on a real broker: latency, throughput, scale-out and a forged flood.
 
-    python bench/bench_fleet.py [--quick]
+    python bench/bench_fleet.py [--quick] [--receiver]
 
 Needs ``mosquitto`` (Debian package) and the ``mqtt`` extra. Everything runs on
 127.0.0.1; the broker is started here with mutual TLS and the ACL that
@@ -25,7 +25,9 @@ Needs ``mosquitto`` (Debian package) and the ``mqtt`` extra. Everything runs on
 3. The receiver's time per forged datagram, in process: version 1 (an
    ECDSA verify each) against version 2 (one HMAC each); and its CPU time per
    valid version-2 message with every check, beside the bare ECDSA verify of
-   the same messages (what is left is the receiver's own work).
+   the same messages (what is left is the receiver's own work); and per
+   genuine message that arrives 1.5 s old (``stale``, as at a backend behind
+   its clock). ``--receiver`` runs this section alone (no broker).
 4. A forged flood at 50,000 datagrams/s on the backend's UDP port while a
    sensor sends at 50 Hz: with version-1 messages (each forgery costs an
    ECDSA verify) and with version 2 required (each forgery costs one HMAC),
@@ -590,17 +592,16 @@ class Queued(Transport):
         pass
 
 
-def accept_cost(n: int = 2000, rounds: int = 3) -> dict[str, float]:
-    """µs a receiver spends on one valid version-2 message with every check, one at
-    a time (``feed_from``) and in batches as a backend takes them (``receive``),
-    beside the bare ECDSA P-256 verify of the same messages (in process, CPU time;
-    the three alternate ``rounds`` times and the fastest round of each counts)."""
+def _sealed(
+    n: int, now: int, age_us: int = 0
+) -> tuple[TrustedKeys, list[tuple[bytes, str, ec.EllipticCurvePublicKey]]]:
+    """``n`` genuine version-2 messages of 4 senders generated ``age_us`` before ``now``
+    (UTC ns; sequence numbers and times apart), with their topics and senders' keys."""
     signers = [
         Signer(f"s-{i}", ec.derive_private_key(SENSOR_KEY + i, ec.SECP256R1())) for i in range(4)
     ]
     trust = TrustedKeys({s.sender_id: s.public_key for s in signers})
     router = TopicRouter(ORIGIN)
-    now = time.time_ns()
     epoch = now // 60_000_000_000
     items: list[tuple[bytes, str, ec.EllipticCurvePublicKey]] = []
     for k in range(n):
@@ -615,9 +616,19 @@ def accept_cost(n: int = 2000, rounds: int = 3) -> dict[str, float]:
             np.array([6], np.int16),
             np.array([5], np.uint64),
         )
-        msg = SafetyMessage(sid, sensor_pose(k % 4), now // 1000 + k, k, epoch, b)
+        msg = SafetyMessage(sid, sensor_pose(k % 4), now // 1000 - age_us + k, k, epoch, b)
         raw = seal(signer, msg, derive_key(NONCE, sid))
         items.append((raw, router.route(raw, now).topic, signer.public_key))
+    return trust, items
+
+
+def accept_cost(n: int = 2000, rounds: int = 3) -> dict[str, float]:
+    """µs a receiver spends on one valid version-2 message with every check, one at
+    a time (``feed_from``) and in batches as a backend takes them (``receive``),
+    beside the bare ECDSA P-256 verify of the same messages (in process, CPU time;
+    the three alternate ``rounds`` times and the fastest round of each counts)."""
+    now = time.time_ns()
+    trust, items = _sealed(n, now)
     bare = [(pub, der_of(raw), raw[: -8 - 64]) for raw, _, pub in items]
     best = {"one": float("inf"), "batch": float("inf"), "verify": float("inf")}
     cfg = ReceiverConfig(max_age_s=120.0, check_epoch=False, backlog=1 << 30)
@@ -646,14 +657,71 @@ def accept_cost(n: int = 2000, rounds: int = 3) -> dict[str, float]:
     return best
 
 
+def stale_cost(n: int = 2000, rounds: int = 3) -> dict[str, float]:
+    """CPU µs a receiver spends refusing one genuine version-2 message that arrives
+    1.5 s after it was generated (``stale``: a backend behind its clock), in batches
+    as a backend takes them (``receive``) and one at a time (``feed_from``); the
+    fastest of ``rounds``."""
+    now = time.time_ns()
+    trust, items = _sealed(n, now, age_us=1_500_000)
+    cfg = ReceiverConfig(check_epoch=False, backlog=1 << 30)
+    best = {"one": float("inf"), "batch": float("inf")}
+    for _ in range(rounds):
+        rx = Receiver(trust, config=cfg, preauth=PreauthKeys(FixedNonce(NONCE)), clock=lambda: now)
+        t0 = time.process_time()
+        for raw, topic, _ in items:
+            rx.feed_from(raw, topic, now)
+        t1 = time.process_time()
+        queued = Queued([(raw, topic) for raw, topic, _ in items])
+        batched = Receiver(
+            trust,
+            config=cfg,
+            preauth=PreauthKeys(FixedNonce(NONCE)),
+            transport=queued,
+            clock=lambda: now,
+        )
+        t2 = time.process_time()
+        while queued.items:
+            batched.receive(0, max_datagrams=2048)
+        t3 = time.process_time()
+        assert rx.stats.rejected["stale"] == n == batched.stats.rejected["stale"]
+        best["one"] = min(best["one"], (t1 - t0) / n * 1e6)
+        best["batch"] = min(best["batch"], (t3 - t2) / n * 1e6)
+    return best
+
+
 def der_of(raw: bytes) -> bytes:
     """The DER signature of a version-2 datagram, as ``cryptography`` takes it."""
     sig = raw[-8 - 64 : -8]
     return encode_dss_signature(int.from_bytes(sig[:32], "big"), int.from_bytes(sig[32:], "big"))
 
 
+def receiver_costs(quick: bool) -> None:
+    """Section 3: the receiver's CPU per datagram, in process."""
+    cost = reject_cost()
+    print("3. Receiver time per datagram (in process, no socket)")
+    for v, label in (("v1", "version 1: ECDSA verify"), ("v2", "version 2: HMAC tag first")):
+        print(f"{label:<34} {cost[v]:8.1f} µs  → {1e6 / cost[v]:>9,.0f} forgeries/s per core")
+    print(f"version 1 / version 2: {cost['v1'] / cost['v2']:.1f}×")
+    valid = accept_cost(500 if quick else 2000)
+    print(
+        f"a valid version-2 message, every check (CPU µs; bare ECDSA verify {valid['verify']:.1f})"
+    )
+    for key, label in (("one", "one at a time (feed_from)"), ("batch", "in batches (receive)")):
+        rest = valid[key] - valid["verify"]
+        print(f"  {label:<32} {valid[key]:8.1f} µs, {rest:.1f} µs besides the verify")
+    stale = stale_cost(500 if quick else 2000)
+    print("a genuine version-2 message 1.5 s old, refused as stale (CPU µs)")
+    for key, label in (("one", "one at a time (feed_from)"), ("batch", "in batches (receive)")):
+        print(f"  {label:<32} {stale[key]:8.1f} µs")
+    print()
+
+
 def main() -> None:
     quick = "--quick" in sys.argv
+    if "--receiver" in sys.argv:  # section 3 alone: no broker needed
+        receiver_costs(quick)
+        return
     if shutil.which("mosquitto") is None and not Path("/usr/sbin/mosquitto").exists():
         sys.exit("mosquitto is not installed (Debian package mosquitto)")
     root = Path(tempfile.mkdtemp(prefix="rfsas-fleet-"))
@@ -697,19 +765,7 @@ def main() -> None:
         broker.terminate()
         broker.wait(5)
     seconds = 2.0 if quick else 3.0
-    cost = reject_cost()
-    print("3. Receiver time per datagram (in process, no socket)")
-    for v, label in (("v1", "version 1: ECDSA verify"), ("v2", "version 2: HMAC tag first")):
-        print(f"{label:<34} {cost[v]:8.1f} µs  → {1e6 / cost[v]:>9,.0f} forgeries/s per core")
-    print(f"version 1 / version 2: {cost['v1'] / cost['v2']:.1f}×")
-    valid = accept_cost(500 if quick else 2000)
-    print(
-        f"a valid version-2 message, every check (CPU µs; bare ECDSA verify {valid['verify']:.1f})"
-    )
-    for key, label in (("one", "one at a time (feed_from)"), ("batch", "in batches (receive)")):
-        rest = valid[key] - valid["verify"]
-        print(f"  {label:<32} {valid[key]:8.1f} µs, {rest:.1f} µs besides the verify")
-    print()
+    receiver_costs(quick)
     print(f"4. Forged flood at 50,000/s on UDP, sensor at 50 Hz, {seconds:g} s")
     print(f"{'messages':<34} {'junk/s':>8} {'valid':>6} {'verified':>9} {'share':>7} {'state':>8}")
     for version, rcvbuf, label in (

@@ -40,7 +40,7 @@ import logging
 import math
 import time
 from collections import deque
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from multiprocessing.connection import Connection
 from pathlib import Path
 from typing import Any, Literal
@@ -277,6 +277,10 @@ class CityBackend:
         except BaseException:
             self.app.close()
             raise
+        # a unit falls silent whenever no phone is near it: its link's state changes are
+        # counted (link.latency.to_*), not a warning each
+        watch = self.app.receiver.latency
+        watch.config = replace(watch.config, log_changes=False)
         self.router = TopicRouter(work.origin)
         self.home_tile = self.router.tile_of(0.0, 0.0)
         self.signer = self.app.store.signer()

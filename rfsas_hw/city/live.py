@@ -46,6 +46,7 @@ from rfsas_hw.backend.service import BackendConfig
 from rfsas_hw.bridges.bridge import fitted_calibration
 from rfsas_hw.bridges.config import BridgeConfig, UnitSpec
 from rfsas_hw.city.backendproc import BackendCounters, BackendWork, VehicleStates, backend_main
+from rfsas_hw.city.childlog import LogRelay, child_main
 from rfsas_hw.city.clock import SimClock
 from rfsas_hw.city.deploy import (
     AUTHORITY_ID,
@@ -309,6 +310,9 @@ class DistributedRfsas:
         config: the layout.
         broker: a running broker to use (None: mosquitto is started on loopback with
             the deployment's own files).
+        log_handler: where the log records of the processes go
+            (:mod:`rfsas_hw.city.childlog`; None: this process's loggers, as if logged
+            here).
 
     Raises:
         MissingDependencyError: mosquitto is not installed (and no ``broker``).
@@ -328,6 +332,7 @@ class DistributedRfsas:
         config: LiveConfig | None = None,
         *,
         broker: BrokerAccess | None = None,
+        log_handler: logging.Handler | None = None,
     ) -> None:
         self.config = cfg = config or LiveConfig()
         self.origin = origin
@@ -367,6 +372,8 @@ class DistributedRfsas:
         """The vehicles the gateway was last told of."""
         self._auth_transport: Any = None
         self._closed = False
+        self._logs: LogRelay | None = None
+        """The processes' log records, to ``log_handler``."""
         self.late: list[Arrival] = []
         """Advisories that reached vehicles after the last step (taken by :meth:`close`)."""
         try:
@@ -374,6 +381,7 @@ class DistributedRfsas:
                 self.broker = LocalBroker(self.deployment.files, work_dir / "mosquitto.log")
             self._start_authority()
             ctx = _context()
+            self._logs = LogRelay(ctx, log_handler)
             self._start_backends(ctx, backend_ids, settings)
             self._start_workers(ctx, units, buildings, bridge)
             gateway = GatewayWork(
@@ -429,9 +437,12 @@ class DistributedRfsas:
             self._backends[b] = self._spawn(ctx, backend_main, work, b)
 
     def _spawn(self, ctx: Any, target: Any, work: Any, name: str) -> Any:
-        """Start ``target(work, pipe)`` as the daemon process ``name``; our end of the pipe."""
+        """Start ``target(work, pipe)`` as the daemon process ``name``, logging here
+        (:func:`~rfsas_hw.city.childlog.child_main`); our end of the pipe."""
+        assert self._logs is not None
         parent, child = ctx.Pipe()
-        proc = ctx.Process(target=target, args=(work, child), name=name, daemon=True)
+        args = (target, work, child, self._logs.child())
+        proc = ctx.Process(target=child_main, args=args, name=name, daemon=True)
         proc.start()
         child.close()
         self._procs.append(proc)
@@ -748,6 +759,8 @@ class DistributedRfsas:
             if proc.is_alive():
                 proc.terminate()
                 proc.join(5)
+        if self._logs is not None:
+            self._logs.close()
         if self._auth_transport is not None:
             self._auth_transport.close()
         if self.broker is not None:
@@ -760,12 +773,10 @@ class DistributedRfsas:
         for bc in self.stats.backends.values():
             self.stats.bearing_messages_verified += bc.stats.get("link.verified", 0)
             # what came on the bearing topics: every datagram but the nonce envelopes
-            # (taken, or refused as nonce_rejected)
+            # (whatever became of them: taken, refused, or shed under overload)
             st = bc.stats
-            self.stats.bearing_messages_received += (
-                st.get("link.datagrams", 0)
-                - st.get("link.nonces", 0)
-                - st.get("link.rejected.nonce_rejected", 0)
+            self.stats.bearing_messages_received += st.get("link.datagrams", 0) - st.get(
+                "link.envelopes", 0
             )
             self.stats.advisories_sent += bc.advisories_sent
             self.stats.problems += bc.problems

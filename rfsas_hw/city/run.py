@@ -17,8 +17,11 @@ One run (:func:`run_city`):
    comes); with RF-SAS
    off it runs as fast as SUMO goes;
 4. writes the run log (JSON lines: start, one line per advisory that reached a
-   vehicle, one per simulated second, the end), the summary (JSON) and the map
-   (PNG and GeoJSON) into the output directory.
+   vehicle, one per simulated second, one per log record of any of the run's
+   processes at the main process's logging level — WARNING unless set otherwise —,
+   the end), the summary (JSON) and the map (PNG and GeoJSON) into the output
+   directory. The other processes' records go only there
+   (:mod:`rfsas_hw.city.childlog`), not to the console.
 
 Raw MACs exist only inside the twin workers: the run log, the summary and the
 map hold emitter ids (keyed hashes), SUMO ids and positions.
@@ -28,9 +31,12 @@ from __future__ import annotations
 
 import contextlib
 import json
+import logging
 import math
 import tempfile
+import threading
 import time
+from collections import Counter
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
@@ -40,6 +46,7 @@ import numpy as np
 
 from rfsas_hw.bridges.config import BACKEND_PROFILES, BridgeConfig, backend_config
 from rfsas_hw.bridges.sumo import SumoControl, load_sumo, start_sumo
+from rfsas_hw.city.childlog import redact_macs
 from rfsas_hw.city.clock import cpu_s
 from rfsas_hw.city.demand import Demand, DemandConfig, generate
 from rfsas_hw.city.deploy import AUTHORITY_ID, BrokerAccess, make_identities
@@ -146,6 +153,8 @@ class Runtime:
     counts: dict[str, int] = field(default_factory=dict)
     """Messages: bearing messages sent and verified, advisories sent and received,
     advisories from a backend that does not own the vehicle's tile, and so on."""
+    log_records: dict[str, int] = field(default_factory=dict)
+    """Log records of the run's processes written to the run log, by level."""
     problems: list[str] = field(default_factory=list)
 
     def cpu_share(self) -> dict[str, float]:
@@ -179,25 +188,59 @@ def _actors(m: Movers, vehicles: bool) -> Actors:
 
 
 class _Log:
-    """The run log: one JSON object per line."""
+    """The run log: one JSON object per line (written from the stepping loop and from
+    the thread that takes the processes' log records)."""
 
     def __init__(self, path: Path) -> None:
         self.path = path
+        self._lock = threading.Lock()
         try:
             self.fh: IO[str] = path.open("w", encoding="utf-8")
         except OSError as err:
             raise OutputError(f"{path}: cannot write: {err.strerror or err}") from err
 
     def write(self, record: dict[str, Any]) -> None:
+        line = json.dumps(record, allow_nan=False, default=_plain) + "\n"
         try:
-            self.fh.write(json.dumps(record, allow_nan=False, default=_plain) + "\n")
-            if record["record"] != "advisory":  # a reader following the log sees each second
-                self.fh.flush()
+            with self._lock:
+                self.fh.write(line)
+                if record["record"] != "advisory":  # a reader following the log sees each second
+                    self.fh.flush()
         except OSError as err:
             raise OutputError(f"{self.path}: cannot write: {err.strerror or err}") from err
 
     def close(self) -> None:
-        self.fh.close()
+        with self._lock:
+            self.fh.close()
+
+
+class _LogRecords(logging.Handler):
+    """Log records of every process of a run into the run log (``{"record": "log"}``:
+    its wall-clock UTC seconds, process, level, logger and message, MAC-shaped text
+    redacted), counted by level."""
+
+    def __init__(self, log: _Log) -> None:
+        super().__init__()
+        self.log = log
+        self.counts: Counter[str] = Counter()
+        self.setFormatter(logging.Formatter("%(message)s"))
+
+    def emit(self, record: logging.LogRecord) -> None:
+        self.counts[record.levelname] += 1
+        process = "main" if record.processName == "MainProcess" else record.processName
+        try:
+            self.log.write(
+                {
+                    "record": "log",
+                    "utc_s": round(record.created, 3),
+                    "process": process,
+                    "level": record.levelname,
+                    "logger": record.name,
+                    "message": redact_macs(self.format(record)),
+                }
+            )
+        except (OutputError, ValueError):  # the run's own writes report a run log gone bad
+            self.counts["unwritten"] += 1
 
 
 def _plain(v: Any) -> Any:
@@ -318,6 +361,9 @@ def run_city(
     if png:
         files["png"] = out_dir / f"{mode}.map.png"
     log = _Log(files["log"])
+    records = _LogRecords(log)
+    root = logging.getLogger()
+    root.addHandler(records)
     try:
         log.write(
             {
@@ -348,10 +394,13 @@ def run_city(
             work_dir,
             broker,
             dashboard,
+            records,
         )
+        runtime.log_records = dict(records.counts)
         summary = scorer.summary()
         log.write({"record": "end", "summary": summary.as_dict(), "runtime": asdict(runtime)})
     finally:
+        root.removeHandler(records)
         log.close()
     doc = {"summary": summary.as_dict(), "runtime": asdict(runtime)}
     write_text_atomic(files["summary"], json.dumps(doc, indent=2, default=_plain) + "\n")
@@ -397,6 +446,7 @@ def _run_loop(
     work_dir: Path | None,
     broker: BrokerAccess | None,
     dashboard: CityDashboard | None,
+    log_records: logging.Handler,
 ) -> Runtime:
     info, demand, units = district.info, district.demand, district.units
     import os
@@ -426,6 +476,7 @@ def _run_loop(
                 backend_config(bridge),
                 replace(cfg.live, dashboard=dashboard is not None),
                 broker=broker,
+                log_handler=log_records,
             )
             if dashboard is not None:
                 dashboard.use_clock(live.clock)
@@ -582,5 +633,10 @@ def _costs(
         for k, v in b.stats.items():
             if k.startswith(("link.rejected.", "link.mqtt.dropped", "link.shed")):
                 key = "bearing_messages_" + k.removeprefix("link.")
+                runtime.counts[key] = runtime.counts.get(key, 0) + v
+            elif k.startswith("link.latency.to_"):
+                # units' links going silent when no phone is near, and back: counted, not
+                # a warning each
+                key = "link_state_changes." + k.removeprefix("link.latency.")
                 runtime.counts[key] = runtime.counts.get(key, 0) + v
     runtime.problems = list(stats.problems)

@@ -407,6 +407,12 @@ def _table(results: dict[str, CityRunResult]) -> Table:
             ),
         ),
         ("real-time factor", lambda r: r.runtime.realtime_factor),
+        (
+            "log records (in the run log)",
+            lambda r: (
+                ", ".join(f"{k} {v}" for k, v in sorted(r.runtime.log_records.items())) or "none"
+            ),
+        ),
     ]
     for name, get in rows:
         table.add_row(name, *(_fmt(get(r)) for r in results.values()))

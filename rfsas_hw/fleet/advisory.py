@@ -510,11 +510,14 @@ class AdvisoryReceiver:
     """Verifies advisories at a vehicle and keeps the newest assessment per emitter.
 
     Checks, cheapest first: structure; addressed to another vehicle
-    (``not_for_us``); backend enrolled (``unknown_sender``); pre-authentication
-    tag for version 2 when keys are given (``no_preauth_key``, ``bad_preauth``);
-    exact copies (``replay``); the backend's budget of signature checks
-    (``rate_limited``); signature (``bad_signature``); age (``stale``, ``future``);
-    sequence number (``replay``).
+    (``not_for_us``); backend enrolled (``unknown_sender``); age from the header
+    (``stale``, ``future``); pre-authentication tag for version 2 when keys are
+    given (``no_preauth_key``, ``bad_preauth``); exact copies (``replay``); the
+    backend's budget of signature checks (``rate_limited``); signature
+    (``bad_signature``); sequence number (``replay``). Everything before the
+    signature only refuses (an advisory too old is refused before its signature
+    costs anything, a forged one too old is counted ``stale``); the replay window
+    records only verified advisories.
 
     Args:
         trust: enrolled backends' keys.
@@ -575,6 +578,11 @@ class AdvisoryReceiver:
         key = self.trust.backend_key(head.sender_id)
         if key is None:
             raise _RejectError("unknown_sender")
+        now_us = now_ns // 1000
+        if now_us - head.t_gen_us > self.max_age_us:
+            raise _RejectError("stale")
+        if head.t_gen_us - now_us > 200_000:
+            raise _RejectError("future")
         if head.version == VERSION_PREAUTH:
             pk = None if self.preauth is None else self.preauth.key_for(head.sender_id, head.epoch)
             if pk is None:
@@ -589,11 +597,6 @@ class AdvisoryReceiver:
         if not verify(key, body, signature):
             raise _RejectError("bad_signature")
         msg = decode_advisory(datagram, head)
-        now_us = now_ns // 1000
-        if now_us - msg.t_gen_us > self.max_age_us:
-            raise _RejectError("stale")
-        if msg.t_gen_us - now_us > 200_000:
-            raise _RejectError("future")
         if not self.replay.check_and_record(msg.sender_id, msg.seq, msg.t_gen_us, now_us):
             raise _RejectError("replay")
         return msg

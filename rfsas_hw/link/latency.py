@@ -16,16 +16,19 @@ and a state:
 - ``silent``: nothing verified from the sender for ``silent_s`` seconds
   (or, for a sender announced with :meth:`LatencyWatch.expect`, ever).
 
-State changes are logged at WARNING (alarm) / INFO (cleared) and passed to
-optional callbacks; :meth:`LatencyWatch.snapshot` gives the backend and the
-user a table of every sender's state and age statistics.
+State changes are counted (:attr:`LatencyWatch.changes`), logged at WARNING
+(alarm) / INFO (cleared) — once per change, unless the configuration turns the
+log off (``log_changes``: a simulated district, whose units fall silent whenever
+no phone is near, counts them only) — and passed to optional callbacks;
+:meth:`LatencyWatch.snapshot` gives the backend and the user a table of every
+sender's state and age statistics.
 """
 
 from __future__ import annotations
 
 import enum
 import logging
-from collections import deque
+from collections import Counter, deque
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 
@@ -68,6 +71,9 @@ class LatencyConfig:
     """Messages needed in the window before ``late`` can be declared."""
     silent_s: float = 1.0
     """Seconds without a verified message after which a sender is ``silent``."""
+    log_changes: bool = True
+    """Log every state change (WARNING when raised, INFO when cleared). Off: they are
+    only counted (:attr:`LatencyWatch.changes`) and passed to the callbacks."""
 
     def __post_init__(self) -> None:
         if self.budget_s <= 0 or self.window < 1 or self.silent_s <= 0 or self.min_samples < 1:
@@ -132,6 +138,8 @@ class LatencyWatch:
         self.config = config or LatencyConfig()
         self._tracks: dict[str, _Track] = {}
         self._callbacks = list(on_change)
+        self.changes: Counter[str] = Counter()
+        """State changes so far, by the state entered (``ok``, ``late``, ``silent``)."""
 
     def add_callback(self, callback: StateCallback) -> None:
         """Call ``callback(sender_id, old, new)`` on every future state change."""
@@ -209,6 +217,13 @@ class LatencyWatch:
         if old is state:
             return
         track.state = state
+        self.changes[state.value] += 1
+        if self.config.log_changes:
+            self._log_change(sender_id, old, state)
+        for callback in self._callbacks:
+            callback(sender_id, old, state)
+
+    def _log_change(self, sender_id: str, old: LinkState, state: LinkState) -> None:
         if state is LinkState.OK:
             log.info("link from %s: %s -> ok", sender_id, old.value)
         else:
@@ -219,8 +234,6 @@ class LatencyWatch:
                 state.value,
                 self.config.budget_s * 1e3,
             )
-        for callback in self._callbacks:
-            callback(sender_id, old, state)
 
     def state(self, sender_id: str) -> LinkState | None:
         """Current state of ``sender_id`` (None if never heard nor expected)."""

@@ -26,20 +26,35 @@ reason a datagram is counted under:
 1. structure (no cryptography): ``oversized``, ``truncated``, ``bad_magic``,
    ``bad_version``, ``bad_type``, ``malformed``; ``topic_mismatch`` (a broker
    topic that names another sender than the message); then ``unknown_sender``;
-2. pre-authentication (version 2, one HMAC; :mod:`rfsas_hw.link.preauth`):
    ``v1_refused`` (a version-1 message, untagged, at a receiver that requires
-   tags), ``wrong_epoch``, ``no_preauth_key`` (a receiver that requires tags
-   does not hold the epoch's nonce; one that reads version 1 goes on to the
-   signature), ``bad_preauth``; then ``replay`` (an exact copy of a message
-   already verified) and ``rate_limited`` (the sender's budget of signature
-   checks per second is spent);
-3. signature with the sender's enrolled key: ``bad_signature``;
-4. relevance: ``stale`` (older than ``max_age_s``), ``future`` (generated more
-   than ``max_future_s`` ahead of the receiver's clock), ``too_far`` (sender
-   farther than ``max_range_m`` from the receiver's position), ``wrong_epoch``
-   (the nonce epoch is not one the receiver accepts now, or a bearing was
-   captured outside it);
-5. replay: ``replay`` (sequence number already seen inside the window).
+   tags);
+2. the header's times, compared with the receiver's clock (no cryptography):
+   ``wrong_epoch`` (the nonce epoch is not one the receiver accepts now),
+   ``stale`` (generated more than ``max_age_s`` ago), ``future`` (generated
+   more than ``max_future_s`` ahead of the receiver's clock);
+3. pre-authentication (version 2, one HMAC; :mod:`rfsas_hw.link.preauth`):
+   ``no_preauth_key`` (a receiver that requires tags does not hold the epoch's
+   nonce; one that reads version 1 goes on to the signature), ``bad_preauth``;
+   then ``replay`` (an exact copy of a message already verified) and
+   ``rate_limited`` (the sender's budget of signature checks per second is spent);
+4. signature with the sender's enrolled key: ``bad_signature``;
+5. relevance: ``too_far`` (sender farther than ``max_range_m`` from the
+   receiver's position), ``wrong_epoch`` (a bearing captured outside the
+   message's epoch);
+6. replay: ``replay`` (sequence number already seen inside the window).
+
+Steps 1 to 3 read bytes not authenticated yet, so they only ever refuse, never
+accept: each refuses a message that must be refused whatever its signature, and
+does so before the signature costs anything (about 0.1 ms of ECDSA
+verify, against well under a microsecond for a time check: a receiver that
+falls behind refuses the messages it got too late at almost no cost, and a
+flood of old or forged-time messages costs no verify). A forged message that is
+also too old is therefore counted ``stale``, not ``bad_signature``. What changes
+state an attacker could abuse waits for the signature: the replay window (step
+6) and the latency watch record only verified messages, and the rate limiter's
+budget is spent only by messages that passed steps 1 to 3. The refusal watch
+counts refusals per *claimed* sender id before the signature, bounded as its
+module says.
 
 :meth:`Receiver.receive` may also drop well-formed datagrams from enrolled
 senders without a signature check under overload (``overload``); see its docstring.
@@ -99,21 +114,22 @@ REASONS = (
     "topic_mismatch",
     "unknown_sender",
     "v1_refused",
+    "wrong_epoch",
+    "stale",
+    "future",
     "no_preauth_key",
     "bad_preauth",
     "rate_limited",
     "bad_signature",
-    "stale",
-    "future",
     "too_far",
-    "wrong_epoch",
     "replay",
     "nonce_rejected",
     "nonce_unexpected",
     "overload",
     "internal_error",
 )
-"""Every reason a datagram can be rejected for, in check order."""
+"""Every reason a datagram can be rejected for, in check order (``wrong_epoch`` is
+also the reason of a bearing captured outside its message's epoch, after the signature)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -202,6 +218,10 @@ class ReceiverStats:
     bearings: int = 0
     nonces: int = 0
     """Nonce envelopes accepted."""
+    envelopes: int = 0
+    """Nonce envelopes received, whatever became of them (accepted, refused by the nonce
+    store, shed under overload, or failed): ``datagrams - envelopes`` are the safety
+    messages received."""
     rejected: Counter[str] = field(default_factory=Counter)
 
     @property
@@ -216,6 +236,7 @@ class ReceiverStats:
             "verified": self.verified,
             "bearings": self.bearings,
             "nonces": self.nonces,
+            "envelopes": self.envelopes,
         }
         out.update({f"rejected.{k}": v for k, v in sorted(self.rejected.items())})
         return out
@@ -405,7 +426,7 @@ class Receiver:
         topic: str | None,
         staged: set[tuple[str, int, int]] | None = None,
     ) -> _Pending | _Deferred | None:
-        """Every check before the signature (steps 1 and 2 of the module docstring).
+        """Every check before the signature (steps 1 to 3 of the module docstring).
         The datagram, its header and the sender's key when they pass; None when it
         is rejected (counted) or was a nonce envelope. With ``staged`` (the
         (sender, seq, generation time) of messages admitted earlier in a batch whose
@@ -422,7 +443,7 @@ class Receiver:
         return None
 
     def _verify(self, pending: _Pending) -> bool | None:
-        """The signature check of an admitted message (step 3), timed for shedding;
+        """The signature check of an admitted message (step 4), timed for shedding;
         None when the check itself failed (a bug: :meth:`_settle` counts it)."""
         body, signature = signed_part(pending.datagram)
         started = time.perf_counter()
@@ -434,7 +455,7 @@ class Receiver:
         return valid
 
     def _settle(self, pending: _Pending, now_ns: int, valid: bool | None) -> VerifiedMessage | None:
-        """Steps 3 to 5 for an admitted message whose signature was found ``valid`` or
+        """Steps 4 to 6 for an admitted message whose signature was found ``valid`` or
         not (None: its check failed): the verified message, or None (rejected,
         counted). Never raises."""
         datagram = pending.datagram
@@ -476,7 +497,7 @@ class Receiver:
         topic: str | None = None,
         staged: set[tuple[str, int, int]] | None = None,
     ) -> _Pending | None:
-        """Steps 1 and 2 of the module docstring, in that order: the admitted message,
+        """Steps 1 to 3 of the module docstring, in that order: the admitted message,
         or None for a nonce envelope (taken).
 
         Raises:
@@ -487,6 +508,7 @@ class Receiver:
         cfg = self.config
         head = peek(datagram, cfg.max_datagram)  # MessageFormatError is a rejection too
         if head.kind == TYPE_NONCE:
+            self.stats.envelopes += 1
             if shed:  # opening one costs two key agreements
                 raise _RejectError("overload", "nonce envelope")
             self._envelope(datagram, now_ns)
@@ -507,28 +529,35 @@ class Receiver:
         return _Pending(datagram, head, key)
 
     def _accept(self, datagram: bytes, head: Peeked, now_ns: int) -> VerifiedMessage:
-        """Relevance and replay of a message with a valid signature (steps 4 and 5)."""
-        cfg = self.config
+        """Relevance and replay of a message with a valid signature (steps 5 and 6);
+        its age and epoch were checked before the signature (step 2)."""
         msg = decode_peeked(datagram, head)
         now_us = now_ns // NS_PER_US
-        age_us = now_us - msg.t_gen_us
+        self._check_range(msg)
+        if self.config.check_epoch:
+            self._check_capture_epoch(msg)
+        if not self.replay.check_and_record(msg.sender_id, msg.seq, msg.t_gen_us, now_us):
+            raise _RejectError("replay", f"{msg.sender_id} seq {msg.seq}")
+        return VerifiedMessage(msg, now_ns, (now_us - msg.t_gen_us) / US_PER_S)
+
+    def _check_times(self, sender: str, t_gen_us: int, epoch: int, now_ns: int) -> None:
+        """Step 2: the header's epoch and generation time against the receiver's clock.
+
+        Raises:
+            _RejectError: ``wrong_epoch``, ``stale`` or ``future``.
+        """
+        cfg = self.config
+        if cfg.check_epoch and epoch not in self._accepted_epochs(now_ns):
+            raise _RejectError("wrong_epoch", f"{sender} epoch {epoch}", sender)
+        age_us = now_ns // NS_PER_US - t_gen_us
         if age_us > cfg.max_age_s * US_PER_S:
             raise _RejectError(
-                "stale", f"{msg.sender_id} age {age_us / 1e3:.1f} ms", msg.sender_id, -age_us / 1e6
+                "stale", f"{sender} age {age_us / 1e3:.1f} ms", sender, -age_us / 1e6
             )
         if -age_us > cfg.max_future_s * US_PER_S:
             raise _RejectError(
-                "future",
-                f"{msg.sender_id} {-age_us / 1e3:.1f} ms ahead",
-                msg.sender_id,
-                -age_us / 1e6,
+                "future", f"{sender} {-age_us / 1e3:.1f} ms ahead", sender, -age_us / 1e6
             )
-        self._check_range(msg)
-        if cfg.check_epoch:
-            self._check_epoch(msg, now_ns)
-        if not self.replay.check_and_record(msg.sender_id, msg.seq, msg.t_gen_us, now_us):
-            raise _RejectError("replay", f"{msg.sender_id} seq {msg.seq}")
-        return VerifiedMessage(msg, now_ns, age_us / US_PER_S)
 
     def _preauthenticate(
         self,
@@ -537,18 +566,23 @@ class Receiver:
         now_ns: int,
         staged: set[tuple[str, int, int]] | None = None,
     ) -> bool:
-        """The cheap checks before the signature: pre-authentication tag, exact copies
-        of verified messages, the sender's budget of signature checks. False when the
-        tag is wrong (``bad_preauth``).
+        """The cheap checks before the signature (steps 2 and 3): the header's times,
+        pre-authentication tag, exact copies of verified messages, the sender's budget
+        of signature checks. False when the tag is wrong (``bad_preauth``).
 
         Raises:
             _RejectError: another reason; _DeferError: a copy of a staged message.
         """
         sender = head.sender_id
         t_gen_us, seq, epoch = header_epoch(datagram, head)
+        if not head.preauth and not self.config.accept_v1:
+            raise _RejectError(
+                "v1_refused",
+                f"{sender}: version 1 has no pre-authentication tag; "
+                "this receiver requires version 2",
+            )
+        self._check_times(sender, t_gen_us, epoch, now_ns)
         if head.preauth:
-            if self.config.check_epoch and epoch not in self._accepted_epochs(now_ns):
-                raise _RejectError("wrong_epoch", f"{sender} epoch {epoch}", sender)
             tag = self._tag_key(sender, epoch)
             if tag is None:
                 # without the epoch's nonce the tag cannot be checked: a receiver that
@@ -558,14 +592,7 @@ class Receiver:
                     raise _RejectError("no_preauth_key", f"{sender} epoch {epoch}", sender)
             elif not tag.tag_ok(datagram):
                 return False
-        elif not self.config.accept_v1:
-            raise _RejectError(
-                "v1_refused",
-                f"{sender}: version 1 has no pre-authentication tag; "
-                "this receiver requires version 2",
-            )
-        fresh = now_ns // NS_PER_US - t_gen_us <= self.config.max_age_s * US_PER_S
-        if fresh and self.replay.seen(sender, seq, t_gen_us):
+        if self.replay.seen(sender, seq, t_gen_us):
             raise _RejectError("replay", f"{sender} seq {seq} (copy)")
         if staged is not None and (sender, seq, t_gen_us) in staged:
             # a copy of a message whose signature is not checked yet: decide after it
@@ -606,9 +633,7 @@ class Receiver:
         if dist_m > self.config.max_range_m:
             raise _RejectError("too_far", f"{msg.sender_id} at {dist_m:.0f} m")
 
-    def _check_epoch(self, msg: SafetyMessage, now_ns: int) -> None:
-        if not self.schedule.accepts(msg.epoch, now_ns):
-            raise _RejectError("wrong_epoch", f"{msg.sender_id} epoch {msg.epoch}")
+    def _check_capture_epoch(self, msg: SafetyMessage) -> None:
         t_ns = msg.bearings.t_ns
         epoch_ns = self.schedule.epoch_ns
         if not (t_ns.min() // epoch_ns == msg.epoch == t_ns.max() // epoch_ns):
@@ -713,10 +738,12 @@ class Receiver:
         return out
 
     def counters(self) -> dict[str, int]:
-        """:attr:`stats` flat, plus the counters of broker transports
-        (``mqtt.sent``, ``mqtt.received``, ``mqtt.dropped``, ``mqtt.disconnects``, …;
-        summed over several)."""
+        """:attr:`stats` flat, the latency watch's state changes by the state entered
+        (``latency.to_ok``, ``latency.to_late``, ``latency.to_silent``), plus the
+        counters of broker transports (``mqtt.sent``, ``mqtt.received``,
+        ``mqtt.dropped``, ``mqtt.disconnects``, …; summed over several)."""
         out = self.stats.as_dict()
+        out.update({f"latency.to_{k}": v for k, v in sorted(self.latency.changes.items())})
         parts = getattr(self.transport, "transports", {self: self.transport})
         for transport in parts.values():
             stats = getattr(transport, "stats", None)

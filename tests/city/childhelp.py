@@ -1,0 +1,17 @@
+"""Bodies of test child processes (importable by name in a spawned child: the test puts
+this folder on ``sys.path``, which a spawned process inherits)."""
+
+from __future__ import annotations
+
+import logging
+from multiprocessing.connection import Connection
+
+log = logging.getLogger("rfsas_hw.city.testchild")
+
+
+def warn_and_answer(phone: str, conn: Connection) -> None:
+    """Log a warning naming ``phone`` (a MAC), an INFO record, then answer ``done``."""
+    log.warning("unit rsu-1 heard phone %s", phone)
+    log.info("a record below the main process's level")
+    conn.send("done")
+    conn.close()

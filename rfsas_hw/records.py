@@ -294,18 +294,36 @@ class ObservationBatch:
         return int(self.t_ns.shape[0])
 
     def select(self, index: npt.NDArray[Any] | slice) -> ObservationBatch:
-        """Rows picked by a boolean mask, an index array or a slice."""
-        return ObservationBatch(
-            t_ns=self.t_ns[index],
-            mac=self.mac[index],
-            freq_mhz=self.freq_mhz[index],
-            channel=self.channel[index],
-            rssi_dbm=self.rssi_dbm[index],
-            seq=self.seq[index],
-            kind=self.kind[index],
-            flags=self.flags[index],
-            csi=None if self.csi is None else self.csi.select(index),
-        )
+        """Rows picked by a boolean mask, an index array or a slice.
+
+        The columns of a batch already have their dtypes and one length, and rows
+        picked from them keep both, so they are taken as they are (no conversion or
+        check per column); a slice with a step goes through the checks, which make
+        its columns contiguous.
+        """
+        if isinstance(index, slice) and index.step not in (None, 1):
+            return ObservationBatch(
+                t_ns=self.t_ns[index],
+                mac=self.mac[index],
+                freq_mhz=self.freq_mhz[index],
+                channel=self.channel[index],
+                rssi_dbm=self.rssi_dbm[index],
+                seq=self.seq[index],
+                kind=self.kind[index],
+                flags=self.flags[index],
+                csi=None if self.csi is None else self.csi.select(index),
+            )
+        out = object.__new__(ObservationBatch)
+        out.t_ns = self.t_ns[index]
+        out.mac = self.mac[index]
+        out.freq_mhz = self.freq_mhz[index]
+        out.channel = self.channel[index]
+        out.rssi_dbm = self.rssi_dbm[index]
+        out.seq = self.seq[index]
+        out.kind = self.kind[index]
+        out.flags = self.flags[index]
+        out.csi = None if self.csi is None else self.csi.select(index)
+        return out
 
     def row(self, i: int) -> Observation:
         """Row ``i`` as an :class:`Observation`."""
@@ -449,17 +467,29 @@ class BearingBatch:
         return int(self.t_ns.shape[0])
 
     def select(self, index: npt.NDArray[Any] | slice) -> BearingBatch:
-        """Rows picked by a boolean mask, an index array or a slice."""
-        return BearingBatch(
-            sensor_id=self.sensor_id,
-            t_ns=self.t_ns[index],
-            azimuth_deg=self.azimuth_deg[index],
-            sigma_deg=self.sigma_deg[index],
-            snr_db=self.snr_db[index],
-            channel=self.channel[index],
-            emitter=self.emitter[index],
-            relative_deg=self.relative_deg[index],
-        )
+        """Rows picked by a boolean mask, an index array or a slice (taken as they are,
+        as :meth:`ObservationBatch.select` does; a slice with a step is checked)."""
+        if isinstance(index, slice) and index.step not in (None, 1):
+            return BearingBatch(
+                sensor_id=self.sensor_id,
+                t_ns=self.t_ns[index],
+                azimuth_deg=self.azimuth_deg[index],
+                sigma_deg=self.sigma_deg[index],
+                snr_db=self.snr_db[index],
+                channel=self.channel[index],
+                emitter=self.emitter[index],
+                relative_deg=self.relative_deg[index],
+            )
+        out = object.__new__(BearingBatch)
+        out.sensor_id = self.sensor_id
+        out.t_ns = self.t_ns[index]
+        out.azimuth_deg = self.azimuth_deg[index]
+        out.sigma_deg = self.sigma_deg[index]
+        out.snr_db = self.snr_db[index]
+        out.channel = self.channel[index]
+        out.emitter = self.emitter[index]
+        out.relative_deg = self.relative_deg[index]
+        return out
 
     def row(self, i: int) -> Bearing:
         """Row ``i`` as a :class:`Bearing`."""

@@ -87,16 +87,6 @@ BEARING_DTYPE = np.dtype(
         ("channel", ">u2"),
     ]
 )
-NATIVE_DTYPE = np.dtype(
-    [
-        ("t_us", "i8"),
-        ("emitter", "u8"),
-        ("azimuth_deg", "f4"),
-        ("sigma_deg", "f4"),
-        ("snr_db", "f4"),
-        ("channel", "u2"),
-    ]
-)
 BEARING_BYTES = BEARING_DTYPE.itemsize
 _BEARING = struct.Struct(">qQfffH")
 """One bearing row on the wire (the layout of :data:`BEARING_DTYPE`)."""
@@ -221,24 +211,31 @@ def encode_body(msg: SafetyMessage, version: int = VERSION) -> bytes:
     pose = (msg.pose.x_m, msg.pose.y_m, msg.pose.heading_deg)
     if not all(math.isfinite(v) for v in pose):
         raise LinkError(f"sender pose must be finite, got {msg.pose}")
-    if b.channel.min() < 0:
+    channel = b.channel.tolist()
+    if min(channel) < 0:
         raise LinkError("channel numbers must not be negative")
-    rows = np.empty(n, NATIVE_DTYPE)
-    rows["t_us"] = b.t_ns // 1000
-    rows["emitter"] = b.emitter
-    # float32 rounds 359.99999 up to 360.0, which is 0 on the compass
+    # the float columns as the wire holds them (float32), checked as such; struct, not
+    # numpy, packs the rows: a message holds at most a few dozen (as in the decoder)
     az32 = b.azimuth_deg.astype(np.float32)
+    # float32 rounds 359.99999 up to 360.0, which is 0 on the compass
     az32[az32 >= np.float32(360.0)] = 0.0
-    rows["azimuth_deg"] = az32
-    rows["sigma_deg"] = b.sigma_deg
-    rows["snr_db"] = b.snr_db
-    rows["channel"] = b.channel
-    problem = _bad_rows(rows.tolist())
+    rows = list(
+        zip(
+            (b.t_ns // 1000).tolist(),
+            b.emitter.tolist(),
+            az32.tolist(),
+            b.sigma_deg.astype(np.float32).tolist(),
+            b.snr_db.astype(np.float32).tolist(),
+            channel,
+            strict=True,
+        )
+    )
+    problem = _bad_rows(rows)
     if problem is not None:
         raise LinkError(f"bad bearing: {problem}")
     head = pack_prefix(version, TYPE_SAFETY, sender)
     fixed = _FIXED.pack(msg.t_gen_us, msg.seq, msg.epoch, *pose, n)
-    return head + fixed + rows.astype(BEARING_DTYPE).tobytes()
+    return b"".join([head, fixed, *(_BEARING.pack(*row) for row in rows)])
 
 
 def pack_prefix(version: int, kind: int, sender: bytes) -> bytes:

@@ -26,6 +26,7 @@ Emitters and movers can come and go while the twin runs
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import math
 from collections.abc import Mapping, Sequence
 from typing import Any
@@ -431,35 +432,59 @@ class StreamTwin(World):
         return track.position(t_s)
 
     def _candidates(self, s: SensorSpec) -> dict[str, Any]:
-        """The window's frames sensor ``s`` could hear by tech and channel.
+        """The window's frames sensor ``s`` could hear by tech and channel
+        (:meth:`_candidates_many` of one sensor)."""
+        return self._candidates_many([s])[0]
+
+    def _candidates_many(self, sensors: Sequence[SensorSpec]) -> list[dict[str, Any]]:
+        """The window's frames each of ``sensors`` could hear by tech and channel.
 
         The same selection, in the same order, as the offline world's, over
         all emitters at once (the window's frames are gathered once for every
-        sensor).
+        sensor); for several sensors the tests of all of them are one array of
+        sensors × frames, and each column of the window is gathered once for
+        all of them (each sensor's frames are a slice of it).
         """
         w = self._window
         if not self._window_key or not len(w["t"]):
-            return {k: v[:0] for k, v in w.items()} if w else super()._candidates(s)
-        hears = self._hears(s)[w["emitter"]]
-        listens = self.listening.get(s.id)
-        if listens is not None:
-            on = np.asarray(listens(w["t"], w["channel"]), bool)
-        else:
-            plan = self._plan(s)
-            if plan.hopping:
-                on = plan.channel_at(w["t"]) == w["channel"]
-            else:  # one channel, listened to all the time (frame times are finite)
-                on = w["channel"] == plan.channels[0]
-        heard = hears & on
-        reach = self.reach_m.get(s.id)
-        if reach is not None and s.pose is not None:
+            if w:
+                return [{k: v[:0] for k, v in w.items()} for _ in sensors]
+            return [super()._candidates(s) for s in sensors]
+        emitter = w["emitter"]
+        hears = np.stack([self._hears(s) for s in sensors])[:, emitter]
+        by_channel: dict[int, npt.NDArray[np.bool_]] = {}
+        reach = np.full(len(sensors), np.nan)
+        sx, sy = np.zeros(len(sensors)), np.zeros(len(sensors))
+        for k, s in enumerate(sensors):
+            listens = self.listening.get(s.id)
+            on: npt.NDArray[np.bool_]
+            if listens is not None:
+                on = np.asarray(listens(w["t"], w["channel"]), bool)
+            else:
+                plan = self._plan(s)
+                if plan.hopping:
+                    on = np.asarray(plan.channel_at(w["t"]) == w["channel"], bool)
+                else:  # one channel, listened to all the time (frame times are finite)
+                    ch = int(plan.channels[0])
+                    if ch not in by_channel:
+                        by_channel[ch] = np.asarray(w["channel"] == ch, bool)
+                    on = by_channel[ch]
+            hears[k] &= on
+            r = self.reach_m.get(s.id)
+            if r is not None and s.pose is not None:
+                reach[k], sx[k], sy[k] = r, s.pose.x_m, s.pose.y_m
+        far = np.flatnonzero(np.isfinite(reach))
+        if len(far):
             xy = self._window_positions()
-            heard &= np.hypot(xy[:, 0] - s.pose.x_m, xy[:, 1] - s.pose.y_m) <= reach
-        rows = np.flatnonzero(heard)
-        # the window is already in the offline order (time, then emitter)
-        out = {k: v[rows] for k, v in w.items()}
-        out["row"] = rows
-        return out
+            dist = np.hypot(xy[None, :, 0] - sx[far, None], xy[None, :, 1] - sy[far, None])
+            hears[far] &= dist <= reach[far, None]
+        # row-major: sensor by sensor, each sensor's frames in the window's order (the
+        # offline order: time, then emitter)
+        which, rows = np.nonzero(hears)
+        gathered = {k: v[rows] for k, v in w.items()}
+        gathered["row"] = rows
+        bounds = np.searchsorted(which, np.arange(len(sensors) + 1)).tolist()
+        return [{k: v[lo:hi] for k, v in gathered.items()} for lo, hi in itertools.pairwise(bounds)]
 
     def _plan(self, s: SensorSpec) -> ScanPlan:
         """Sensor ``s``'s scan plan (built once)."""
@@ -662,15 +687,20 @@ class StreamTwin(World):
         for t0_s, sensors in due.items():
             self._set_window(t0_s, t1_s)
             shared: dict[tuple[bytes, int], dict[str, Any]] = {}
-            items = []
+            cands: dict[str, dict[str, Any]] = {}
+            own = []  # sensors whose candidates are their own: all of them in one call
             for s in sensors:
                 key = self._candidates_key(s)
-                c = shared.get(key) if key is not None else None
+                if key is None:
+                    own.append(s)
+                    continue
+                c = shared.get(key)
                 if c is None:
-                    c = self._candidates(s)
-                    if key is not None:
-                        shared[key] = c
-                items.append((s, c, self._rx[s.id]))
+                    c = shared[key] = self._candidates(s)
+                cands[s.id] = c
+            if own:
+                cands.update(zip([s.id for s in own], self._candidates_many(own), strict=True))
+            items = [(s, cands[s.id], self._rx[s.id]) for s in sensors]
             for s, rec in zip(sensors, self._receive_many(items), strict=True):
                 self._ready[s.id] = (t0_s, t1_s, rec)
 

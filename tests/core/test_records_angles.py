@@ -49,6 +49,58 @@ def test_batch_from_rows_and_back() -> None:
     assert both.mac.tolist() == [0xA, 0xB, 0xB]
 
 
+def test_select_keeps_dtypes_and_contiguous_columns() -> None:
+    # select takes the picked rows as they are: they must be what the checking
+    # constructor would have made of them (same dtypes, contiguous, one length)
+    n = 7
+    obs = ObservationBatch(
+        t_ns=np.arange(n),
+        mac=np.arange(n) + 0xA0,
+        freq_mhz=np.full(n, 2437),
+        channel=np.full(n, 6),
+        rssi_dbm=np.arange(2.0 * n).reshape(n, 2),
+        seq=np.arange(n),
+        kind=np.zeros(n),
+        flags=np.ones(n),
+    )
+    brg = BearingBatch(
+        "rsu",
+        np.arange(n),
+        np.arange(n) * 10.0,
+        [2.0] * n,
+        [20.0] * n,
+        [6] * n,
+        np.arange(n, dtype=np.uint64),
+    )
+    picks = [np.arange(n) % 2 == 0, np.array([5, 1, 1]), slice(2, 5), slice(None), slice(0, n, 3)]
+    for pick in picks:
+        for batch, names in (
+            (obs, ("t_ns", "mac", "freq_mhz", "channel", "rssi_dbm", "seq", "kind", "flags")),
+            (
+                brg,
+                (
+                    "t_ns",
+                    "azimuth_deg",
+                    "sigma_deg",
+                    "snr_db",
+                    "channel",
+                    "emitter",
+                    "relative_deg",
+                ),
+            ),
+        ):
+            got = batch.select(pick)
+            assert type(got) is type(batch)
+            for name in names:
+                col, whole = getattr(got, name), getattr(batch, name)
+                assert col.dtype == whole.dtype, name
+                assert col.flags.c_contiguous, (name, pick)
+                assert len(col) == len(got) == len(whole[pick])
+                np.testing.assert_array_equal(col, whole[pick])
+    assert brg.select(slice(1, 3)).sensor_id == "rsu"
+    assert obs.select(np.array([], np.intp)).rssi_dbm.shape == (0, 2)
+
+
 def test_batch_rejects_ragged_columns() -> None:
     with pytest.raises(ValueError, match="column 'mac' has 1 rows, expected 2"):
         ObservationBatch(

@@ -105,6 +105,28 @@ def test_signed_datagram_fits_the_size_it_was_built_for() -> None:
         max_bearings(sender, 150)
 
 
+def test_the_rows_on_the_wire_are_the_documented_layout_of_float32_values() -> None:
+    # the encoder packs each row with struct: the same bytes as the wire's dtype,
+    # each float rounded to float32 as numpy rounds it
+    from rfsas_hw.link.message import BEARING_DTYPE
+
+    rng = np.random.default_rng(8)
+    for n in (1, 3, 17):
+        msg = message(n=n)
+        b = msg.bearings
+        b.azimuth_deg[:] = rng.uniform(0.0, 359.0, n)
+        b.sigma_deg[:] = rng.uniform(0.01, 40.0, n) / 3.0
+        b.snr_db[:] = rng.normal(0.0, 30.0, n) / 7.0
+        rows = np.empty(n, BEARING_DTYPE)
+        rows["t_us"] = b.t_ns // 1000
+        rows["emitter"] = b.emitter
+        rows["azimuth_deg"] = b.azimuth_deg
+        rows["sigma_deg"] = b.sigma_deg
+        rows["snr_db"] = b.snr_db
+        rows["channel"] = b.channel
+        assert encode_body(msg).endswith(rows.tobytes())
+
+
 def test_azimuth_that_rounds_to_360_in_float32_is_sent_as_0() -> None:
     msg = message(n=1)
     msg.bearings.azimuth_deg[0] = 359.999999

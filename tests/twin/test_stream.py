@@ -346,14 +346,14 @@ def test_units_that_hear_the_same_frames_share_them_and_get_what_they_get_alone(
     world = World(sc)
     alone, together = StreamTwin(sc), StreamTwin(sc)
     calls: list[str] = []
-    original = StreamTwin._candidates
+    original = StreamTwin._candidates_many
 
-    def counted(self: StreamTwin, s):  # type: ignore[no-untyped-def]
+    def counted(self: StreamTwin, sensors):  # type: ignore[no-untyped-def]
         if self is together:
-            calls.append(s.id)
-        return original(self, s)
+            calls.extend(s.id for s in sensors)
+        return original(self, sensors)
 
-    monkeypatch.setattr(StreamTwin, "_candidates", counted)
+    monkeypatch.setattr(StreamTwin, "_candidates_many", counted)
     heard = {s.id: 0 for s in sc.spec.sensors}
     for sid, a, b in _alone_and_together(sc, world, alone, together, 39, 0.2):
         heard[sid] += len(a)
@@ -448,6 +448,25 @@ def test_a_unit_with_a_reach_computes_only_the_frames_from_within_it() -> None:
                     _assert_column(getattr(got, name), getattr(want, name), name)
         t0 = t1
     assert kept > 50 and dropped > 50
+
+
+def test_units_with_reaches_selected_together_get_what_each_selects_alone() -> None:
+    # the standing units of every channel plan, each with its own reach: selected in
+    # one array of units x frames (prepare), each gets exactly the frames and
+    # readings it gets when its window is computed alone
+    sc = _more_units()
+    world = World(sc)
+    reach = {"rsu-nw": 15.0, "rsu-se": 22.0, "rsu-ne": 25.0, "rsu-ch1": 30.0, "rsu-hop": 12.0}
+    alone, together = StreamTwin(sc, reach_m=reach), StreamTwin(sc, reach_m=reach)
+    heard = dict.fromkeys(reach, 0)
+    far = 0
+    for sid, a, b in _alone_and_together(sc, world, alone, together, 30, 0.2):
+        for name, got in _same_columns(a, b):
+            if name == "distance_m" and sid in reach:
+                heard[sid] += len(got)
+                far += int((got > reach[sid]).sum())
+    assert all(v > 0 for v in heard.values()), heard
+    assert far == 0
 
 
 def test_a_reach_needs_a_standing_sensor_and_a_positive_distance() -> None:

@@ -49,7 +49,6 @@ import numpy.typing as npt
 from rfsas_hw.angles import wrap_deg_180
 from rfsas_hw.backend.association import Associator, StationBearing
 from rfsas_hw.backend.tracking import Tracker
-from rfsas_hw.df.fovrule import near_edge
 from rfsas_hw.errors import BackendError
 
 Array = npt.NDArray[np.float64]
@@ -84,10 +83,6 @@ class BearingUpdateConfig:
         max_off_boresight_deg: bearings measured, or of a track predicted, further
             than this from their sensor's boresight are not used, degrees (180:
             every bearing).
-        track_edge_sigmas: a track's predicted direction counts as outside
-            ``max_off_boresight_deg`` once it is within this many of its one-sigma
-            (the position covariance seen from the sensor) of the limit (0: the
-            predicted direction alone).
         start_sigma_scale: factor on the one-sigma position of the fix that starts
             a track. That fix is the first to pass triangulation's acceptance
             test, which keeps long fixes by the sign of their error: its error is
@@ -95,8 +90,8 @@ class BearingUpdateConfig:
             leaks the bearings' correction into a false velocity (docs/ncap.md).
 
     Raises:
-        BackendError: a non-positive gate, iteration count or loss count, a
-            negative station sigma or edge sigmas.
+        BackendError: a non-positive gate, iteration count or loss count, or a
+            negative station sigma.
     """
 
     gate_sigmas: float = 3.0
@@ -105,7 +100,6 @@ class BearingUpdateConfig:
     lost_after: int = 10
     max_off_boresight_deg: float = 180.0
     start_sigma_scale: float = 1.0
-    track_edge_sigmas: float = 0.0
 
     def __post_init__(self) -> None:
         if not self.gate_sigmas > 0:
@@ -119,10 +113,6 @@ class BearingUpdateConfig:
         if not self.start_sigma_scale >= 1:
             raise BackendError(
                 f"bearings start_sigma_scale must be ≥ 1, got {self.start_sigma_scale}"
-            )
-        if not self.track_edge_sigmas >= 0:
-            raise BackendError(
-                f"bearings track_edge_sigmas must be ≥ 0, got {self.track_edge_sigmas}"
             )
         if not 0 < self.max_off_boresight_deg <= 180:
             raise BackendError(
@@ -316,29 +306,24 @@ class BearingTracker:
         track = self.tracker.tracks.get(emitter)
         at = None
         if track is not None:
-            at = track.predict(bearing.t_ns, self.tracker.config.accel_sigma_mps2)
+            at = track.predict(bearing.t_ns, self.tracker.config.accel_sigma_mps2)[0]
         if self._outside_view(bearing, at):
             self.stats.fix_off_boresight += 1
             return False
         return True
 
-    def _outside_view(self, bearing: StationBearing, at: tuple[Array, Array] | None) -> bool:
+    def _outside_view(self, bearing: StationBearing, at: Array | None) -> bool:
         """Whether ``bearing``'s measured direction, or the direction from its sensor to
-        ``at`` (a track's predicted state and covariance; None: no track), lies further
-        than ``max_off_boresight_deg`` from the sensor's boresight; the track's
-        direction with ``track_edge_sigmas`` of its one-sigma (the DF's edge rule,
-        :func:`~rfsas_hw.df.fovrule.near_edge`). A unit that folds a direction from
-        its side or back reports it in front, where only the track shows it."""
+        ``at`` (a track's predicted position, m; None: no track), lies further than
+        ``max_off_boresight_deg`` from the sensor's boresight. A unit that folds a
+        direction from its side or back reports it in front, where only the track
+        shows it."""
         limit = self.config.max_off_boresight_deg
-        if abs(wrap_deg_180(bearing.azimuth_deg - bearing.heading_deg)) > limit:
-            return True
-        if at is None:
-            return False
-        toward, H, _ = _azimuth_and_gradient(at[0], bearing.x_m, bearing.y_m)
-        off = wrap_deg_180(math.degrees(toward) - bearing.heading_deg)
-        sigma = math.degrees(math.sqrt(max(float(H @ at[1] @ H), 0.0)))
-        k = self.config.track_edge_sigmas
-        return bool(near_edge(np.array([off]), np.array([sigma]), (-limit, limit), k)[0])
+        off = abs(wrap_deg_180(bearing.azimuth_deg - bearing.heading_deg))
+        if at is not None:
+            toward = math.degrees(math.atan2(at[0] - bearing.x_m, at[1] - bearing.y_m))
+            off = max(off, abs(wrap_deg_180(toward - bearing.heading_deg)))
+        return off > limit
 
     def _apply(self, emitter: int, bearings: Sequence[StationBearing]) -> None:
         track = self.tracker.tracks[emitter]
@@ -359,7 +344,7 @@ class BearingTracker:
                 self.stats.invalid += 1  # one bad bearing must not stop the service
                 continue
             x, P = track.predict(b.t_ns, accel)
-            if self._outside_view(b, (x, P)):
+            if self._outside_view(b, x):
                 self.stats.off_boresight += 1
                 continue
             out = bearing_update(x, P, (b.x_m, b.y_m), b.azimuth_deg, b.sigma_deg, self.config)

@@ -228,9 +228,9 @@ def _urban_path() -> BackendConfig:
 
 def _urban_bearings() -> BackendConfig:
     # the start fix's sigma doubled, and only bearings within 50° of a unit's boresight,
-    # measured and as the track predicts them: the two-beam units are calibrated to
-    # ±57.5° and the DF's edge rule (3 sigma, the site floor at least) lets no reading
-    # beyond 48.5° through, so a track predicted further out cannot be what the unit
+    # measured and as the track predicts them: the two-beam units are calibrated over
+    # −58° to 57.5° and the DF's edge rule (3 sigma, the site floor at least) lets no
+    # reading beyond 48.5° through, so a track predicted further out cannot be what the unit
     # saw, whose reading is then a direction folded back from its side. Measured on the
     # Euro NCAP matrix (docs/ncap.md)
     bearings = BearingUpdateConfig(start_sigma_scale=2.0, max_off_boresight_deg=50.0)

@@ -15,6 +15,7 @@ positions of a moving emitter over a long stretch of time.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import NamedTuple
 
@@ -193,12 +194,21 @@ class Associator:
                 del self._latest[emitter]
                 self._dirty.discard(emitter)
 
-    def groups(self, now_ns: int, only_new: bool = True) -> BearingGroups:
+    def groups(
+        self,
+        now_ns: int,
+        only_new: bool = True,
+        admit: Callable[[int, StationBearing], bool] | None = None,
+    ) -> BearingGroups:
         """Groups of at least ``min_sensors`` bearings, after ageing out at ``now_ns``.
 
         Args:
             now_ns: current time, UTC ns.
             only_new: only emitters that received a bearing since the last call.
+            admit: called with an emitter id and each bearing that would join its
+                group; a bearing it refuses is left out (it is kept for later groups and
+                for :meth:`newest`), and the group's time is that of its newest member.
+                None: every bearing.
         """
         self.prune(now_ns)
         window_ns = int(self.config.window_s * NS_PER_S)
@@ -213,6 +223,9 @@ class Associator:
                 ((s, b) for s, b in per_sensor.items() if b.t_ns >= newest - window_ns),
                 key=lambda item: item[0],
             )
+            if admit is not None:
+                members = [(s, b) for s, b in members if admit(emitter, b)]
+                newest = max((b.t_ns for _, b in members), default=newest)
             if len(members) >= self.config.min_sensors:
                 chosen.append((emitter, newest, members))
         if only_new:

@@ -23,8 +23,11 @@ track on its own, whatever the fix of the moment:
   ``max_off_boresight_deg`` from its sensor's boresight (outside the field of
   view its calibration and sigma hold for; a two-antenna unit folds a direction
   from its side or back into its front, where only the track's prediction
-  shows it) is not applied and counted; a bearing whose innovation exceeds ``gate_sigmas`` of its
-  predicted sigma is not applied and counted; a track whose last ``lost_after`` bearings were all
+  shows it) is not applied and counted; the same rule keeps such a bearing out
+  of the fixes (:meth:`BearingTracker.admit`, the associator's ``admit``), which
+  start and restart the tracks and whose status the assessment reports;
+- a bearing whose innovation exceeds ``gate_sigmas`` of its predicted sigma is
+  not applied and counted; a track whose last ``lost_after`` bearings were all
   outside the gate is dropped, and the next trustworthy fix starts a new one.
 
 Only the newest bearing of each sensor per step is used (the associator keeps
@@ -218,6 +221,8 @@ class BearingTrackerStats:
     """Bearings older than their track, not applied."""
     off_boresight: int = 0
     """Bearings beyond ``max_off_boresight_deg`` from their sensor's boresight, not applied."""
+    fix_off_boresight: int = 0
+    """The same, left out of a fix's group (once per group it would have joined)."""
     invalid: int = 0
     """Bearings with a non-finite azimuth or a sigma that is not positive, not applied."""
     lost: int = 0
@@ -231,6 +236,7 @@ class BearingTrackerStats:
             "gated": self.gated,
             "out_of_order": self.out_of_order,
             "off_boresight": self.off_boresight,
+            "fix_off_boresight": self.fix_off_boresight,
             "invalid": self.invalid,
             "lost": self.lost,
         }
@@ -292,6 +298,33 @@ class BearingTracker:
             self._used[e] = {b.sensor: b.t_ns for b in associator.newest(e)}
             self._missed[e] = 0
 
+    def admit(self, emitter: int, bearing: StationBearing) -> bool:
+        """Whether ``bearing`` of ``emitter`` may enter a fix: the field-of-view rule of
+        the track updates, judged on the measured direction and, when the emitter has a
+        track, on the track's direction predicted to the bearing's time. A refused
+        bearing is counted (``fix_off_boresight``)."""
+        track = self.tracker.tracks.get(emitter)
+        at = None
+        if track is not None:
+            at = track.predict(bearing.t_ns, self.tracker.config.accel_sigma_mps2)[0]
+        if self._outside_view(bearing, at):
+            self.stats.fix_off_boresight += 1
+            return False
+        return True
+
+    def _outside_view(self, bearing: StationBearing, at: Array | None) -> bool:
+        """Whether ``bearing``'s measured direction, or the direction from its sensor to
+        ``at`` (a track's predicted position, m; None: no track), lies further than
+        ``max_off_boresight_deg`` from the sensor's boresight. A unit that folds a
+        direction from its side or back reports it in front, where only the track
+        shows it."""
+        limit = self.config.max_off_boresight_deg
+        off = abs(wrap_deg_180(bearing.azimuth_deg - bearing.heading_deg))
+        if at is not None:
+            toward = math.degrees(math.atan2(at[0] - bearing.x_m, at[1] - bearing.y_m))
+            off = max(off, abs(wrap_deg_180(toward - bearing.heading_deg)))
+        return off > limit
+
     def _apply(self, emitter: int, bearings: Sequence[StationBearing]) -> None:
         track = self.tracker.tracks[emitter]
         used = self._used.setdefault(emitter, {})
@@ -299,7 +332,6 @@ class BearingTracker:
         if not fresh:
             return
         accel = self.tracker.config.accel_sigma_mps2
-        limit = self.config.max_off_boresight_deg
         applied: list[str] = []
         for b in fresh:  # oldest first
             used[b.sensor] = b.t_ns
@@ -312,16 +344,7 @@ class BearingTracker:
                 self.stats.invalid += 1  # one bad bearing must not stop the service
                 continue
             x, P = track.predict(b.t_ns, accel)
-            # the measured direction, and the track's: a unit that folds a direction
-            # from its side or back reports it in front, where only the track shows it
-            toward = math.degrees(math.atan2(x[0] - b.x_m, x[1] - b.y_m))
-            if (
-                max(
-                    abs(wrap_deg_180(b.azimuth_deg - b.heading_deg)),
-                    abs(wrap_deg_180(toward - b.heading_deg)),
-                )
-                > limit
-            ):
+            if self._outside_view(b, x):
                 self.stats.off_boresight += 1
                 continue
             out = bearing_update(x, P, (b.x_m, b.y_m), b.azimuth_deg, b.sigma_deg, self.config)

@@ -8,7 +8,8 @@ Each verified safety message hands the sender's pose and bearings to the
    each giving a :class:`~rfsas_hw.records.Fix`;
 2. trustworthy fixes update the emitter's constant-velocity track;
    flagged fixes are reported, never used as positions (with ``tracking:
-   bearings`` a fix only starts a track, and each unit's bearings update it:
+   bearings`` a fix only starts a track, and each unit's bearings update it;
+   a bearing outside its unit's field of view enters neither:
    :mod:`~rfsas_hw.backend.bearing_tracking`);
 3. every live track is judged against the vehicle state (if one is known),
    giving an :class:`~rfsas_hw.records.Assessment` with P(collision), impact
@@ -406,7 +407,10 @@ class BackendService:
         return assessments
 
     def _triangulate(self, now: int) -> list[Fix]:
-        groups = self.associator.groups(now)
+        # tracks fed by bearings: a bearing from outside its unit's field of view stays
+        # out of the fixes as it stays out of the tracks
+        admit = None if self.bearing_tracker is None else self.bearing_tracker.admit
+        groups = self.associator.groups(now, admit=admit)
         if len(groups) == 0:
             if self.bearing_tracker is not None:
                 self.bearing_tracker.step(

@@ -40,7 +40,7 @@ brake only for a threat in the vehicle's path or moving into it by more than
 for units that see the threat at 10 Hz from its first steps, as in the Euro NCAP
 matrix; too strict for threats that appear late and are seen only a few times),
 ``urban-intersection-bearings`` (the same as ``-path``, the tracks fed by each
-unit's bearing within 60° of its boresight instead of by fixes, started with
+unit's bearing within 50° of its boresight instead of by fixes, started with
 twice the start fix's sigma, see :mod:`rfsas_hw.backend.bearing_tracking`: what
 the Euro NCAP matrix uses)
 and ``backend-defaults`` (the backend's own defaults, tuned for longer ranges).
@@ -227,9 +227,13 @@ def _urban_path() -> BackendConfig:
 
 
 def _urban_bearings() -> BackendConfig:
-    # the start fix's sigma doubled, and only bearings within 60° of a unit's boresight
-    # (where the site floor was measured): measured on the Euro NCAP matrix (docs/ncap.md)
-    bearings = BearingUpdateConfig(start_sigma_scale=2.0, max_off_boresight_deg=60.0)
+    # the start fix's sigma doubled, and only bearings within 50° of a unit's boresight,
+    # measured and as the track predicts them: the two-beam units are calibrated over
+    # −58° to 57.5° and the DF's edge rule (3 sigma, the site floor at least) lets no
+    # reading beyond 48.5° through, so a track predicted further out cannot be what the unit
+    # saw, whose reading is then a direction folded back from its side. Measured on the
+    # Euro NCAP matrix (docs/ncap.md)
+    bearings = BearingUpdateConfig(start_sigma_scale=2.0, max_off_boresight_deg=50.0)
     return replace(_urban_path(), tracking="bearings", bearings=bearings)
 
 

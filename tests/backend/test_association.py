@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from rfsas_hw.backend.association import AssociationConfig, Associator
+from rfsas_hw.backend.association import AssociationConfig, Associator, StationBearing
 from rfsas_hw.errors import ConfigError
 from rfsas_hw.records import BearingBatch, Pose
 
@@ -94,3 +94,26 @@ def test_a_batch_keeps_each_emitters_newest_bearing_the_later_row_on_a_tie() -> 
     assert groups.emitter.tolist() == [3, 7, 9]
     assert all(s == ("a", "b") for s in groups.sensors)
     np.testing.assert_allclose(groups.azimuth_deg, [[4.0, 6.0], [3.0, 7.0], [1.0, 8.0]])
+
+
+def test_a_refused_bearing_is_left_out_of_the_group_and_kept() -> None:
+    assoc = Associator(AssociationConfig(window_s=1.0, epoch_s=60.0))
+    assoc.add(batch("a", [100.0], [10.0], [7]), Pose(0, 0, 0))
+    assoc.add(batch("b", [100.2], [350.0], [7]), Pose(10, 0, 0))
+    assoc.add(batch("c", [100.4], [5.0], [7]), Pose(5, -20, 0))
+    asked: list[tuple[int, str]] = []
+
+    def not_c(emitter: int, bearing: StationBearing) -> bool:
+        asked.append((emitter, bearing.sensor))
+        return bearing.sensor != "c"
+
+    groups = assoc.groups(int(100.5 * S), admit=not_c)
+    assert sorted(asked) == [(7, "a"), (7, "b"), (7, "c")]
+    assert groups.sensors == (("a", "b"),)
+    assert groups.t_ns[0] == int(100.2 * S)  # the newest bearing that joined
+    # refusing all but one leaves no group; the bearings are still there
+    assert (
+        len(assoc.groups(int(100.5 * S), only_new=False, admit=lambda e, b: b.sensor == "a")) == 0
+    )
+    assert [b.sensor for b in assoc.newest(7)] == ["a", "b", "c"]
+    assert assoc.groups(int(100.5 * S), only_new=False).sensors == (("a", "b", "c"),)

@@ -270,12 +270,17 @@ def test_tracking_mode_from_a_file(tmp_path: Path) -> None:
 
 
 def test_bearings_from_outside_a_units_field_of_view_are_counted_not_applied() -> None:
-    # unit "a" looks north (0°), unit "b" east (90°): the emitter at (0, 10) m is 45° off
-    # a's boresight and 135° off b's; with a 60° field of view b's bearings are not used
+    # units "a" and "c" look north (0°), unit "b" east (90°): the emitter at (0, 10) m is
+    # 45° off a's and c's boresight and 135° off b's; with a 60° field of view b's
+    # bearings enter neither the fixes nor the track
     cfg = BackendConfig(tracking="bearings", bearings=BearingUpdateConfig(max_off_boresight_deg=60))
     svc = BackendService(cfg)
     target = np.array([0.0, 10.0])
-    units = {"a": (np.array([-10.0, 0.0]), 0.0), "b": (np.array([10.0, 0.0]), 90.0)}
+    units = {
+        "a": (np.array([-10.0, 0.0]), 0.0),
+        "b": (np.array([10.0, 0.0]), 90.0),
+        "c": (np.array([10.0, 0.0]), 0.0),
+    }
     for k in range(4):
         for sensor, (pos, heading) in units.items():
             az = _azimuth_deg(pos, target)
@@ -283,31 +288,78 @@ def test_bearings_from_outside_a_units_field_of_view_are_counted_not_applied() -
             svc.on_bearings(_batch(sensor, k * S // 10, az, 1.0), pose)
         svc.step(k * S // 10 + 1)
     stats = svc.all_stats()
-    assert stats["tracking.started"] == 1  # the fix still starts the track
-    assert stats["tracking.off_boresight"] == 3 and stats["tracking.applied"] == 3
-    assert svc.tracker.tracks[EMITTER].sensors == ("a",)
+    assert stats["tracking.started"] == 1 and stats["fixes.ok"] == 4
+    assert svc.fixes[EMITTER].sensors == ("a", "c")
+    assert stats["tracking.fix_off_boresight"] == 4  # one per fix
+    assert stats["tracking.off_boresight"] == 3 and stats["tracking.applied"] == 6
+    assert svc.tracker.tracks[EMITTER].sensors == ("a", "c")
+    # b and a alone: no fix, so no track either
+    only = BackendService(cfg)
+    for sensor in ("a", "b"):
+        pos, heading = units[sensor]
+        pose = Pose(float(pos[0]), float(pos[1]), heading)
+        only.on_bearings(_batch(sensor, 0, _azimuth_deg(pos, target), 1.0), pose)
+    only.step(1)
+    assert not only.fixes and not only.tracker.tracks
+    assert only.all_stats()["tracking.fix_off_boresight"] == 1
     with pytest.raises(BackendError, match="max_off_boresight_deg"):
         BearingUpdateConfig(max_off_boresight_deg=0)
     with pytest.raises(BackendError, match="start_sigma_scale"):
         BearingUpdateConfig(start_sigma_scale=0.5)
 
 
-def test_a_bearing_folded_into_the_front_is_left_out_by_the_tracks_direction() -> None:
-    # both units look east; the emitter at (0, −10) m is 45° off unit a's boresight and
-    # 135° off unit b's, which then reports it mirrored into its front (135° instead of
-    # 225°, 45° off boresight): the measured direction passes, the track's does not
-    cfg = BackendConfig(tracking="bearings", bearings=BearingUpdateConfig(max_off_boresight_deg=60))
+def _folded(azimuth_deg: float, heading_deg: float) -> float:
+    """A two-antenna unit's front/back ambiguity: a direction θ off boresight is reported
+    at 180° − θ off it, on the same side."""
+    off = (azimuth_deg - heading_deg + 180.0) % 360.0 - 180.0
+    return heading_deg + math.copysign(180.0, off) - off
+
+
+def _pass_behind(limit_deg: float) -> BackendService:
+    """The car's unit (boresight east) drives past a person standing at (0, −2.25) m at
+    10 m/s, the roadside unit at (4, 7) m looks at 200°; 1° bearings, no noise. While
+    the person is ahead (car at x = −20 … −2 m, at most 49° off boresight) both see
+    them; then, with the car at x = 2 m, the person is 132° off the car's boresight
+    and its unit reports them folded to 48° off."""
+    cfg = BackendConfig(
+        association=AssociationConfig(window_s=0.5),
+        triangulation=TriangulationOptions(max_range_fraction=0.3),
+        tracking="bearings",
+        bearings=BearingUpdateConfig(max_off_boresight_deg=limit_deg),
+    )
     svc = BackendService(cfg)
-    target = np.array([0.0, -10.0])
-    units = {"a": np.array([-10.0, 0.0]), "b": np.array([10.0, 0.0])}
-    for k in range(4):
-        for sensor, pos in units.items():
-            az = _azimuth_deg(pos, target)
-            if sensor == "b" and k == 3:
-                az = 90.0 - (az - 90.0)  # the front/back mirror about the boresight
-            svc.on_bearings(_batch(sensor, k * S // 10, az, 1.0), Pose(float(pos[0]), 0.0, 90.0))
-        svc.step(k * S // 10 + 1)
+    person = np.array([0.0, -2.25])
+    rsu = np.array(RSU)
+    for k in [*range(19), 22]:
+        t = k * S // 10
+        car = np.array([-20.0 + 1.0 * k, 0.0])
+        az = _azimuth_deg(car, person)
+        if k == 22:
+            az = _folded(az, 90.0)
+            assert abs(az - 90.0) < 50.0  # the measured direction is in view
+        svc.on_bearings(_batch("car", t, az, 1.0), Pose(float(car[0]), 0.0, 90.0))
+        svc.on_bearings(_batch("rsu", t, _azimuth_deg(rsu, person), 1.0), Pose(4.0, 7.0, 200.0))
+        svc.step(t + 1)
+        if k < 19:  # in view: every step's bearings make an accepted fix
+            fix = svc.fixes[EMITTER]
+            assert fix.t_ns == t and fix.ok and fix.sensors == ("car", "rsu")
+    return svc
+
+
+def test_a_bearing_folded_into_the_front_is_left_out_by_the_tracks_direction() -> None:
+    svc = _pass_behind(60.0)
     stats = svc.all_stats()
     assert stats["tracking.started"] == 1
-    assert stats["tracking.off_boresight"] == 3 and stats["tracking.gated"] == 0
-    np.testing.assert_allclose(svc.tracker.tracks[EMITTER].position, target, atol=1e-6)
+    # the folded bearing is left out of the fix by the track's predicted direction (the
+    # measured one is in view): with the roadside unit's alone there is no fix this
+    # step, and the track does not take it either
+    assert stats["tracking.fix_off_boresight"] == 1
+    assert stats["tracking.off_boresight"] == 1 and stats["tracking.gated"] == 0
+    assert svc.fixes[EMITTER].t_ns == 18 * S // 10
+    np.testing.assert_allclose(svc.tracker.tracks[EMITTER].position, [0.0, -2.25], atol=1e-3)
+    # without the limit the folded bearing makes a fix, far from the person
+    wide = _pass_behind(180.0)
+    fix = wide.fixes[EMITTER]
+    assert fix.t_ns == 22 * S // 10 and fix.sensors == ("car", "rsu")
+    assert math.hypot(fix.x_m - 0.0, fix.y_m + 2.25) > 1.0
+    assert wide.all_stats()["tracking.fix_off_boresight"] == 0

@@ -96,6 +96,10 @@ class BackendWork:
     """Emitters farther than this from a vehicle are not judged against it, metres."""
     quick_s: float = 0.02
     """Shortest time between two steps of the service when bearings arrive, seconds."""
+    tick_phase_s: float = 0.005
+    """The ticks fall this long after whole multiples of the step (0.1 s) on the clock:
+    just after the end of a sensor's 20 ms slot, when its bearings have arrived
+    (:class:`Cadence`), seconds."""
     repeat_s: float = 0.5
     """Unchanged advice about an emitter goes to a vehicle again after this long, seconds."""
     clock: SimClock = field(default_factory=lambda: SimClock(0))
@@ -211,16 +215,22 @@ class Cadence:
     last step and ``quick_ns`` has passed since it (a quick step: the vehicles near a
     new fix are judged at once). Times are UTC ns of the deployment's clock.
 
+    The ticks fall ``phase_ns`` after whole multiples of ``step_ns`` on the clock, not
+    at a phase of the backend's start: a quick step follows the last step by
+    ``quick_ns`` at the earliest, so the quick steps take the ticks' phase, and
+    bearings sent on a grid of the clock (the sensors' slots) wait for it.
+
     Args:
         step_ns: time between ticks, ns.
         quick_ns: shortest time between two steps when bearings arrive, ns.
-        now_ns: now; the first tick is one ``step_ns`` later.
+        now_ns: now; the first tick is the first of the grid after it.
+        phase_ns: the ticks' offset from the multiples of ``step_ns``, ns.
     """
 
-    def __init__(self, step_ns: int, quick_ns: int, now_ns: int) -> None:
+    def __init__(self, step_ns: int, quick_ns: int, now_ns: int, phase_ns: int = 0) -> None:
         self.step_ns = step_ns
         self.quick_ns = quick_ns
-        self.next_ns = now_ns + step_ns
+        self.next_ns = (now_ns - phase_ns) // step_ns * step_ns + step_ns + phase_ns
         """The next tick."""
         self.last_ns = 0
         """The last step (tick or quick)."""
@@ -395,7 +405,10 @@ class CityBackend:
         service = self.app.service
         clock = self.clock
         cadence = Cadence(
-            int(service.config.step_s * NS_PER_S), int(self.work.quick_s * NS_PER_S), clock()
+            int(service.config.step_s * NS_PER_S),
+            int(self.work.quick_s * NS_PER_S),
+            clock(),
+            round(self.work.tick_phase_s * NS_PER_S),
         )
         while True:
             wait_s = clock.wall_s(cadence.wait_ns(clock()) / NS_PER_S)

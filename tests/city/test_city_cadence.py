@@ -196,3 +196,19 @@ def test_a_backend_that_does_not_take_its_states_gets_none_until_it_has() -> Non
     flow.taken("be-1", 900 * MS)
     assert flow.may_send("be-1", 1_000 * MS)
     assert flow.held == 2
+
+
+def test_the_ticks_fall_on_the_clocks_grid_whatever_the_start() -> None:
+    # two backends started at different times tick at the same phase of the clock,
+    # 5 ms after a multiple of the step (after the end of a 20 ms slot)
+    for start in (1_234 * MS, 1_203 * MS, 1_205 * MS, 1_299 * MS):
+        c = Cadence(step_ns=100 * MS, quick_ns=20 * MS, now_ns=start, phase_ns=5 * MS)
+        assert c.next_ns % (100 * MS) == 5 * MS and start < c.next_ns <= start + 100 * MS
+        tick = c.next_ns
+        assert c.due(tick - 1) is None and c.due(tick) == "tick"
+        # the next slot ends 15 ms after the tick and its bearings arrive 2 ms later:
+        # they wait 3 ms for the step (20 ms after the tick)
+        c.bearings()
+        assert c.due(tick + 17 * MS) is None
+        assert c.wait_ns(tick + 17 * MS) == 3 * MS
+        assert c.due(tick + 20 * MS) == "quick"

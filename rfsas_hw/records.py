@@ -15,7 +15,7 @@ import enum
 import math
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 import numpy.typing as npt
@@ -294,36 +294,11 @@ class ObservationBatch:
         return int(self.t_ns.shape[0])
 
     def select(self, index: npt.NDArray[Any] | slice) -> ObservationBatch:
-        """Rows picked by a boolean mask, an index array or a slice.
-
-        The columns of a batch already have their dtypes and one length, and rows
-        picked from them keep both, so they are taken as they are (no conversion or
-        check per column); a slice with a step goes through the checks, which make
-        its columns contiguous.
-        """
-        if isinstance(index, slice) and index.step not in (None, 1):
-            return ObservationBatch(
-                t_ns=self.t_ns[index],
-                mac=self.mac[index],
-                freq_mhz=self.freq_mhz[index],
-                channel=self.channel[index],
-                rssi_dbm=self.rssi_dbm[index],
-                seq=self.seq[index],
-                kind=self.kind[index],
-                flags=self.flags[index],
-                csi=None if self.csi is None else self.csi.select(index),
-            )
-        out = object.__new__(ObservationBatch)
-        out.t_ns = self.t_ns[index]
-        out.mac = self.mac[index]
-        out.freq_mhz = self.freq_mhz[index]
-        out.channel = self.channel[index]
-        out.rssi_dbm = self.rssi_dbm[index]
-        out.seq = self.seq[index]
-        out.kind = self.kind[index]
-        out.flags = self.flags[index]
-        out.csi = None if self.csi is None else self.csi.select(index)
-        return out
+        """Rows picked by a boolean mask, an index array or a slice: taken as they are,
+        without converting or checking each column again; a slice with a step is
+        checked (which makes its columns contiguous)."""
+        csi = None if self.csi is None else self.csi.select(index)
+        return _rows(self, index, _OBSERVATION_COLUMNS, csi=csi)
 
     def row(self, i: int) -> Observation:
         """Row ``i`` as an :class:`Observation`."""
@@ -467,29 +442,9 @@ class BearingBatch:
         return int(self.t_ns.shape[0])
 
     def select(self, index: npt.NDArray[Any] | slice) -> BearingBatch:
-        """Rows picked by a boolean mask, an index array or a slice (taken as they are,
-        as :meth:`ObservationBatch.select` does; a slice with a step is checked)."""
-        if isinstance(index, slice) and index.step not in (None, 1):
-            return BearingBatch(
-                sensor_id=self.sensor_id,
-                t_ns=self.t_ns[index],
-                azimuth_deg=self.azimuth_deg[index],
-                sigma_deg=self.sigma_deg[index],
-                snr_db=self.snr_db[index],
-                channel=self.channel[index],
-                emitter=self.emitter[index],
-                relative_deg=self.relative_deg[index],
-            )
-        out = object.__new__(BearingBatch)
-        out.sensor_id = self.sensor_id
-        out.t_ns = self.t_ns[index]
-        out.azimuth_deg = self.azimuth_deg[index]
-        out.sigma_deg = self.sigma_deg[index]
-        out.snr_db = self.snr_db[index]
-        out.channel = self.channel[index]
-        out.emitter = self.emitter[index]
-        out.relative_deg = self.relative_deg[index]
-        return out
+        """Rows picked by a boolean mask, an index array or a slice, as
+        :meth:`ObservationBatch.select` picks them."""
+        return _rows(self, index, _BEARING_COLUMNS, sensor_id=self.sensor_id)
 
     def row(self, i: int) -> Bearing:
         """Row ``i`` as a :class:`Bearing`."""
@@ -516,6 +471,40 @@ def _json_value(value: Any) -> Any:
     if isinstance(value, tuple):
         return [_json_value(v) for v in value]
     return value
+
+
+_OBSERVATION_COLUMNS = ("t_ns", "mac", "freq_mhz", "channel", "rssi_dbm", "seq", "kind", "flags")
+_BEARING_COLUMNS = (
+    "t_ns",
+    "azimuth_deg",
+    "sigma_deg",
+    "snr_db",
+    "channel",
+    "emitter",
+    "relative_deg",
+)
+
+_Batch = TypeVar("_Batch", ObservationBatch, BearingBatch)
+
+
+def _rows(
+    batch: _Batch, index: npt.NDArray[Any] | slice, columns: tuple[str, ...], **other: Any
+) -> _Batch:
+    """The rows ``index`` of ``batch``'s ``columns``, with the ``other`` fields as given.
+
+    The columns of a batch already have their dtypes and one length, and rows picked
+    from them keep both, so they are taken as they are (no conversion or check per
+    column); a slice with a step goes through the constructor's checks, which make
+    its columns contiguous.
+    """
+    picked = {name: getattr(batch, name)[index] for name in columns}
+    cls = type(batch)
+    if isinstance(index, slice) and index.step not in (None, 1):
+        return cls(**picked, **other)
+    out = object.__new__(cls)
+    for name, value in (picked | other).items():
+        setattr(out, name, value)
+    return out
 
 
 @dataclass(frozen=True, slots=True)

@@ -6,6 +6,7 @@ import numpy as np
 from cryptography.hazmat.primitives.asymmetric import ec
 
 from rfsas_hw.link import SafetyMessage
+from rfsas_hw.link.transport import Transport
 from rfsas_hw.privacy.epochs import EpochSchedule
 from rfsas_hw.records import BearingBatch, Pose
 
@@ -51,3 +52,19 @@ def message(
         epoch=SCHEDULE.epoch_of(int(batch.t_ns.min())) if epoch is None else epoch,
         bearings=batch,
     )
+
+
+class Queued(Transport):
+    """Datagrams already there, for :meth:`Receiver.receive` (no socket)."""
+
+    def __init__(self, items: list[bytes]) -> None:
+        self.items = list(items)
+
+    def send(self, datagram: bytes) -> None:
+        raise NotImplementedError
+
+    def recv(self, timeout: float | None = None) -> bytes | None:
+        return self.items.pop(0) if self.items else None
+
+    def close(self) -> None:
+        self.items.clear()

@@ -8,14 +8,13 @@ import os
 from collections.abc import Iterator
 
 import pytest
-from linkhelp import NOW_NS, SCHEDULE, message
+from linkhelp import NOW_NS, SCHEDULE, Queued, message
 
 import rfsas_hw.fleet.advisory as advisory_module
 import rfsas_hw.link.receiver as receiver_module
 from rfsas_hw.fleet.advisory import AdvisoryItem, AdvisoryMessage, AdvisoryReceiver, sign_advisory
 from rfsas_hw.link import Receiver, ReceiverConfig, Signer, TrustedKeys
 from rfsas_hw.link.preauth import PreauthKeys, derive_key, seal
-from rfsas_hw.link.transport import Transport
 from rfsas_hw.privacy.hashing import FixedNonce
 
 MS = 1_000_000
@@ -34,22 +33,6 @@ class Verifies:
             return bool(real(*args))
 
         monkeypatch.setattr(module, "verify", counted)
-
-
-class Queued(Transport):
-    """Datagrams already there, for :meth:`Receiver.receive` (no socket)."""
-
-    def __init__(self, items: list[bytes]) -> None:
-        self.items = list(items)
-
-    def send(self, datagram: bytes) -> None:
-        raise NotImplementedError
-
-    def recv(self, timeout: float | None = None) -> bytes | None:
-        return self.items.pop(0) if self.items else None
-
-    def close(self) -> None:
-        self.items.clear()
 
 
 def forged(raw: bytes) -> bytes:

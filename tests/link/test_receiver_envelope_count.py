@@ -5,27 +5,10 @@ run's "lost" = sent − received depends on it)."""
 from __future__ import annotations
 
 from cryptography.hazmat.primitives.asymmetric import x25519
-from linkhelp import NOW_NS, SCHEDULE, message
+from linkhelp import NOW_NS, SCHEDULE, Queued, message
 
 from rfsas_hw.link import Receiver, ReceiverConfig, Signer, TrustedKeys
-from rfsas_hw.link.transport import Transport
 from rfsas_hw.privacy.nonces import NonceAuthority, NonceStore
-
-
-class Queued(Transport):
-    """Datagrams already there, for :meth:`Receiver.receive` (no socket)."""
-
-    def __init__(self, items: list[bytes]) -> None:
-        self.items = list(items)
-
-    def send(self, datagram: bytes) -> None:
-        raise NotImplementedError
-
-    def recv(self, timeout: float | None = None) -> bytes | None:
-        return self.items.pop(0) if self.items else None
-
-    def close(self) -> None:
-        self.items.clear()
 
 
 def test_envelopes_are_counted_whatever_became_of_them(signer: Signer, trust: TrustedKeys) -> None:

@@ -48,6 +48,13 @@ class Collect:
         self.closed = True
 
 
+def _ctrl_c_as_at_a_terminal() -> None:
+    """In the child before it runs: Ctrl-C (SIGINT) as a terminal delivers it. A suite
+    started as a background job of a non-interactive shell ignores SIGINT, and an
+    ignored signal stays ignored across exec, so the run under test would not see it."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def _runner(capture: Path, cal: Path, **kwargs: object) -> tuple[Runner, Collect]:
     from rfsas_hw.df import load_calibration
 
@@ -222,6 +229,7 @@ def test_live_ctrl_c_ends_cleanly_with_the_summary(
     consumer = subprocess.Popen(
         _cli("live", "pcap:-", *w.STILL, "--calibration", str(cal_path), "--out", str(out)),
         stdin=producer.stdout,
+        preexec_fn=_ctrl_c_as_at_a_terminal,
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
     )

@@ -14,7 +14,7 @@ from __future__ import annotations
 import enum
 import math
 from collections.abc import Iterator, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from typing import Any, TypeVar
 
 import numpy as np
@@ -298,7 +298,7 @@ class ObservationBatch:
         without converting or checking each column again; a slice with a step is
         checked (which makes its columns contiguous)."""
         csi = None if self.csi is None else self.csi.select(index)
-        return _rows(self, index, _OBSERVATION_COLUMNS, csi=csi)
+        return _rows(self, index, csi=csi)
 
     def row(self, i: int) -> Observation:
         """Row ``i`` as an :class:`Observation`."""
@@ -444,7 +444,7 @@ class BearingBatch:
     def select(self, index: npt.NDArray[Any] | slice) -> BearingBatch:
         """Rows picked by a boolean mask, an index array or a slice, as
         :meth:`ObservationBatch.select` picks them."""
-        return _rows(self, index, _BEARING_COLUMNS, sensor_id=self.sensor_id)
+        return _rows(self, index, sensor_id=self.sensor_id)
 
     def row(self, i: int) -> Bearing:
         """Row ``i`` as a :class:`Bearing`."""
@@ -473,31 +473,19 @@ def _json_value(value: Any) -> Any:
     return value
 
 
-_OBSERVATION_COLUMNS = ("t_ns", "mac", "freq_mhz", "channel", "rssi_dbm", "seq", "kind", "flags")
-_BEARING_COLUMNS = (
-    "t_ns",
-    "azimuth_deg",
-    "sigma_deg",
-    "snr_db",
-    "channel",
-    "emitter",
-    "relative_deg",
-)
-
 _Batch = TypeVar("_Batch", ObservationBatch, BearingBatch)
 
 
-def _rows(
-    batch: _Batch, index: npt.NDArray[Any] | slice, columns: tuple[str, ...], **other: Any
-) -> _Batch:
-    """The rows ``index`` of ``batch``'s ``columns``, with the ``other`` fields as given.
+def _rows(batch: _Batch, index: npt.NDArray[Any] | slice, **other: Any) -> _Batch:
+    """The rows ``index`` of ``batch``'s columns (every field not in ``other``), with
+    the ``other`` fields as given.
 
     The columns of a batch already have their dtypes and one length, and rows picked
     from them keep both, so they are taken as they are (no conversion or check per
     column); a slice with a step goes through the constructor's checks, which make
     its columns contiguous.
     """
-    picked = {name: getattr(batch, name)[index] for name in columns}
+    picked = {f.name: getattr(batch, f.name)[index] for f in fields(batch) if f.name not in other}
     cls = type(batch)
     if isinstance(index, slice) and index.step not in (None, 1):
         return cls(**picked, **other)

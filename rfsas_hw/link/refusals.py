@@ -9,9 +9,12 @@ claimed sender id, the refusals for those reasons since the sender's last
 verified message; at ``run`` of them in a row it raises an alarm, logged once
 at WARNING with the cause named:
 
-- ``clock skew`` (``future``/``stale``), with the sender's clock offset measured
-  as the median of (generation time − receive time) over the run: positive when
-  the sender runs ahead;
+- ``clock skew`` (``future``): the sender's clock runs ahead, with its offset
+  measured as the median of (generation time − receive time) over the run;
+- ``late`` (``stale``): the messages arrive older than the age limit, with the
+  same median. A clock that runs behind and a sender that publishes late (an
+  overloaded sensor, a backlog in the network path) look the same from here, so
+  the alarm names both;
 - ``nonce mismatch`` (``bad_preauth``/``no_preauth_key``/``wrong_epoch``): the
   sender tags with another epoch nonce than this receiver holds (an authority
   restarted without its state, a party not enrolled with the authority) — or
@@ -38,7 +41,7 @@ log = logging.getLogger(__name__)
 
 CAUSES = {
     "future": "clock skew",
-    "stale": "clock skew",
+    "stale": "late",
     "bad_preauth": "nonce mismatch",
     "no_preauth_key": "nonce mismatch",
     "wrong_epoch": "nonce mismatch",
@@ -48,6 +51,7 @@ CAUSES = {
 
 _ADVICE = {
     "clock skew": "check the sender's time sync (NTP/PTP)",
+    "late": "check the sender's time sync (NTP/PTP) and whether it keeps up (its load, its uplink)",
     "nonce mismatch": (
         "check that the sender and this receiver take their nonces from the same "
         "authority (restarted without its nonces.state?), or someone forges its id"
@@ -85,12 +89,12 @@ class RefusalAlarm:
     sender_id: str
     """The sender id the refused messages claim."""
     cause: str
-    """``clock skew``, ``nonce mismatch`` or ``unenrolled``."""
+    """``clock skew``, ``late``, ``nonce mismatch`` or ``unenrolled``."""
     reasons: dict[str, int]
     """Refusals of the run by reason."""
     offset_s: float | None
-    """Median generation − receive time of the run, seconds (clock skew only;
-    positive: the sender's clock runs ahead)."""
+    """Median generation − receive time of the run, seconds (``clock skew`` and
+    ``late`` only; positive: the sender's clock runs ahead)."""
 
     @property
     def refused(self) -> int:
@@ -102,7 +106,12 @@ class RefusalAlarm:
         reasons = ", ".join(f"{k} {v}" for k, v in sorted(self.reasons.items()))
         text = f"link from {self.sender_id}: {self.refused} messages in a row refused ({reasons})"
         text += f": {self.cause}"
-        if self.offset_s is not None:
+        if self.offset_s is not None and self.cause == "late":
+            text += (
+                f", they arrive {-self.offset_s * 1e3:.0f} ms after their generation time"
+                " (its clock runs behind this receiver's, or it sends late)"
+            )
+        elif self.offset_s is not None:
             way = "ahead of" if self.offset_s > 0 else "behind"
             text += f", its clock runs {abs(self.offset_s) * 1e3:.0f} ms {way} this receiver's"
         return f"{text}; {_ADVICE[self.cause]}"
@@ -173,7 +182,8 @@ class RefusalWatch:
     def _alarm(self, sender_id: str, run: _Run) -> RefusalAlarm:
         reason = run.reasons.most_common(1)[0][0]
         cause = CAUSES[reason]
-        offset = statistics.median(run.offsets) if cause == "clock skew" and run.offsets else None
+        timed = cause in ("clock skew", "late") and run.offsets
+        offset = statistics.median(run.offsets) if timed else None
         return RefusalAlarm(sender_id, cause, dict(run.reasons), offset)
 
     def _may_log(self) -> bool:

@@ -35,11 +35,15 @@ def sent(signer: Signer, seq: int, skew_ns: int = 0, nonce: bytes = NONCE) -> by
 
 
 @pytest.mark.parametrize(
-    ("skew_ms", "reason", "says"),
-    [(300, "future", "280 ms ahead of"), (-1500, "stale", "1520 ms behind")],
+    ("skew_ms", "reason", "cause", "says"),
+    [
+        (300, "future", "clock skew", "its clock runs 280 ms ahead of"),
+        # too old: a clock behind and a sender that sends late look the same
+        (-1500, "stale", "late", "they arrive 1520 ms after their generation time"),
+    ],
 )
-def test_clock_skew_is_named_with_the_offset(
-    skew_ms: int, reason: str, says: str, caplog: pytest.LogCaptureFixture
+def test_clock_skew_and_lateness_are_named_with_the_offset(
+    skew_ms: int, reason: str, cause: str, says: str, caplog: pytest.LogCaptureFixture
 ) -> None:
     rx = receiver()
     with caplog.at_level(logging.INFO, logger="rfsas_hw.link.refusals"):
@@ -48,10 +52,10 @@ def test_clock_skew_is_named_with_the_offset(
         assert not rx.refusals.alarms and "rsu-1" not in caplog.text  # 9: not yet a run
         assert rx.feed(sent(S1, 10, skew_ms * 1_000_000)) is None
         alarm = rx.refusals.alarms["rsu-1"]
-        assert alarm.cause == "clock skew" and alarm.reasons == {reason: 10}
+        assert alarm.cause == cause and alarm.reasons == {reason: 10}
         # generated 20 ms before the skew: the offset is measured, not configured
         assert alarm.offset_s == pytest.approx(skew_ms / 1e3 - 0.020, abs=1e-6)
-        assert f"rsu-1: 10 messages in a row refused ({reason} 10): clock skew" in caplog.text
+        assert f"rsu-1: 10 messages in a row refused ({reason} 10): {cause}" in caplog.text
         assert says in caplog.text
         for seq in range(11, 30):
             rx.feed(sent(S1, seq, skew_ms * 1_000_000))

@@ -43,8 +43,9 @@ field by field in ``docs/protocol.md``)::
 
 The length is ``144 + L`` (version 1) or ``152 + L`` (version 2, the version
 byte 2 and the tag after the signature, as for the safety message). Checks
-follow the safety message's: cheap structural ones first (:func:`peek_cue`),
-the tag, then the signature, values only after it.
+follow the safety message's: cheap structural ones first (:func:`peek_cue`,
+which also reads the header's times and epoch), the tag, then the signature,
+values only after it.
 """
 
 from __future__ import annotations
@@ -72,6 +73,8 @@ TYPE_CUE = 3
 
 _PREFIX = struct.Struct(">2sBBBB")
 _BODY = struct.Struct(">qIQQqqHBBBBffffff")
+_HEAD = struct.Struct(">qIQ")
+"""The body's first fields: generation time, sequence number, nonce epoch."""
 CUE_FIXED_BYTES = _PREFIX.size + _BODY.size + SIGNATURE_BYTES
 """Bytes of a cue besides the sender id."""
 _INT64_MAX = (1 << 63) - 1
@@ -244,6 +247,8 @@ class PeekedCue:
     sender_id: str
     epoch: int
     """Nonce epoch (picks the pre-authentication key)."""
+    t_gen_us: int
+    """Generation time, UTC µs (judged before any cryptography)."""
 
 
 def peek_cue(datagram: bytes) -> PeekedCue:
@@ -262,8 +267,8 @@ def peek_cue(datagram: bytes) -> PeekedCue:
         raise MessageFormatError("truncated", f"{size} bytes, a cue from this sender is {want}")
     if size > want:
         raise MessageFormatError("oversized", f"{size} bytes, a cue from this sender is {want}")
-    (epoch,) = struct.unpack_from(">Q", datagram, _PREFIX.size + len(sender) + 12)
-    return PeekedCue(version, sender, epoch)
+    t_gen_us, _seq, epoch = _HEAD.unpack_from(datagram, _PREFIX.size + len(sender))
+    return PeekedCue(version, sender, epoch, t_gen_us)
 
 
 def decode_cue(datagram: bytes) -> Cue:

@@ -5,15 +5,21 @@ first; the first failure decides the reason it is counted under:
 
 1. structure: ``truncated``, ``oversized``, ``bad_magic``, ``bad_version``,
    ``bad_type``, ``malformed`` (before any cryptography), ``unknown_sender``;
-   for version 2, the pre-authentication tag: ``no_preauth_key`` (the epoch's
+2. the header's times: ``wrong_epoch`` (the nonce epoch is not one the
+   receiver accepts now: the vehicle could not make a matching hash),
+   ``stale`` (generated longer than ``max_age_s`` ago), ``future`` (ahead of
+   the clock by more than ``max_future_s``);
+3. for version 2, the pre-authentication tag: ``no_preauth_key`` (the epoch's
    nonce is not held), ``bad_preauth`` (an outsider's forgery: one HMAC spent);
-2. ``bad_signature`` (forged or altered), then value checks (``malformed``);
-3. ``stale`` (generated longer than ``max_age_s`` ago), ``future`` (ahead of
-   the clock by more than ``max_future_s``), ``expired`` (its validity window
-   has ended), ``too_far`` (cueing unit farther than ``max_range_m``),
-   ``wrong_epoch`` (the nonce epoch is not one the receiver accepts now: the
-   vehicle could not make a matching hash);
-4. ``replay`` (a sequence number of that sender already seen in the window).
+4. ``bad_signature`` (forged or altered), then value checks (``malformed``),
+   ``expired`` (its validity window has ended), ``too_far`` (cueing unit
+   farther than ``max_range_m``);
+5. ``replay`` (a sequence number of that sender already seen in the window).
+
+The checks of step 2 can only refuse, so a cue refused there would be refused
+after its signature too; made first, they cost no HMAC and no signature check
+(a forged cue that is also too old is counted ``stale``). The replay window
+records only verified cues, so a forgery cannot shut out a real one.
 
 :meth:`CueReceiver.feed` never raises into the caller's loop.
 """
@@ -52,14 +58,14 @@ CUE_REASONS = (
     "bad_type",
     "malformed",
     "unknown_sender",
+    "wrong_epoch",
+    "stale",
+    "future",
     "no_preauth_key",
     "bad_preauth",
     "bad_signature",
-    "stale",
-    "future",
     "expired",
     "too_far",
-    "wrong_epoch",
     "replay",
     "internal_error",
 )
@@ -176,6 +182,14 @@ class CueReceiver:
         key = self.trust.signing_key(sender)
         if key is None:
             raise _RejectError("unknown_sender", sender)
+        if not self.schedule.accepts(head.epoch, now_ns):
+            raise _RejectError("wrong_epoch", f"{sender} epoch {head.epoch}")
+        now_us = now_ns // 1000
+        age_us = now_us - head.t_gen_us
+        if age_us > cfg.max_age_s * US_PER_S:
+            raise _RejectError("stale", f"{sender} age {age_us / 1e3:.1f} ms")
+        if -age_us > cfg.max_future_s * US_PER_S:
+            raise _RejectError("future", f"{sender} {-age_us / 1e3:.1f} ms ahead")
         if head.version == VERSION_PREAUTH:
             pk = None if self.preauth is None else self.preauth.key_for(sender, head.epoch)
             if pk is None:
@@ -186,12 +200,6 @@ class CueReceiver:
         if not verify(key, body, signature):
             raise _RejectError("bad_signature", sender)
         cue = decode_cue(datagram)
-        now_us = now_ns // 1000
-        age_us = now_us - cue.t_gen_us
-        if age_us > cfg.max_age_s * US_PER_S:
-            raise _RejectError("stale", f"{sender} age {age_us / 1e3:.1f} ms")
-        if -age_us > cfg.max_future_s * US_PER_S:
-            raise _RejectError("future", f"{sender} {-age_us / 1e3:.1f} ms ahead")
         if now_us > cue.valid_until_us:
             raise _RejectError("expired", f"{sender} seq {cue.seq}")
         here = self.position() if self.position is not None else None
@@ -199,8 +207,6 @@ class CueReceiver:
             dist_m = math.hypot(cue.x_m - here[0], cue.y_m - here[1])
             if dist_m > cfg.max_range_m:
                 raise _RejectError("too_far", f"{sender} at {dist_m:.0f} m")
-        if not self.schedule.accepts(cue.epoch, now_ns):
-            raise _RejectError("wrong_epoch", f"{sender} epoch {cue.epoch}")
         if not self.replay.check_and_record(sender, cue.seq, cue.t_gen_us, now_us):
             raise _RejectError("replay", f"{sender} seq {cue.seq}")
         return cue

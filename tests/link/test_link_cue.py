@@ -220,3 +220,38 @@ def test_version_2_cue_is_tagged_and_the_tag_is_checked_first(
     assert blind.feed(sign_cue(signer, cue(seq=51), pk), NOW_NS) is None
     assert dict(rx.stats.rejected) == {"bad_preauth": 1, "bad_signature": 1}
     assert dict(blind.stats.rejected) == {"no_preauth_key": 1}
+
+
+def test_the_header_times_are_judged_before_the_tag_and_the_signature(
+    signer: Signer, trust: TrustedKeys, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import rfsas_hw.link.cue_receiver as module
+
+    verified: list[bytes] = []
+
+    def counting_verify(key: object, body: bytes, signature: bytes) -> bool:
+        verified.append(body)
+        return verify(key, body, signature)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(module, "verify", counting_verify)
+    epoch = SCHEDULE.epoch_of(NOW_NS)
+    keys = PreauthKeys(_Nonces(epoch))
+    pk = keys.key_for("rsu-1", epoch)
+    rx = CueReceiver(
+        trust, CueReceiverConfig(epoch_s=SCHEDULE.epoch_s, grace_s=SCHEDULE.grace_s), preauth=keys
+    )
+    old = cue(seq=60, t_gen_us=T_GEN_US - 5_000_000)
+    ahead = cue(seq=61, t_gen_us=T_GEN_US + 1_000_000)
+    forged_and_old = sign_cue(
+        Signer("rsu-1", key(0x5555)), cue(seq=62, t_gen_us=T_GEN_US - 5_000_000), pk
+    )
+    other_epoch = cue(seq=63, epoch=epoch + 7)
+    for datagram in (sign_cue(signer, old, pk), sign_cue(signer, ahead, pk), forged_and_old):
+        assert rx.feed(datagram, NOW_NS) is None
+    assert rx.feed(sign_cue(signer, other_epoch), NOW_NS) is None
+    # refused from the header alone: no signature was checked
+    assert verified == []
+    assert dict(rx.stats.rejected) == {"stale": 2, "future": 1, "wrong_epoch": 1}
+    # refusals leave the replay window alone: the good cue of a refused number still enters
+    assert rx.feed(sign_cue(signer, cue(seq=60), pk), NOW_NS) == cue(seq=60)
+    assert len(verified) == 1

@@ -233,7 +233,11 @@ def _urban_bearings() -> BackendConfig:
     # reading beyond 48.5° through, so a track predicted further out cannot be what the unit
     # saw, whose reading is then a direction folded back from its side. Measured on the
     # Euro NCAP matrix (docs/ncap.md)
-    bearings = BearingUpdateConfig(start_sigma_scale=2.0, max_off_boresight_deg=50.0)
+    # The units' readings are censored by their edge rule at their calibrated field of
+    # view (the two-beam build's turntable fit: −58° to 57.5°), which the updates model
+    bearings = BearingUpdateConfig(
+        start_sigma_scale=2.0, max_off_boresight_deg=50.0, fov_deg=(-58.0, 57.5)
+    )
     return replace(_urban_path(), tracking="bearings", bearings=bearings)
 
 

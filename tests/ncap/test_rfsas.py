@@ -68,18 +68,3 @@ def test_the_roadside_unit_fixes_a_person_at_the_kerb_but_cannot_place_it_across
     for vut_range_m in (10.0, 20.0, 30.0):
         status, _ = _fix_from((6.0, -3.5), vut_range_m)
         assert status == "ILL_CONDITIONED"
-
-
-def test_the_profiles_field_of_view_is_the_units_calibrated_one() -> None:
-    # the bearings-fed tracks model the units' edge rule at the field of view their
-    # turntable fit gives; a unit of another build would need its own
-    from rfsas_hw.bridges.bridge import Bridge
-    from rfsas_hw.bridges.config import BACKEND_PROFILES
-
-    cfg = bridge_config("car+rsu", "phone-active", 0, ())
-    assert cfg.backend_profile == "urban-intersection-bearings"
-    fov = BACKEND_PROFILES[cfg.backend_profile].bearings.fov_deg
-    with Bridge(cfg) as bridge:
-        assert bridge.backend.config.bearings.fov_deg == fov
-        for cal in bridge.calibrations.values():
-            assert {t.fov_deg for t in cal.tables} == {fov}

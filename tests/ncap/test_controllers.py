@@ -172,3 +172,15 @@ def test_rfsas_does_not_brake_as_it_passes_a_walker_on_the_sidewalk() -> None:
 
     along = run_one(RunSpec(Cell("TN-ALONG", 30.0, 0.5), "rfsas", "car+rsu", "phone-active", 0))
     assert along.first_rf_brake_s is None and not along.nuisance and not along.contact
+
+
+def test_rfsas_does_not_brake_for_the_bicyclist_on_the_bike_lane_at_10_kmh() -> None:
+    """TN-BIKELANE at 10 km/h, seed 5: RF-SAS braked at 3.0 s on a track started from a
+    fix 16 m ahead of the bicyclist, made of the first frames, which the twin drew from
+    where SUMO had inserted the bike (100 m down the road) before placing it; with the
+    targets in place at t = 0 the track starts on the bicyclist."""
+    pytest.importorskip("libsumo", reason="needs the sumo extra (pip install .[sumo])")
+    from rfsas_hw.ncap.runner import RunSpec, run_one
+
+    bike = run_one(RunSpec(Cell("TN-BIKELANE", 10.0, 0.5), "rfsas", "car+rsu", "phone-active", 5))
+    assert bike.first_rf_brake_s is None and not bike.nuisance and not bike.contact

@@ -26,6 +26,16 @@ track on its own, whatever the fix of the moment:
   shows it) is not applied and counted; the same rule keeps such a bearing out
   of the fixes (:meth:`BearingTracker.admit`, the associator's ``admit``), which
   start and restart the tracks and whose status the assessment reports;
+- with the units' field of view given (``fov_deg``), a reading is one the unit's
+  edge rule let through: a unit reports a direction only while its reading ``m``
+  (off boresight) and ``edge_sigmas`` of its σ stay inside the field of view
+  (:func:`~rfsas_hw.df.fovrule.near_edge`), so for a target near that edge only
+  the readings that err towards boresight arrive. The update then takes the
+  reading as drawn from the prediction's normal truncated to
+  ``[lo + k·σ, hi − k·σ]``: the predicted reading is that truncated normal's mean
+  and its variance ``g·R``, the gradient ``g·H`` (``g`` = the truncated over the
+  untruncated variance, 1 deep inside, → 0 past the edge); a track near the edge
+  is then not pulled towards boresight by the readings that got through;
 - a bearing whose innovation exceeds ``gate_sigmas`` of its predicted sigma is
   not applied and counted; a track whose last ``lost_after`` bearings were all
   outside the gate is dropped, and the next trustworthy fix starts a new one.
@@ -45,10 +55,12 @@ from typing import Literal
 
 import numpy as np
 import numpy.typing as npt
+from scipy.special import log_ndtr
 
 from rfsas_hw.angles import wrap_deg_180
 from rfsas_hw.backend.association import Associator, StationBearing
 from rfsas_hw.backend.tracking import Tracker
+from rfsas_hw.df.fovrule import EDGE_SIGMAS
 from rfsas_hw.errors import BackendError
 
 Array = npt.NDArray[np.float64]
@@ -63,6 +75,7 @@ __all__ = [
     "BearingUpdateConfig",
     "TrackingMode",
     "bearing_update",
+    "censored_reading",
 ]
 
 
@@ -88,10 +101,17 @@ class BearingUpdateConfig:
             test, which keeps long fixes by the sign of their error: its error is
             larger than its covariance says, and a start that claims too much
             leaks the bearings' correction into a false velocity (docs/ncap.md).
+        fov_deg: the units' calibrated field of view, degrees off boresight
+            (lower, upper; clockwise positive), within which their edge rule keeps
+            a reading and ``edge_sigmas`` of its σ; None: readings are taken as
+            uncensored (module docstring).
+        edge_sigmas: the units' edge rule, sigmas (the DF's own,
+            :data:`~rfsas_hw.df.fovrule.EDGE_SIGMAS`).
 
     Raises:
-        BackendError: a non-positive gate, iteration count or loss count, or a
-            negative station sigma.
+        BackendError: a non-positive gate, iteration count or loss count, a
+            negative station sigma, a field of view that does not hold boresight,
+            or a negative ``edge_sigmas``.
     """
 
     gate_sigmas: float = 3.0
@@ -100,6 +120,8 @@ class BearingUpdateConfig:
     lost_after: int = 10
     max_off_boresight_deg: float = 180.0
     start_sigma_scale: float = 1.0
+    fov_deg: tuple[float, float] | None = None
+    edge_sigmas: float = EDGE_SIGMAS
 
     def __post_init__(self) -> None:
         if not self.gate_sigmas > 0:
@@ -119,6 +141,12 @@ class BearingUpdateConfig:
                 f"bearings max_off_boresight_deg must be in (0, 180], "
                 f"got {self.max_off_boresight_deg}"
             )
+        if self.fov_deg is not None and not -180 <= self.fov_deg[0] < 0 < self.fov_deg[1] <= 180:
+            raise BackendError(
+                f"bearings fov_deg must be (lower < 0 < upper) within ±180°, got {self.fov_deg}"
+            )
+        if not self.edge_sigmas >= 0:
+            raise BackendError(f"bearings edge_sigmas must be ≥ 0, got {self.edge_sigmas}")
 
 
 @dataclass(frozen=True, slots=True)
@@ -148,6 +176,39 @@ def _wrap(angle_rad: float) -> float:
     return (angle_rad + math.pi) % (2 * math.pi) - math.pi
 
 
+def censored_reading(u: float, var: float, lo: float, hi: float) -> tuple[float, float]:
+    """Mean shift and variance factor of a reading ``~ N(u, var)`` that is only seen
+    within ``[lo, hi]`` (the same unit throughout, e.g. radians off boresight).
+
+    Returns:
+        ``(E[m | lo ≤ m ≤ hi] − u, Var[m | lo ≤ m ≤ hi] / var)``; the factor is also
+        ``d E[m | …] / d u``. Computed in log space, so a mean far outside the window
+        gives the edge's value and a factor near 0, not a division by zero.
+
+    Raises:
+        BackendError: a variance ≤ 0 or a window with ``lo ≥ hi``.
+    """
+    if not (var > 0 and lo < hi):
+        raise BackendError(f"censored reading needs var > 0 and lo < hi, got {var}, {lo}, {hi}")
+    s = math.sqrt(var)
+    a, b = (lo - u) / s, (hi - u) / s
+    flip = a + b > 0  # the mean below the window's middle: work on the mirrored window
+    if flip:
+        a, b = -b, -a
+    # log Z = log(Φ(b) − Φ(a)) with Φ(a) ≤ Φ(b)
+    log_b, log_a = float(log_ndtr(b)), float(log_ndtr(a))
+    log_z = log_b + math.log1p(-math.exp(min(log_a - log_b, 0.0)))
+    if not math.isfinite(log_z):  # the window is too narrow to hold any probability
+        log_z = log_b - 700.0
+    log_phi = -0.5 * math.log(2 * math.pi)
+    ra = math.exp(log_phi - 0.5 * a * a - log_z)
+    rb = math.exp(log_phi - 0.5 * b * b - log_z)
+    shift = s * (ra - rb)
+    factor = 1.0 + a * ra - b * rb - (ra - rb) ** 2
+    factor = min(max(factor, 1e-9), 1.0)
+    return (-shift if flip else shift), factor
+
+
 def bearing_update(
     state: Array,
     cov: Array,
@@ -155,6 +216,7 @@ def bearing_update(
     azimuth_deg: float,
     sigma_deg: float,
     config: BearingUpdateConfig,
+    boresight_deg: float | None = None,
 ) -> BearingUpdate:
     """Apply one bearing to a predicted track state (see the module docstring).
 
@@ -164,7 +226,10 @@ def bearing_update(
         station_xy: the sensor's position, metres east/north.
         azimuth_deg: the measured compass azimuth, degrees.
         sigma_deg: its one-sigma error, degrees.
-        config: gate, station sigma and iterations.
+        config: gate, station sigma, iterations and the units' field of view.
+        boresight_deg: compass azimuth of the sensor's boresight, degrees; with
+            ``config.fov_deg`` the reading is taken as censored by the unit's edge
+            rule (None: uncensored).
 
     Raises:
         BackendError: a non-finite bearing or sigma, or a sigma ≤ 0.
@@ -179,22 +244,42 @@ def bearing_update(
     z = math.radians(azimuth_deg)
     var_theta = math.radians(sigma_deg) ** 2
     var_station = config.station_sigma_m**2
-    h0, H0, r2 = _azimuth_and_gradient(x0, sx, sy)
-    if not r2 > 0:
+    window = None
+    if config.fov_deg is not None and boresight_deg is not None:
+        reach = config.edge_sigmas * sigma_deg
+        lo, hi = config.fov_deg[0] + reach, config.fov_deg[1] - reach
+        if lo < hi:
+            window = (math.radians(boresight_deg), math.radians(lo), math.radians(hi))
+
+    def model(xs: Array) -> tuple[float, Array, float, float] | None:
+        """The predicted reading at ``xs``, its gradient and noise variance (censored
+        when the field of view is known), and the range²; None on the sensor."""
+        h, H, r2 = _azimuth_and_gradient(xs, sx, sy)
+        if not r2 > 0:
+            return None
+        R = var_theta + var_station / r2
+        if window is not None:
+            shift, g = censored_reading(_wrap(h - window[0]), R, window[1], window[2])
+            h, H, R = h + shift, g * H, g * R
+        return h, H, R, r2
+
+    first = model(x0)
+    if first is None:
         return BearingUpdate(x0, P, math.nan, False)
+    h0, H0, R0, _ = first
     PH0 = P @ H0
-    S0 = float(H0 @ PH0) + var_theta + var_station / r2
+    S0 = float(H0 @ PH0) + R0
     nu0 = _wrap(z - h0)
     ratio = nu0 / math.sqrt(S0)
     if abs(ratio) > config.gate_sigmas:
         return BearingUpdate(x0, P, ratio, False)
-    x, H, PH, S, R, K = x0, H0, PH0, S0, var_theta + var_station / r2, PH0 / S0
+    x, H, PH, S, R, K = x0, H0, PH0, S0, R0, PH0 / S0
     for i in range(config.iterations):
         if i:
-            h, H, r2 = _azimuth_and_gradient(x, sx, sy)
-            if not r2 > 0:
+            again = model(x)
+            if again is None:
                 break
-            R = var_theta + var_station / r2
+            h, H, R, _ = again
             PH = P @ H
             S = float(H @ PH) + R
             nu = _wrap(z - h) - float(H @ (x0 - x))
@@ -347,7 +432,9 @@ class BearingTracker:
             if self._outside_view(b, x):
                 self.stats.off_boresight += 1
                 continue
-            out = bearing_update(x, P, (b.x_m, b.y_m), b.azimuth_deg, b.sigma_deg, self.config)
+            out = bearing_update(
+                x, P, (b.x_m, b.y_m), b.azimuth_deg, b.sigma_deg, self.config, b.heading_deg
+            )
             if not out.applied:
                 self.stats.gated += 1
                 missed = self._missed.get(emitter, 0) + 1

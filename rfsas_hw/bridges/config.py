@@ -233,6 +233,9 @@ def _urban_bearings() -> BackendConfig:
     # reading beyond 48.5° through, so a track predicted further out cannot be what the unit
     # saw, whose reading is then a direction folded back from its side. Measured on the
     # Euro NCAP matrix (docs/ncap.md)
+    # (the units' edge-rule censoring, fov_deg, is not set: measured on the matrix it
+    # removes the 10 km/h nuisance brakes of walkers the VUT overtakes, and the BRAKE in
+    # CBTA at 20 km/h that came from a track of folded bearings with them; docs/ncap.md)
     bearings = BearingUpdateConfig(start_sigma_scale=2.0, max_off_boresight_deg=50.0)
     return replace(_urban_path(), tracking="bearings", bearings=bearings)
 

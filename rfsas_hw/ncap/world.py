@@ -119,7 +119,8 @@ class SumoWorld:
         s.vehicletype.setLength("vut", VUT_LENGTH_M)
         s.vehicletype.setWidth("vut", VUT_WIDTH_M)
         s.vehicletype.setMaxSpeed("vut", 30.0)
-        front = p.vut_start_x_m + VUT_LENGTH_M / 2 - ROAD_X_M[0]
+        # one step of driving before its start: the step that puts the targets in place
+        front = p.vut_start_x_m - p.vut_speed_mps * STEP_S + VUT_LENGTH_M / 2 - ROAD_X_M[0]
         s.vehicle.add(
             EGO, "east-route", typeID="vut", departPos=f"{front:.3f}",
             departSpeed=f"{p.vut_speed_mps:.4f}", departLane="1",
@@ -147,7 +148,11 @@ class SumoWorld:
         if EGO not in s.vehicle.getIDList():
             raise SimulationError("SUMO did not insert the VUT")
         s.vehicle.setSpeedMode(EGO, 0)
+        # SUMO inserts the targets where their routes begin (the road's far end) and moves
+        # them with the next step: that step is taken here, so that the first read (t = 0)
+        # finds everyone where the plan puts them, not 100 m down the road
         self._place(0.0)
+        self._drive(0.0, p.vut_speed_mps)
 
     def _place(self, t_s: float) -> None:
         s = self.sumo
@@ -168,16 +173,21 @@ class SumoWorld:
         v = max(vut_speed_mps, 0.0)
         self._place(t_next)
         self.vut_s_m += v * STEP_S
+        self._drive(self.vut_s_m, v)
+        self.t_s = t_next
+        return t_next
+
+    def _drive(self, s_m: float, v: float) -> None:
+        """One SUMO step with the VUT at ``v`` m/s, a turning VUT placed ``s_m`` metres along
+        its path (as SUMO's own step would place it)."""
         path = self.plan.vut_path
-        if path is not None:  # a turning VUT: placed on its path, as SUMO's own step would
-            x, y, h = path.pose(self.vut_s_m)
+        if path is not None:
+            x, y, h = path.pose(s_m)
             a = math.radians(h)
             fx, fy = x + VUT_LENGTH_M / 2 * math.sin(a), y + VUT_LENGTH_M / 2 * math.cos(a)
             self.sumo.vehicle.moveToXY(EGO, "", 0, fx, fy, angle=h, keepRoute=2)
         self.sumo.vehicle.setSpeed(EGO, v)
         self.sumo.simulationStep()
-        self.t_s = t_next
-        return t_next
 
     def read(self) -> tuple[Entity, list[tuple[Entity, str]]]:
         """The VUT and every VRU with its class.

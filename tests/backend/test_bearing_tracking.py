@@ -255,10 +255,17 @@ def test_default_mode_is_fix_fed_everywhere() -> None:
 
 def test_tracking_mode_from_a_file(tmp_path: Path) -> None:
     good = tmp_path / "backend.yaml"
-    good.write_text("tracking: bearings\nbearings: {gate_sigmas: 4.0, station_sigma_m: 0.5}\n")
+    good.write_text(
+        "tracking: bearings\n"
+        "bearings: {gate_sigmas: 4.0, station_sigma_m: 0.5, fov_deg: [-58, 57.5]}\n"
+    )
     cfg = load_backend_config(good)
     assert cfg.tracking == "bearings" and cfg.bearings.gate_sigmas == 4.0
-    assert cfg.bearings.station_sigma_m == 0.5
+    assert cfg.bearings.station_sigma_m == 0.5 and cfg.bearings.fov_deg == (-58.0, 57.5)
+    wrong = tmp_path / "wrong.yaml"
+    wrong.write_text("tracking: bearings\nbearings: {fov_deg: [20, 57.5]}\n")
+    with pytest.raises(ConfigError, match=r"wrong\.yaml.*fov_deg"):
+        load_backend_config(wrong)
     bad = tmp_path / "bad.yaml"
     bad.write_text("tracking: kalman\n")
     with pytest.raises(ConfigError, match="tracking"):
@@ -363,3 +370,67 @@ def test_a_bearing_folded_into_the_front_is_left_out_by_the_tracks_direction() -
     assert fix.t_ns == 22 * S // 10 and fix.sensors == ("car", "rsu")
     assert math.hypot(fix.x_m - 0.0, fix.y_m + 2.25) > 1.0
     assert wide.all_stats()["tracking.fix_off_boresight"] == 0
+
+
+def test_censored_reading_is_the_truncated_normal() -> None:
+    from scipy.stats import truncnorm
+
+    from rfsas_hw.backend.bearing_tracking import censored_reading
+
+    lo, hi, s = -0.77, 0.76, 0.08  # radians: a −44° … 43.5° window, 4.6° sigma
+    for u in (0.0, 0.5, 0.72, 0.8, 1.2, -0.75, -2.0):
+        shift, factor = censored_reading(u, s * s, lo, hi)
+        mean, var = truncnorm.stats((lo - u) / s, (hi - u) / s, loc=u, scale=s, moments="mv")
+        assert shift == pytest.approx(float(mean) - u, rel=1e-6, abs=1e-12)
+        assert factor == pytest.approx(float(var) / s**2, rel=1e-6, abs=1e-9)
+    # far outside the window: the edge, a variance near 0, and finite numbers
+    shift, factor = censored_reading(40.0, s * s, lo, hi)
+    assert 40.0 + shift == pytest.approx(hi, abs=s / 10) and 0 < factor < 1e-3
+    shift, factor = censored_reading(-40.0, s * s, lo, hi)
+    assert -40.0 + shift == pytest.approx(lo, abs=s / 10) and 0 < factor < 1e-3
+    assert censored_reading(0.0, s * s, lo, hi) == pytest.approx((0.0, 1.0), abs=1e-12)
+    with pytest.raises(BackendError, match="lo < hi"):
+        censored_reading(0.0, s * s, hi, lo)
+
+
+def test_readings_censored_at_the_field_of_view_do_not_pull_a_track_to_boresight() -> None:
+    # a unit at the origin looking north; a person 47° off its boresight, 10 m away.
+    # The unit's edge rule lets a 5° reading through only while reading + 3σ stays
+    # inside its 57.5° field of view, so every reading that arrives errs towards
+    # boresight (mean about 40°). A track that knows the censoring stays on the person.
+    sigma = 5.0
+    truth = 47.0
+    rng = np.random.default_rng(3)
+    readings = truth + sigma * rng.standard_normal(4000)
+    passed = readings[readings + 3 * sigma <= 57.5][:60]
+    assert len(passed) == 60 and passed.mean() < truth - 5.0
+
+    def track(cfg: BearingUpdateConfig) -> float:
+        a = math.radians(truth)
+        state = np.array([10 * math.sin(a), 10 * math.cos(a), 0.0, 0.0])
+        cov = np.diag([4.0, 4.0, 1e-6, 1e-6])
+        applied = 0
+        for z in passed:
+            out = bearing_update(state, cov, (0.0, 0.0), float(z), sigma, cfg, 0.0)
+            applied += out.applied
+            state, cov = out.state, out.cov
+        assert applied >= 55  # (the gate's 3 σ skips the odd one)
+        return math.degrees(math.atan2(state[0], state[1]))
+
+    plain = track(BearingUpdateConfig())
+    censored = track(BearingUpdateConfig(fov_deg=(-58.0, 57.5)))
+    assert plain < truth - 5.0  # pulled towards boresight by the selection
+    assert censored == pytest.approx(truth, abs=2.0)
+    # without the boresight the field of view is not applied: the plain update
+    a = math.radians(truth)
+    state = np.array([10 * math.sin(a), 10 * math.cos(a), 0.0, 0.0])
+    cov = np.diag([4.0, 4.0, 1e-6, 1e-6])
+    cfg = BearingUpdateConfig(fov_deg=(-58.0, 57.5))
+    np.testing.assert_array_equal(
+        bearing_update(state, cov, (0.0, 0.0), 40.0, sigma, cfg).state,
+        bearing_update(state, cov, (0.0, 0.0), 40.0, sigma, BearingUpdateConfig()).state,
+    )
+    with pytest.raises(BackendError, match="fov_deg"):
+        BearingUpdateConfig(fov_deg=(10.0, 50.0))
+    with pytest.raises(BackendError, match="edge_sigmas"):
+        BearingUpdateConfig(edge_sigmas=-1.0)

@@ -122,9 +122,14 @@ def test_rfsas_with_a_roadside_unit_brakes_for_the_hidden_child() -> None:
     from rfsas_hw.ncap.runner import RunSpec, run_one
 
     # (at 50 % RF-SAS alone now brakes 0.3 s later than with fix-fed tracks and hits in
-    # this seed: docs/ncap.md, "Tracks fed by bearings"; LOS, cued, still avoids it)
-    r = run_one(RunSpec(Cell("CPNCO", 30.0, 0.75), "rfsas", "car+rsu", "phone-active", 1))
-    assert r.first_rf_brake_s is not None and not r.contact
+    # some seeds: docs/ncap.md, "Tracks fed by bearings"; LOS, cued, still avoids it).
+    # At 75 % it brakes in every seed and avoids the child in most (seeds 0-3: 3 or 4)
+    runs = [
+        run_one(RunSpec(Cell("CPNCO", 30.0, 0.75), "rfsas", "car+rsu", "phone-active", seed))
+        for seed in range(4)
+    ]
+    assert all(r.first_rf_brake_s is not None for r in runs)
+    assert sum(not r.contact for r in runs) >= 3
     fused = run_one(RunSpec(Cell("CPNCO", 30.0, 0.5), "rfsas+los", "car+rsu", "phone-active", 1))
     assert not fused.contact and fused.cued_steps > 0
 
@@ -133,9 +138,9 @@ def test_los_cued_by_rfsas_brakes_only_on_its_own_sight() -> None:
     pytest.importorskip("libsumo", reason="needs the sumo extra (pip install .[sumo])")
     from rfsas_hw.ncap.runner import RunSpec, run_one
 
-    # the kerb walker of seed 4: RF-SAS still advises BRAKE after the walker stopped (the
+    # the kerb walker of seed 11: RF-SAS still advises BRAKE after the walker stopped (the
     # constant-velocity track keeps the walk towards the lane, docs/ncap.md)...
-    kerb = run_one(RunSpec(Cell("TN-KERB", 30.0, 0.5), "los+cue", "car+rsu", "phone-active", 4))
+    kerb = run_one(RunSpec(Cell("TN-KERB", 30.0, 0.5), "los+cue", "car+rsu", "phone-active", 11))
     assert kerb.first_rf_brake_s is not None
     assert kerb.first_brake_s is None and not kerb.nuisance  # ...which this controller ignores
     child = run_one(RunSpec(Cell("CPNCO", 50.0, 0.5), "los+cue", "car+rsu", "phone-active", 0))
@@ -167,3 +172,15 @@ def test_rfsas_does_not_brake_as_it_passes_a_walker_on_the_sidewalk() -> None:
 
     along = run_one(RunSpec(Cell("TN-ALONG", 30.0, 0.5), "rfsas", "car+rsu", "phone-active", 0))
     assert along.first_rf_brake_s is None and not along.nuisance and not along.contact
+
+
+def test_rfsas_does_not_brake_for_the_bicyclist_on_the_bike_lane_at_10_kmh() -> None:
+    """TN-BIKELANE at 10 km/h, seed 5: RF-SAS braked at 3.0 s on a track started from a
+    fix 16 m ahead of the bicyclist, made of the first frames, which the twin drew from
+    where SUMO had inserted the bike (100 m down the road) before placing it; with the
+    targets in place at t = 0 the track starts on the bicyclist."""
+    pytest.importorskip("libsumo", reason="needs the sumo extra (pip install .[sumo])")
+    from rfsas_hw.ncap.runner import RunSpec, run_one
+
+    bike = run_one(RunSpec(Cell("TN-BIKELANE", 10.0, 0.5), "rfsas", "car+rsu", "phone-active", 5))
+    assert bike.first_rf_brake_s is None and not bike.nuisance and not bike.contact

@@ -122,3 +122,29 @@ def test_turning_vut_follows_its_path_in_sumo(name: str, heading: float) -> None
         a = math.radians(ego.heading_deg)
         right = (target.x_m - ego.x_m) * math.cos(a) - (target.y_m - ego.y_m) * math.sin(a)
         assert right > 0
+
+
+@pytest.mark.parametrize("key", ["TN-BIKELANE@10", "CPNCO@40", "TN-PHONES@30", "CBTA@20"])
+def test_the_first_read_finds_everyone_where_the_plan_puts_them(key: str) -> None:
+    """At t = 0 the targets are at their planned places (not where SUMO inserted them, at
+    the road's far end) and the VUT at its start, at its speed, so that RF-SAS's first
+    bearings are of where the targets are."""
+    pytest.importorskip("libsumo", reason="needs the sumo extra (pip install .[sumo])")
+    from rfsas_hw.ncap.world import SumoWorld
+
+    name, speed = key.split("@")
+    p = plan(Cell(name, float(speed), 0.5))
+    with SumoWorld(p) as world:
+        ego, vrus = world.read()
+        assert ego.x_m == pytest.approx(p.vut_start_x_m, abs=0.01)
+        assert ego.y_m == pytest.approx(0.0, abs=0.01)
+        assert ego.speed_mps == pytest.approx(p.vut_speed_mps, abs=1e-3)
+        assert len(vrus) == len(p.targets)
+        for path in p.targets:
+            (target,) = [e for e, _ in vrus if e.id.endswith(path.id)]
+            x, y, _ = path.at(0.0)
+            assert (target.x_m, target.y_m) == pytest.approx((x, y), abs=0.01)
+        # and the first step drives on from there
+        world.step(p.vut_speed_mps)
+        moved, _ = world.read()
+        assert moved.x_m - ego.x_m == pytest.approx(p.vut_speed_mps * 0.05, abs=0.01)

@@ -40,7 +40,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Literal
 
 import numpy as np
@@ -48,7 +48,8 @@ import numpy.typing as npt
 
 from rfsas_hw.angles import wrap_deg_180
 from rfsas_hw.backend.association import Associator, StationBearing
-from rfsas_hw.backend.tracking import Tracker
+from rfsas_hw.backend.stop_go import Modes, combine, predict_modes, reweigh
+from rfsas_hw.backend.tracking import NS_PER_S, Tracker
 from rfsas_hw.errors import BackendError
 
 Array = npt.NDArray[np.float64]
@@ -133,6 +134,17 @@ class BearingUpdate:
     """Wrapped innovation at the prediction over its predicted one-sigma (signed)."""
     applied: bool
     """False when the bearing was outside the gate (or the target sat on the sensor)."""
+    innovation_sd_rad: float = math.nan
+    """The innovation's predicted one-sigma, radians (NaN: the target sat on the sensor)."""
+
+    @property
+    def log_likelihood(self) -> float:
+        """Log of the Gaussian density of the innovation at the prediction, log(1/rad)
+        (−inf when undefined): how well the predicted state explains the bearing."""
+        if not (math.isfinite(self.innovation_sigmas) and self.innovation_sd_rad > 0):
+            return -math.inf
+        r = self.innovation_sigmas
+        return -0.5 * r * r - math.log(self.innovation_sd_rad) - 0.5 * math.log(2 * math.pi)
 
 
 def _azimuth_and_gradient(state: Array, sx: float, sy: float) -> tuple[float, Array, float]:
@@ -187,7 +199,7 @@ def bearing_update(
     nu0 = _wrap(z - h0)
     ratio = nu0 / math.sqrt(S0)
     if abs(ratio) > config.gate_sigmas:
-        return BearingUpdate(x0, P, ratio, False)
+        return BearingUpdate(x0, P, ratio, False, math.sqrt(S0))
     x, H, PH, S, R, K = x0, H0, PH0, S0, var_theta + var_station / r2, PH0 / S0
     for i in range(config.iterations):
         if i:
@@ -204,7 +216,7 @@ def bearing_update(
         x = x0 + K * nu
     A = np.eye(4) - np.outer(K, H)
     P_new = A @ P @ A.T + R * np.outer(K, K)
-    return BearingUpdate(x, 0.5 * (P_new + P_new.T), ratio, True)
+    return BearingUpdate(x, 0.5 * (P_new + P_new.T), ratio, True, math.sqrt(S0))
 
 
 @dataclass(slots=True)
@@ -332,6 +344,7 @@ class BearingTracker:
         if not fresh:
             return
         accel = self.tracker.config.accel_sigma_mps2
+        free = replace(self.config, gate_sigmas=math.inf)
         applied: list[str] = []
         for b in fresh:  # oldest first
             used[b.sensor] = b.t_ns
@@ -343,7 +356,12 @@ class BearingTracker:
             ):
                 self.stats.invalid += 1  # one bad bearing must not stop the service
                 continue
-            x, P = track.predict(b.t_ns, accel)
+            modes = track.modes
+            if modes is None:
+                x, P = track.predict(b.t_ns, accel)
+            else:  # the models' predictions, kept for their own updates
+                xs, Ps, c = predict_modes(modes, (b.t_ns - track.t_ns) / NS_PER_S, accel)
+                x, P = combine(xs, Ps, c)
             if self._outside_view(b, x):
                 self.stats.off_boresight += 1
                 continue
@@ -362,6 +380,19 @@ class BearingTracker:
             self._missed[emitter] = 0
             self.stats.applied += 1
             track.state, track.cov, track.t_ns = out.state, out.cov, b.t_ns
+            if modes is not None:  # gated on the combination; each model updated alone
+                each = [
+                    bearing_update(xs[j], Ps[j], (b.x_m, b.y_m), b.azimuth_deg, b.sigma_deg, free)
+                    for j in range(len(xs))
+                ]
+                probs = reweigh(c, np.array([o.log_likelihood for o in each]))
+                track.modes = Modes(
+                    np.array([o.state for o in each]),
+                    np.array([o.cov for o in each]),
+                    probs,
+                    modes.config,
+                )
+                track.state, track.cov = combine(track.modes.states, track.modes.covs, probs)
             applied.append(b.sensor)
         if applied:
             track.updates += 1

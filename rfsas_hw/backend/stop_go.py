@@ -53,6 +53,10 @@ STANDING = 1
 class StopGoConfig:
     """The standing model and how often a target switches.
 
+    The defaults are the Euro NCAP matrix's (docs/ncap.md, "A walker who stops"): a
+    higher stop rate lets the standing model pull the velocity of a rider who has
+    just started back towards 0, and a start is then believed later.
+
     Args:
         stop_per_s: rate at which a moving target stops, 1/s.
         go_per_s: rate at which a standing target starts to move, 1/s.
@@ -63,9 +67,9 @@ class StopGoConfig:
         BackendError: a value that is not positive and finite.
     """
 
-    stop_per_s: float = 0.5
+    stop_per_s: float = 0.2
     go_per_s: float = 0.5
-    standing_sigma_mps: float = 0.1
+    standing_sigma_mps: float = 0.5
 
     def __post_init__(self) -> None:
         for name in ("stop_per_s", "go_per_s", "standing_sigma_mps"):

@@ -238,7 +238,7 @@ def _urban_bearings() -> BackendConfig:
     # constant-velocity one (docs/ncap.md, "A walker who stops")
     bearings = BearingUpdateConfig(start_sigma_scale=2.0, max_off_boresight_deg=50.0)
     base = _urban_path()
-    tracker = replace(base.tracker, stop_go=StopGoConfig(0.5, 0.5, 0.5))
+    tracker = replace(base.tracker, stop_go=StopGoConfig())
     return replace(base, tracking="bearings", bearings=bearings, tracker=tracker)
 
 

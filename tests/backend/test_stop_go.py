@@ -22,7 +22,10 @@ S = 1_000_000_000
 EMITTER = 9
 RSU = np.array([4.0, 7.0])
 SIGMA_DEG = 3.0
-STOP_GO = StopGoConfig(stop_per_s=0.5, go_per_s=0.5, standing_sigma_mps=0.5)
+_MATRIX = BACKEND_PROFILES["urban-intersection-bearings"].tracker.stop_go
+assert _MATRIX is not None
+STOP_GO: StopGoConfig = _MATRIX
+"""The Euro NCAP matrix's settings."""
 
 
 def _batch(sensor: str, t_ns: int, azimuth_deg: float) -> BearingBatch:
@@ -101,23 +104,23 @@ def test_a_walker_who_stops_is_believed_stopped_sooner() -> None:
         rng = np.random.default_rng(4)
         vels = [_run(model, rng, _walk_then_stop, 40) for _ in range(runs)]
         stopped[name] = _median_time(vels, lambda vy: abs(vy) < 0.3)
-    # measured: constant velocity 1.8 s, stop-and-go 1.05 s after the stop
-    assert stopped["stop-go"] <= 1.3
-    assert stopped["stop-go"] < stopped["cv"] - 0.5
+    # measured: constant velocity 1.8 s, stop-and-go 1.4 s after the stop
+    assert stopped["stop-go"] <= 1.6
+    assert stopped["stop-go"] < stopped["cv"] - 0.3
 
 
-def test_a_standing_rider_who_starts_is_believed_moving_within_a_second_and_a_half() -> None:
+def test_a_standing_rider_who_starts_is_believed_moving_within_a_second() -> None:
     # the price of believing a stop sooner: a start is believed later (the standing
-    # model must first lose the likelihood contest), here by 0.4 s
+    # model must first lose the likelihood contest), here by 0.2 s
     runs = 40
     moving: dict[str, float] = {}
     for name, model in (("cv", None), ("stop-go", STOP_GO)):
         rng = np.random.default_rng(11)
         vels = [_run(model, rng, _stand_then_go, 35) for _ in range(runs)]
         moving[name] = _median_time(vels, lambda vy: vy > 1.4)
-    # measured: constant velocity 0.8 s, stop-and-go 1.2 s after the start
-    assert moving["stop-go"] <= 1.5
-    assert moving["cv"] <= 1.0
+    # measured: constant velocity 0.8 s, stop-and-go 1.0 s after the start
+    assert moving["stop-go"] <= 1.2
+    assert moving["stop-go"] <= moving["cv"] + 0.3
 
 
 def test_transition_combination_and_weights() -> None:
@@ -144,7 +147,7 @@ def test_transition_combination_and_weights() -> None:
 
 def test_fix_fed_tracks_and_the_one_prediction() -> None:
     # a standing emitter seen by fixes: the standing model gains weight (a constant
-    # velocity near 0 explains the fixes nearly as well: measured 0.58), the velocity
+    # velocity near 0 explains them nearly as well: 0.43 against 0.29), the velocity
     # is no further from 0, and the prediction every reader uses is the models' mixture
     rng = np.random.default_rng(2)
     plain = Tracker(TrackerConfig())

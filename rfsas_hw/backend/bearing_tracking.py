@@ -18,7 +18,10 @@ track on its own, whatever the fix of the moment:
 - the update is the extended Kalman filter on this scalar (``iterations`` > 1:
   the iterated one, Gauss-Newton on the wrapped residual from the prediction),
   the covariance in Joseph form; the prediction is the fix-fed tracker's own
-  (:meth:`~rfsas_hw.backend.tracking.Track.predict`);
+  (:meth:`~rfsas_hw.backend.tracking.Track.predict`); a track with a standing
+  model beside its constant velocity (``tracker.stop_go``,
+  :mod:`rfsas_hw.backend.stop_go`) is gated on the models' combined prediction,
+  then each model takes the bearing and is weighed by its likelihood;
 - a bearing measured, or of a track predicted, more than
   ``max_off_boresight_deg`` from its sensor's boresight (outside the field of
   view its calibration and sigma hold for; a two-antenna unit folds a direction
@@ -344,7 +347,9 @@ class BearingTracker:
         if not fresh:
             return
         accel = self.tracker.config.accel_sigma_mps2
-        free = replace(self.config, gate_sigmas=math.inf)
+        # the models of a stop-and-go track are updated past the gate (it is judged once,
+        # on their combination)
+        free = self.config if track.modes is None else replace(self.config, gate_sigmas=math.inf)
         applied: list[str] = []
         for b in fresh:  # oldest first
             used[b.sensor] = b.t_ns

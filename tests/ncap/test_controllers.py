@@ -133,7 +133,7 @@ def test_los_cued_by_rfsas_brakes_only_on_its_own_sight() -> None:
     pytest.importorskip("libsumo", reason="needs the sumo extra (pip install .[sumo])")
     from rfsas_hw.ncap.runner import RunSpec, run_one
 
-    # the kerb walker at 60 km/h, seed 4: RF-SAS advises BRAKE on a track 1.3 m towards
+    # the kerb walker at 60 km/h, seed 4: RF-SAS advises BRAKE on a track 1.9 m towards
     # the lane from where the walker stands (docs/ncap.md, "A walker who stops")...
     kerb = run_one(RunSpec(Cell("TN-KERB", 60.0, 0.5), "los+cue", "car+rsu", "phone-active", 4))
     assert kerb.first_rf_brake_s is not None

@@ -18,7 +18,10 @@ track on its own, whatever the fix of the moment:
 - the update is the extended Kalman filter on this scalar (``iterations`` > 1:
   the iterated one, Gauss-Newton on the wrapped residual from the prediction),
   the covariance in Joseph form; the prediction is the fix-fed tracker's own
-  (:meth:`~rfsas_hw.backend.tracking.Track.predict`);
+  (:meth:`~rfsas_hw.backend.tracking.Track.predict`); a track with a standing
+  model beside its constant velocity (``tracker.stop_go``,
+  :mod:`rfsas_hw.backend.stop_go`) is gated on the models' combined prediction,
+  then each model takes the bearing and is weighed by its likelihood;
 - a bearing measured, or of a track predicted, more than
   ``max_off_boresight_deg`` from its sensor's boresight (outside the field of
   view its calibration and sigma hold for; a two-antenna unit folds a direction
@@ -50,7 +53,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Literal
 
 import numpy as np
@@ -59,7 +62,8 @@ from scipy.special import log_ndtr
 
 from rfsas_hw.angles import wrap_deg_180
 from rfsas_hw.backend.association import Associator, StationBearing
-from rfsas_hw.backend.tracking import Tracker
+from rfsas_hw.backend.stop_go import Modes, combine, predict_modes, reweigh
+from rfsas_hw.backend.tracking import NS_PER_S, Tracker
 from rfsas_hw.df.fovrule import EDGE_SIGMAS
 from rfsas_hw.errors import BackendError
 
@@ -161,6 +165,17 @@ class BearingUpdate:
     """Wrapped innovation at the prediction over its predicted one-sigma (signed)."""
     applied: bool
     """False when the bearing was outside the gate (or the target sat on the sensor)."""
+    innovation_sd_rad: float = math.nan
+    """The innovation's predicted one-sigma, radians (NaN: the target sat on the sensor)."""
+
+    @property
+    def log_likelihood(self) -> float:
+        """Log of the Gaussian density of the innovation at the prediction, log(1/rad)
+        (−inf when undefined): how well the predicted state explains the bearing."""
+        if not (math.isfinite(self.innovation_sigmas) and self.innovation_sd_rad > 0):
+            return -math.inf
+        r = self.innovation_sigmas
+        return -0.5 * r * r - math.log(self.innovation_sd_rad) - 0.5 * math.log(2 * math.pi)
 
 
 def _azimuth_and_gradient(state: Array, sx: float, sy: float) -> tuple[float, Array, float]:
@@ -272,7 +287,7 @@ def bearing_update(
     nu0 = _wrap(z - h0)
     ratio = nu0 / math.sqrt(S0)
     if abs(ratio) > config.gate_sigmas:
-        return BearingUpdate(x0, P, ratio, False)
+        return BearingUpdate(x0, P, ratio, False, math.sqrt(S0))
     x, H, PH, S, R, K = x0, H0, PH0, S0, R0, PH0 / S0
     for i in range(config.iterations):
         if i:
@@ -289,7 +304,7 @@ def bearing_update(
         x = x0 + K * nu
     A = np.eye(4) - np.outer(K, H)
     P_new = A @ P @ A.T + R * np.outer(K, K)
-    return BearingUpdate(x, 0.5 * (P_new + P_new.T), ratio, True)
+    return BearingUpdate(x, 0.5 * (P_new + P_new.T), ratio, True, math.sqrt(S0))
 
 
 @dataclass(slots=True)
@@ -417,6 +432,9 @@ class BearingTracker:
         if not fresh:
             return
         accel = self.tracker.config.accel_sigma_mps2
+        # the models of a stop-and-go track are updated past the gate (it is judged once,
+        # on their combination)
+        free = self.config if track.modes is None else replace(self.config, gate_sigmas=math.inf)
         applied: list[str] = []
         for b in fresh:  # oldest first
             used[b.sensor] = b.t_ns
@@ -428,7 +446,12 @@ class BearingTracker:
             ):
                 self.stats.invalid += 1  # one bad bearing must not stop the service
                 continue
-            x, P = track.predict(b.t_ns, accel)
+            modes = track.modes
+            if modes is None:
+                x, P = track.predict(b.t_ns, accel)
+            else:  # the models' predictions, kept for their own updates
+                xs, Ps, c = predict_modes(modes, (b.t_ns - track.t_ns) / NS_PER_S, accel)
+                x, P = combine(xs, Ps, c)
             if self._outside_view(b, x):
                 self.stats.off_boresight += 1
                 continue
@@ -449,6 +472,27 @@ class BearingTracker:
             self._missed[emitter] = 0
             self.stats.applied += 1
             track.state, track.cov, track.t_ns = out.state, out.cov, b.t_ns
+            if modes is not None:  # gated on the combination; each model updated alone
+                each = [
+                    bearing_update(
+                        xs[j],
+                        Ps[j],
+                        (b.x_m, b.y_m),
+                        b.azimuth_deg,
+                        b.sigma_deg,
+                        free,
+                        b.heading_deg,
+                    )
+                    for j in range(len(xs))
+                ]
+                probs = reweigh(c, np.array([o.log_likelihood for o in each]))
+                track.modes = Modes(
+                    np.array([o.state for o in each]),
+                    np.array([o.cov for o in each]),
+                    probs,
+                    modes.config,
+                )
+                track.state, track.cov = combine(track.modes.states, track.modes.covs, probs)
             applied.append(b.sensor)
         if applied:
             track.updates += 1

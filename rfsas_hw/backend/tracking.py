@@ -6,7 +6,10 @@ moves at constant velocity with white-noise acceleration of one-sigma
 measurement whose noise is the fix's own covariance. A fix that falls outside
 the gate (Mahalanobis distance above ``gate_chi2``) restarts the track rather
 than dragging it across the map; tracks without a fix for ``drop_after_s`` are
-dropped.
+dropped. With ``stop_go`` set, a track runs the constant-velocity model beside a
+standing one (:mod:`rfsas_hw.backend.stop_go`) and every reader sees their
+combination; the one prediction (:func:`predict_tracks`, :meth:`Track.predict`)
+serves both kinds of track.
 """
 
 from __future__ import annotations
@@ -17,6 +20,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import numpy.typing as npt
 
+from rfsas_hw.backend.stop_go import Modes, StopGoConfig, combine, predict_modes, reweigh
 from rfsas_hw.errors import BackendError
 
 Array = npt.NDArray[np.float64]
@@ -36,6 +40,8 @@ class TrackerConfig:
         gate_chi2: Mahalanobis² above which a fix restarts the track (default:
             the 99.99 % point of χ² with 2 degrees of freedom).
         drop_after_s: seconds without a fix after which a track is dropped.
+        stop_go: a standing model beside the constant-velocity one, and how often
+            a target switches between them (None: constant velocity alone).
 
     Raises:
         BackendError: a non-positive value.
@@ -45,6 +51,7 @@ class TrackerConfig:
     initial_speed_sigma_mps: float = 2.0
     gate_chi2: float = 18.42
     drop_after_s: float = 10.0
+    stop_go: StopGoConfig | None = None
 
     def __post_init__(self) -> None:
         for name in ("accel_sigma_mps2", "initial_speed_sigma_mps", "gate_chi2", "drop_after_s"):
@@ -68,6 +75,9 @@ class Track:
     """Fixes applied since the track (re)started."""
     sensors: tuple[str, ...] = ()
     """Sensors whose bearings made the last fix."""
+    modes: Modes | None = None
+    """The moving and standing models' estimates (``stop_go``; None: constant velocity
+    alone); ``state`` and ``cov`` are then their combination."""
 
     def predict(self, t_ns: int, accel_sigma_mps2: float) -> tuple[Array, Array]:
         """State and covariance extrapolated to ``t_ns`` (not stored): :func:`predict_tracks`
@@ -120,7 +130,8 @@ def _stack(tracks: Sequence[Track], t_ns: Sequence[int]) -> tuple[Array, Array, 
 def _predict_each(
     tracks: Sequence[Track], t_ns: Sequence[int], accel_sigma_mps2: float
 ) -> tuple[Array, Array]:
-    """Each track predicted to its own time: states (B, 4), covariances (B, 4, 4)."""
+    """Each track predicted to its own time: states (B, 4), covariances (B, 4, 4); a
+    track with a standing model gives its models' predicted combination."""
     from rfsas_hw.backend import _tracking_kernel as k
 
     states, covs, dt = _stack(tracks, t_ns)
@@ -130,6 +141,10 @@ def _predict_each(
         dt,
         float(accel_sigma_mps2) ** 2,
     )
+    for b, track in enumerate(tracks):
+        if track.modes is not None:
+            xs, Ps, c = predict_modes(track.modes, float(dt[b]), accel_sigma_mps2)
+            x[b], P[b] = combine(xs, Ps, c)
     return x, P
 
 
@@ -160,7 +175,11 @@ class Tracker:
         cov = np.zeros((4, 4))
         cov[:2, :2] = R
         cov[2, 2] = cov[3, 3] = self.config.initial_speed_sigma_mps**2
-        track = Track(emitter, np.array([z[0], z[1], 0.0, 0.0]), cov, t_ns, 1, sensors)
+        state = np.array([z[0], z[1], 0.0, 0.0])
+        track = Track(emitter, state, cov, t_ns, 1, sensors)
+        if self.config.stop_go is not None:
+            modes = track.modes = Modes.start(state, cov, self.config.stop_go)
+            track.state, track.cov = combine(modes.states, modes.covs, modes.probs)
         self.tracks[emitter] = track
         return track
 
@@ -216,6 +235,8 @@ class Tracker:
                 self._start(e, int(t_ns[i]), z[i], R[i], sensors[i])
             elif t_ns[i] < track.t_ns:
                 self.stats.out_of_order += 1
+            elif track.modes is not None:
+                self._update_modes(track, int(t_ns[i]), z[i], R[i], sensors[i])
             else:
                 rows.append(i)
                 tracks.append(track)
@@ -244,6 +265,39 @@ class Tracker:
             track.updates += 1
             track.sensors = sensors[i]
             self.stats.updated += 1
+
+    def _update_modes(
+        self, track: Track, t_ns: int, z: Array, R: Array, sensors: tuple[str, ...]
+    ) -> None:
+        """One fix applied to a track with a standing model: the gate on the models'
+        predicted combination, then each model's Kalman update (the kernel's, over no
+        time) weighted by the fix's likelihood under it."""
+        from rfsas_hw.backend import _tracking_kernel as kernels
+
+        assert track.modes is not None
+        dt = max(t_ns - track.t_ns, 0) / NS_PER_S
+        q = float(self.config.accel_sigma_mps2) ** 2
+        xs, Ps, c = predict_modes(track.modes, dt, q**0.5)
+        x, P = combine(xs, Ps, c)
+        zero = np.zeros(1)
+        _, _, d2 = kernels.update(x[None], P[None], zero, q, z[None], R[None])
+        if not d2[0] <= self.config.gate_chi2:
+            self.stats.restarted += 1
+            self._start(track.emitter, t_ns, z, R, sensors)
+            return
+        new_x, new_P, d2_j = kernels.update(
+            xs, Ps, np.zeros(2), q, np.array([z, z]), np.array([R, R])
+        )
+        dets = np.array([np.linalg.det(Ps[j, :2, :2] + R) for j in range(2)])
+        log_det = np.log(np.where(dets > 0, dets, 1.0))
+        log_l = np.where(dets > 0, -0.5 * d2_j - 0.5 * log_det, -np.inf)
+        probs = reweigh(c, log_l)
+        track.modes = Modes(new_x, new_P, probs, track.modes.config)
+        track.state, track.cov = combine(new_x, new_P, probs)
+        track.t_ns = t_ns
+        track.updates += 1
+        track.sensors = sensors
+        self.stats.updated += 1
 
     def prune(self, now_ns: int) -> list[int]:
         """Drop tracks without a fix for ``drop_after_s``; return their emitter ids."""

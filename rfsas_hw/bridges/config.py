@@ -58,6 +58,7 @@ from rfsas_hw.backend.bearing_tracking import BearingUpdateConfig
 from rfsas_hw.backend.encounter import EncounterConfig
 from rfsas_hw.backend.risk import AdvisoryThresholds
 from rfsas_hw.backend.service import BackendConfig, load_backend_config
+from rfsas_hw.backend.stop_go import StopGoConfig
 from rfsas_hw.backend.triangulation import TriangulationOptions
 from rfsas_hw.config import from_mapping, read_yaml
 from rfsas_hw.errors import ConfigError
@@ -236,8 +237,12 @@ def _urban_bearings() -> BackendConfig:
     # (the units' edge-rule censoring, fov_deg, is not set: measured on the matrix it
     # removes the 10 km/h nuisance brakes of walkers the VUT overtakes, and the BRAKE in
     # CBTA at 20 km/h that came from a track of folded bearings with them; docs/ncap.md)
+    # A person who stops is believed stopped through a standing model beside the
+    # constant-velocity one (docs/ncap.md, "A walker who stops")
     bearings = BearingUpdateConfig(start_sigma_scale=2.0, max_off_boresight_deg=50.0)
-    return replace(_urban_path(), tracking="bearings", bearings=bearings)
+    base = _urban_path()
+    tracker = replace(base.tracker, stop_go=StopGoConfig())
+    return replace(base, tracking="bearings", bearings=bearings, tracker=tracker)
 
 
 BACKEND_PROFILES: dict[str, BackendConfig] = {

@@ -1,6 +1,7 @@
 """The district's cost as the work grows: real-time factor and CPU share per component.
 
     python bench/bench_city.py [--duration 60] [--vrus 250,500,1000] [--net NET]
+        [--deployment-nice N]
 
 Needs the ``city`` extra and ``mosquitto``. For each VRU count, one ``rfsas city
 run`` with RF-SAS on, on the Berlin-Adlershof net of the ``eclipse-sumo`` wheel
@@ -34,7 +35,7 @@ from rfsas_hw.city.live import LiveConfig
 from rfsas_hw.city.run import CityRunConfig, run_city
 
 
-def _row(vrus: int, duration_s: float, net: Path | None, seed: int) -> dict[str, object]:
+def _row(vrus: int, duration_s: float, net: Path | None, seed: int, nice: int) -> dict[str, object]:
     demand = DemandConfig(
         vehicles=vrus // 2,
         pedestrians=round(vrus * 0.8),
@@ -43,7 +44,9 @@ def _row(vrus: int, duration_s: float, net: Path | None, seed: int) -> dict[str,
         phone_penetration=0.9,
         device_mix={"phone-active": 0.2, "phone-idle": 0.8},
     )
-    cfg = CityRunConfig(net=net, demand=demand, duration_s=duration_s, seed=seed, live=LiveConfig())
+    cfg = CityRunConfig(
+        net=net, demand=demand, duration_s=duration_s, seed=seed, live=LiveConfig(nice=nice)
+    )
     with tempfile.TemporaryDirectory(prefix="bench-city-") as tmp:
         res = run_city(cfg, Path(tmp), "on", png=False)
         seconds = [
@@ -81,8 +84,17 @@ def main() -> None:
     ap.add_argument("--vrus", default="250,500,1000", help="VRU counts, comma separated")
     ap.add_argument("--net", type=Path, default=None, help="SUMO net (default: Adlershof)")
     ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument(
+        "--deployment-nice",
+        type=int,
+        default=0,
+        help="nice levels of the workers, backends and receivers below the simulator",
+    )
     args = ap.parse_args()
-    rows = [_row(int(v), args.duration, args.net, args.seed) for v in args.vrus.split(",")]
+    rows = [
+        _row(int(v), args.duration, args.net, args.seed, args.deployment_nice)
+        for v in args.vrus.split(",")
+    ]
     keys = sorted({k for r in rows for k in r["cpu_share"]})  # type: ignore[attr-defined]
     head = ["VRUs", "cars", "phones", "RTF", "bear/s", "verified", "adv/s", "lost", "p50", "p99"]
     head += keys

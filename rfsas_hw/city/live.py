@@ -29,11 +29,12 @@ ages against it.
 from __future__ import annotations
 
 import contextlib
+import functools
 import logging
 import multiprocessing as mp
 import os
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from multiprocessing.connection import Connection
 from pathlib import Path
@@ -56,6 +57,7 @@ from rfsas_hw.city.deploy import (
     LocalBroker,
     make_deployment,
 )
+from rfsas_hw.city.owners import VehicleOwners
 from rfsas_hw.city.partition import Site, district_tiles, plan_tiles, split_units
 from rfsas_hw.city.sumoio import Movers
 from rfsas_hw.city.tileworker import (
@@ -102,6 +104,7 @@ __all__ = [
     "StatesFlow",
     "StepOut",
     "backend_names",
+    "deployment_process",
     "prestart",
 ]
 
@@ -136,6 +139,12 @@ class LiveConfig:
     time_scale: float = 1.0
     """Simulated seconds per wall second the deployment's clock runs at (1: real time;
     below 1 for a machine that cannot keep up, see :mod:`rfsas_hw.city.clock`)."""
+    nice: int = 0
+    """How much lower the deployment's processes (twin workers, backends, the vehicles'
+    receivers) run than the simulator: each adds this to its nice value when it starts
+    (0: the same priority; see :func:`deployment_process`). The simulator stands for the
+    physical world, which never waits; those processes have the slack of
+    :attr:`lead_s`."""
     dashboard: bool = False
     """The backends also report their fixes and tracks every step, for a live
     dashboard (:attr:`StepOut.dashboard`)."""
@@ -149,6 +158,8 @@ class LiveConfig:
             raise ValueError("epoch_s, hear_m and near_m must be positive")
         if not 0.0 <= self.lead_s <= 1.0:
             raise ValueError("lead_s must be in [0, 1] seconds")
+        if not 0 <= self.nice <= 19:
+            raise ValueError("nice must be in [0, 19]")
 
 
 def _context() -> Any:
@@ -171,6 +182,18 @@ def prestart() -> None:
 
     _context()
     forkserver.ensure_running()
+
+
+def deployment_process(
+    target: Callable[[Any, Connection], None], nice: int, work: Any, conn: Connection
+) -> None:
+    """The body of one of the deployment's processes (a twin worker, a backend, the
+    vehicles' receivers): ``nice`` added to the process's nice value (it runs that much
+    behind the simulator when the cores are short, :attr:`LiveConfig.nice`), then
+    ``target(work, conn)``."""
+    if nice:
+        os.nice(nice)
+    target(work, conn)
 
 
 def backend_names(count: int) -> list[str]:
@@ -361,10 +384,10 @@ class DistributedRfsas:
         """Steps sent to each worker and not answered yet."""
         self._frame_ns: dict[tuple[str, int], int] = {}
         self._arrived: dict[tuple[str, int], int] = {}
-        self._owners: dict[str, dict[str, float]] = {}
-        """Per vehicle, the backends whose tiles it was in lately, with when (sim s)."""
-        self._tiles_of: dict[str, dict[str, float]] = {}
-        """Per vehicle, the tiles it was in lately, with when (sim s)."""
+        self._owners = VehicleOwners(OWNER_MEMORY_S)
+        """Per vehicle, the backends and tiles it was in lately."""
+        self._codes: dict[str | None, int] = {}
+        """Each backend's position in :attr:`_backends` (a tile nobody owns: -1)."""
         self.broker: LocalBroker | None = None
         self._gateway: Connection | None = None
         """The pipe to the vehicles' gateway process."""
@@ -435,13 +458,15 @@ class DistributedRfsas:
                 dashboard=self.config.dashboard,
             )
             self._backends[b] = self._spawn(ctx, backend_main, work, b)
+        self._codes = {None: -1, **{b: k for k, b in enumerate(self._backends)}}
 
     def _spawn(self, ctx: Any, target: Any, work: Any, name: str) -> Any:
         """Start ``target(work, pipe)`` as the daemon process ``name``, logging here
         (:func:`~rfsas_hw.city.childlog.child_main`); our end of the pipe."""
         assert self._logs is not None
         parent, child = ctx.Pipe()
-        args = (target, work, child, self._logs.child())
+        body = functools.partial(deployment_process, target, self.config.nice)
+        args = (body, work, child, self._logs.child())
         proc = ctx.Process(target=child_main, args=args, name=name, daemon=True)
         proc.start()
         child.close()
@@ -531,7 +556,7 @@ class DistributedRfsas:
             raise SimulationError("DistributedRfsas.start() must be called before the first step")
         now_ns = self.t0_ns + round(t_s * NS_PER_S)
         self.distributor.tick(now_ns)
-        has = np.flatnonzero([v in phones for v in vrus.ids])
+        has = np.flatnonzero(np.fromiter(map(phones.__contains__, vrus.ids), bool, len(vrus)))
         hear = self.config.hear_m
         for conn, xs, ys in self._workers.values():
             # the VRUs with a phone in the box around the worker's units grown by the
@@ -544,26 +569,29 @@ class DistributedRfsas:
             ]
             d2 = (vrus.x_m[box, None] - xs[None, :]) ** 2 + (vrus.y_m[box, None] - ys[None, :]) ** 2
             idx = box[d2.min(axis=1, initial=np.inf) < hear**2]
-            ids = tuple(vrus.ids[i] for i in idx.tolist())
+            ids = tuple(map(vrus.ids.__getitem__, idx.tolist()))
             conn.send(
                 Snapshot(
                     t_s,
                     self.t0_ns,
                     ids,
-                    tuple(phones[v] for v in ids),
+                    tuple(map(phones.__getitem__, ids)),
                     vrus.x_m[idx],
                     vrus.y_m[idx],
                     vrus.heading_deg[idx],
                 )
             )
         tiles = self._tiles(cars)
-        for b, conn in self._backends.items():
-            sel = [i for i, t in enumerate(tiles) if self.owner.get(t) == b]
+        owners = list(map(self.owner.get, tiles))
+        self._owners.update(t_s, cars.ids, owners, tiles)
+        codes = np.fromiter(map(self._codes.get, owners), np.intp, len(owners))
+        for k, (b, conn) in enumerate(self._backends.items()):
             if self._states.may_send(b, now_ns):
+                sel = np.flatnonzero(codes == k)
                 conn.send(
                     VehicleStates(
                         now_ns,
-                        tuple(cars.ids[i] for i in sel),
+                        tuple(map(cars.ids.__getitem__, sel.tolist())),
                         cars.x_m[sel],
                         cars.y_m[sel],
                         cars.heading_deg[sel],
@@ -572,14 +600,6 @@ class DistributedRfsas:
                         cars.width_m[sel],
                     )
                 )
-            for i in sel:
-                vid = cars.ids[i]
-                for memory, name in ((self._owners, b), (self._tiles_of, tiles[i])):
-                    held = memory.setdefault(vid, {})
-                    held[name] = t_s
-                    if len(held) > 1:  # a vehicle that crossed into another tile
-                        for old in [k for k, t in held.items() if t < t_s - OWNER_MEMORY_S]:
-                            del held[old]
         out = StepOut()
         self._from_backends(out)
         present = frozenset(cars.ids)
@@ -590,9 +610,9 @@ class DistributedRfsas:
         for arrival in self._arrivals():
             key = (arrival.message.sender_id, arrival.message.seq)
             self._arrived[key] = arrival.t_ns
-            owned = arrival.message.sender_id in self._owners.get(arrival.vehicle_id, {})
+            owned = self._owners.owns(arrival.message.sender_id, arrival.vehicle_id)
             out.foreign += not owned
-            lately = tuple(self._tiles_of.get(arrival.vehicle_id, {}))
+            lately = self._owners.tiles(arrival.vehicle_id)
             out.arrivals.append(replace(arrival, owned=owned, tiles=lately))
         self._match(out, now_ns)
         out.messages = self._wait_workers(t_s)
@@ -750,9 +770,9 @@ class DistributedRfsas:
         if self._gateway is not None:
             time.sleep(DRAIN_S)
             for arrival in self._stop_gateway(self._gateway, deadline):
-                owned = arrival.message.sender_id in self._owners.get(arrival.vehicle_id, {})
+                owned = self._owners.owns(arrival.message.sender_id, arrival.vehicle_id)
                 self.stats.foreign += not owned
-                lately = tuple(self._tiles_of.get(arrival.vehicle_id, {}))
+                lately = self._owners.tiles(arrival.vehicle_id)
                 self.late.append(replace(arrival, owned=owned, tiles=lately))
         for proc in self._procs:
             proc.join(max(deadline - time.monotonic(), 1.0))

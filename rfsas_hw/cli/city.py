@@ -205,6 +205,14 @@ def keys(
     "for a machine that cannot keep up; real time only at 1).",
 )
 @click.option(
+    "--deployment-nice",
+    type=click.IntRange(0, 19),
+    default=0,
+    show_default=True,
+    help="The twin workers, backends and vehicles' receivers run this many nice levels "
+    "below the simulator, which stands for the physical world and never waits.",
+)
+@click.option(
     "--work",
     "work_dir",
     type=OutputPath("dir"),
@@ -262,6 +270,7 @@ def run(
     epoch_s: float,
     active_share: float,
     time_scale: float,
+    deployment_nice: int,
     work_dir: Path | None,
     broker: str | None,
     broker_certs: Path | None,
@@ -302,7 +311,12 @@ def run(
         duration_s=duration_s,
         seed=seed,
         live=replace(
-            LiveConfig(), backends=backends, workers=workers, epoch_s=epoch_s, time_scale=time_scale
+            LiveConfig(),
+            backends=backends,
+            workers=workers,
+            epoch_s=epoch_s,
+            time_scale=time_scale,
+            nice=deployment_nice,
         ),
     )
     console = Console(stderr=True)

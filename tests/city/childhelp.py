@@ -15,3 +15,11 @@ def warn_and_answer(phone: str, conn: Connection) -> None:
     log.info("a record below the main process's level")
     conn.send("done")
     conn.close()
+
+
+def answer_nice(_work: object, conn: Connection) -> None:
+    """Answer this process's nice value."""
+    import os
+
+    conn.send(os.nice(0))
+    conn.close()

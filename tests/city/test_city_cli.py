@@ -37,3 +37,5 @@ def test_bad_options_are_refused(grid_net: Path, tmp_path: Path) -> None:
     assert res.exit_code == 2 and "--duration" in res.output
     res = runner.invoke(city, ["run", "--out", str(tmp_path), "--net", "missing.net.xml"])
     assert res.exit_code == 2 and "--net" in res.output
+    res = runner.invoke(city, ["run", "--out", str(tmp_path), "--deployment-nice", "20"])
+    assert res.exit_code == 2 and "--deployment-nice" in res.output

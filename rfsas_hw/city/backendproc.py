@@ -19,10 +19,11 @@ backend judges every vehicle in its tiles, not one. Every 0.1 s
    per vehicle).
 
 Between two ticks, bearings verified since the last step make the service step
-again once :attr:`BackendWork.quick_s` has passed since that step (a new fix
-does not wait for the tick), and the vehicles near an emitter it fixed are
-judged at once. The vehicles' states arrive ahead of their time (the simulation
-runs ahead of the clock); each is used from its own time on, never before.
+again just after the end of the sensors' slot they came in (:attr:`BackendWork.slot_s`,
+at most once per slot; a new fix does not wait for the tick), and the vehicles
+near an emitter it fixed are judged at once. The vehicles' states arrive ahead
+of their time (the simulation runs ahead of the clock); each is used from its
+own time on, never before.
 Every batch of states taken from the pipe is acknowledged (``("states",
 t_ns)``), so that the main process can tell a backend that does not read them
 and hold them back instead of blocking on a full pipe.
@@ -54,6 +55,7 @@ from rfsas_hw.backend.tracking import Tracker, predict_tracks
 from rfsas_hw.backend.triangulation import triangulate_batch
 from rfsas_hw.backend.vehicle import VehicleState
 from rfsas_hw.city.clock import SimClock, cpu_s
+from rfsas_hw.city.slots import SLOT_S
 from rfsas_hw.fleet.advisory import AdvisorySink
 from rfsas_hw.fleet.advisory_limits import AdvisoryLimits
 from rfsas_hw.geo import SiteOrigin
@@ -94,12 +96,13 @@ class BackendWork:
     """Nonce epoch length, seconds."""
     near_m: float = 60.0
     """Emitters farther than this from a vehicle are not judged against it, metres."""
-    quick_s: float = 0.02
-    """Shortest time between two steps of the service when bearings arrive, seconds."""
+    slot_s: float = SLOT_S
+    """The sensors' slot: between ticks, the service steps when bearings arrived, at
+    most once per slot, on the slot grid (:class:`Cadence`), seconds."""
     tick_phase_s: float = 0.005
-    """The ticks fall this long after whole multiples of the step (0.1 s) on the clock:
-    just after the end of a sensor's 20 ms slot, when its bearings have arrived
-    (:class:`Cadence`), seconds."""
+    """The ticks and the quick steps fall this long after their grid on the clock (whole
+    multiples of the step, 0.1 s, and of the slot): just after a slot's end, when its
+    bearings have arrived (:class:`Cadence`), seconds."""
     repeat_s: float = 0.5
     """Unchanged advice about an emitter goes to a vehicle again after this long, seconds."""
     clock: SimClock = field(default_factory=lambda: SimClock(0))
@@ -211,31 +214,39 @@ class StatesByTime:
 
 class Cadence:
     """When a district backend steps: every ``step_ns`` (a tick: every vehicle near a
-    live emitter is judged), and between ticks once bearings were verified since the
-    last step and ``quick_ns`` has passed since it (a quick step: the vehicles near a
-    new fix are judged at once). Times are UTC ns of the deployment's clock.
+    live emitter is judged), and between ticks on the sensors' slot grid once bearings
+    were verified since the last step (a quick step: the vehicles near a new fix are
+    judged at once). Times are UTC ns of the deployment's clock.
 
-    The ticks fall ``phase_ns`` after whole multiples of ``step_ns`` on the clock, not
-    at a phase of the backend's start: a quick step follows the last step by
-    ``quick_ns`` at the earliest, so the quick steps take the ticks' phase, and
-    bearings sent on a grid of the clock (the sensors' slots) wait for it.
+    Both fall ``phase_ns`` after the grid they follow, just after a slot's bearings
+    have arrived: the ticks after whole multiples of ``step_ns``, the quick steps
+    after whole multiples of ``slot_ns`` (the sensors publish each slot when it is
+    over, :data:`~rfsas_hw.city.slots.SLOT_S`), at most one step per slot, and the
+    first point of that grid after the last step at the earliest. A phase of the
+    backend's own start would make every slot's bearings wait for it.
 
     Args:
         step_ns: time between ticks, ns.
-        quick_ns: shortest time between two steps when bearings arrive, ns.
+        slot_ns: the sensors' slot, ns: bearings arrive on its grid.
         now_ns: now; the first tick is the first of the grid after it.
-        phase_ns: the ticks' offset from the multiples of ``step_ns``, ns.
+        phase_ns: the offset of both grids from the multiples of ``step_ns`` and
+            ``slot_ns``, ns.
     """
 
-    def __init__(self, step_ns: int, quick_ns: int, now_ns: int, phase_ns: int = 0) -> None:
+    def __init__(self, step_ns: int, slot_ns: int, now_ns: int, phase_ns: int = 0) -> None:
         self.step_ns = step_ns
-        self.quick_ns = quick_ns
-        self.next_ns = (now_ns - phase_ns) // step_ns * step_ns + step_ns + phase_ns
+        self.slot_ns = slot_ns
+        self.phase_ns = phase_ns
+        self.next_ns = self._after(now_ns, step_ns)
         """The next tick."""
-        self.last_ns = 0
-        """The last step (tick or quick)."""
+        self.quick_at_ns = self._after(now_ns, slot_ns)
+        """The earliest quick step: the first point of the slot grid after the last step."""
         self.unstepped = False
         """Bearings were verified since the last step."""
+
+    def _after(self, now_ns: int, grid_ns: int) -> int:
+        """The first point of the grid of ``grid_ns`` (at its phase) after ``now_ns``."""
+        return (now_ns - self.phase_ns) // grid_ns * grid_ns + grid_ns + self.phase_ns
 
     def bearings(self) -> None:
         """Bearings were verified."""
@@ -245,7 +256,7 @@ class Cadence:
         """How long to wait for bearings before the next step may be due, ns (≥ 0)."""
         due = self.next_ns
         if self.unstepped:
-            due = min(due, self.last_ns + self.quick_ns)
+            due = min(due, self.quick_at_ns)
         return max(due - now_ns, 0)
 
     def due(self, now_ns: int) -> Literal["tick", "quick"] | None:
@@ -254,11 +265,11 @@ class Cadence:
             # a tick missed (a long step) is not made up for
             self.next_ns += self.step_ns * max(1, math.ceil((now_ns - self.next_ns) / self.step_ns))
             what: Literal["tick", "quick"] = "tick"
-        elif self.unstepped and now_ns - self.last_ns >= self.quick_ns:
+        elif self.unstepped and now_ns >= self.quick_at_ns:
             what = "quick"
         else:
             return None
-        self.last_ns = now_ns
+        self.quick_at_ns = self._after(now_ns, self.slot_ns)
         self.unstepped = False
         return what
 
@@ -396,8 +407,8 @@ class CityBackend:
         """Receive and judge, reporting to ``conn``, until ``None`` arrives on it.
 
         Every ``step_s`` (0.1 s) every vehicle near a live emitter is judged; between
-        those steps, once bearings were verified since the last step and
-        :attr:`BackendWork.quick_s` has passed since it, the service steps again and
+        those steps, once bearings were verified since the last step, the service
+        steps again just after the end of the sensors' slot (:class:`Cadence`) and
         the vehicles near an emitter it fixed are judged against it at once (a new fix
         does not wait for the tick, nor for more bearings).
         """
@@ -406,13 +417,13 @@ class CityBackend:
         clock = self.clock
         cadence = Cadence(
             int(service.config.step_s * NS_PER_S),
-            int(self.work.quick_s * NS_PER_S),
+            round(self.work.slot_s * NS_PER_S),
             clock(),
             round(self.work.tick_phase_s * NS_PER_S),
         )
         while True:
             wait_s = clock.wall_s(cadence.wait_ns(clock()) / NS_PER_S)
-            got = receiver.receive(timeout=min(wait_s, clock.wall_s(self.work.quick_s)))
+            got = receiver.receive(timeout=min(wait_s, clock.wall_s(self.work.slot_s)))
             for message in got:
                 service.on_verified(message)
             if got:

@@ -3,7 +3,7 @@
 The simulation runs ahead of the deployment's clock, so a twin worker knows a
 step's frames before they are "heard". A sensor sends what it hears as it hears
 it; the worker stands for that by publishing each group of bearings (a unit's
-frames of one 20 ms slot) when its slot is over on the deployment's clock.
+frames of one :data:`SLOT_S` slot) when its slot is over on the deployment's clock.
 :class:`SlotSender` does that in a thread of its own, so the worker computes
 the next step while the slots of this one go out on time (in the worker's
 thread, a slot due during a step's computation would wait for it).
@@ -27,10 +27,16 @@ from typing import Protocol
 from rfsas_hw.records import BearingBatch
 
 NS_PER_S = 1_000_000_000
+SLOT_S = 0.02
+"""The sensors' slot, seconds: a twin worker publishes a unit's frames of each slot as
+one message when the slot is over, and a district backend steps between its ticks
+on the same grid (:class:`~rfsas_hw.city.backendproc.Cadence`). One message per
+unit and slot with bearings: a longer slot means fewer, larger messages, and a
+frame waits up to one slot longer."""
 CLOSE_TIMEOUT_S = 10.0
 """How long :meth:`SlotSender.close` waits for the due groups to go, wall seconds."""
 
-__all__ = ["SlotSender", "SlotStats"]
+__all__ = ["SLOT_S", "SlotSender", "SlotStats"]
 
 log = logging.getLogger(__name__)
 

@@ -21,7 +21,7 @@ the main process sends it, over a pipe, the VRUs with a phone near its units
    guard for all of them, each unit's emitters under its own key);
 3. signs each unit's bearings with that unit's key and publishes them on its
    bearing topic (:class:`~rfsas_hw.link.publisher.Publisher`, version 2 with
-   the pre-authentication tag), each in the :data:`SLOT_S` slot of its frame's
+   the pre-authentication tag), each in the :data:`~rfsas_hw.city.slots.SLOT_S` slot of its frame's
    time, when that slot is over on the deployment's clock, stamped with that
    time (:class:`~rfsas_hw.city.slots.SlotSender`, a thread of its own): the
    main process runs the simulation ahead of the clock, so a step's frames are
@@ -58,7 +58,7 @@ import numpy as np
 from rfsas_hw.bridges.bridge import device_mac
 from rfsas_hw.bridges.config import BridgeConfig, UnitSpec
 from rfsas_hw.city.clock import SimClock, cpu_s
-from rfsas_hw.city.slots import SlotSender
+from rfsas_hw.city.slots import SLOT_S, SlotSender
 from rfsas_hw.df.calibration import Calibration
 from rfsas_hw.df.fovchannels import ChannelConsistency
 from rfsas_hw.df.fovguard import MAX_EMITTERS, FovGuard
@@ -82,8 +82,6 @@ from rfsas_hw.twin.scenario import (
 from rfsas_hw.twin.stream import StreamTwin, extend_tracks
 
 NS_PER_S = 1_000_000_000
-SLOT_S = 0.02
-"""A worker sends the bearings of a step in slots this long, each when it is over, seconds."""
 NONCE_WAIT_S = 10.0
 """How long a worker waits for the authority's first envelope, seconds."""
 

@@ -167,27 +167,36 @@ def encode_advisory_body(msg: AdvisoryMessage, version: int = VERSION) -> bytes:
         raise LinkError(f"an advisory carries 1-{MAX_ITEMS} assessments, got {n}")
     if not (0 <= msg.seq < 1 << 32 and 0 <= msg.epoch < 1 << 63 and msg.t_gen_us >= 0):
         raise LinkError("advisory sequence number, epoch or time out of range")
-    rows = np.zeros(n, _ITEM)
-    for i, it in enumerate(msg.items):
+    for it in msg.items:
         if it.t_ns < 0:
             raise LinkError(f"assessment time {it.t_ns} before 1970")
-        rows[i]["t_us"] = it.t_ns // 1000
-        rows[i]["emitter"] = int(it.emitter, 16)
-        rows[i]["f"] = (
-            it.x_m,
-            it.y_m,
-            it.cov_xx_m2,
-            it.cov_xy_m2,
-            it.cov_yy_m2,
-            it.vx_mps,
-            it.vy_mps,
-            it.p_collision,
-            it.risk,
-            it.t_closest_s,
-            it.impact_speed_mps,
-        )
-        rows[i]["advisory"] = ADVICE.index(it.advisory)
-        rows[i]["flags"] = int(it.fix_ok) | (int(it.link_alarm) << 1)
+    # every row in one call: per-field assignments into a structured array cost
+    # microseconds each
+    rows = np.array(
+        [
+            (
+                it.t_ns // 1000,
+                int(it.emitter, 16),
+                (
+                    it.x_m,
+                    it.y_m,
+                    it.cov_xx_m2,
+                    it.cov_xy_m2,
+                    it.cov_yy_m2,
+                    it.vx_mps,
+                    it.vy_mps,
+                    it.p_collision,
+                    it.risk,
+                    it.t_closest_s,
+                    it.impact_speed_mps,
+                ),
+                ADVICE.index(it.advisory),
+                int(it.fix_ok) | (int(it.link_alarm) << 1),
+            )
+            for it in msg.items
+        ],
+        _ITEM,
+    )
     head = pack_prefix(version, TYPE_ADVISORY, sender)
     fixed = _HEAD.pack(msg.t_gen_us, msg.seq, msg.epoch) + bytes([len(vehicle)]) + vehicle
     return head + fixed + bytes([n]) + rows.tobytes()
@@ -264,16 +273,24 @@ def decode_advisory(datagram: bytes, head: PeekedAdvisory | None = None) -> Advi
     """
     head = head or peek_advisory(datagram)
     at = 6 + len(head.sender_id) + _HEAD.size + 1 + len(head.vehicle_id) + 1
-    rows = np.frombuffer(datagram, _ITEM, count=head.n, offset=at)
     items = []
-    for r in rows:
-        if r["t_us"] < 0 or r["advisory"] >= len(ADVICE):
+    # the columns as Python values, one call each (fields of numpy scalars cost more
+    # than the rows)
+    rows = np.frombuffer(datagram, _ITEM, count=head.n, offset=at)
+    for t_us, emitter, f, code, flags in zip(
+        rows["t_us"].tolist(),
+        rows["emitter"].tolist(),
+        rows["f"].tolist(),
+        rows["advisory"].tolist(),
+        rows["flags"].tolist(),
+        strict=True,
+    ):
+        if t_us < 0 or code >= len(ADVICE):
             raise MessageFormatError("malformed", "assessment time or advisory code")
-        f = [float(v) for v in r["f"]]
         items.append(
             AdvisoryItem(
-                t_ns=int(r["t_us"]) * 1000,
-                emitter=emitter_hex(int(r["emitter"])),
+                t_ns=t_us * 1000,
+                emitter=emitter_hex(emitter),
                 x_m=f[0],
                 y_m=f[1],
                 cov_xx_m2=f[2],
@@ -285,9 +302,9 @@ def decode_advisory(datagram: bytes, head: PeekedAdvisory | None = None) -> Advi
                 risk=f[8],
                 t_closest_s=f[9],
                 impact_speed_mps=f[10],
-                advisory=ADVICE[int(r["advisory"])],
-                fix_ok=bool(r["flags"] & 1),
-                link_alarm=bool(r["flags"] & 2),
+                advisory=ADVICE[code],
+                fix_ok=bool(flags & 1),
+                link_alarm=bool(flags & 2),
             )
         )
     return AdvisoryMessage(

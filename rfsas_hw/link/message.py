@@ -47,7 +47,7 @@ import re
 import struct
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any, NamedTuple
+from typing import NamedTuple
 
 import numpy as np
 
@@ -189,6 +189,49 @@ def check_sender_id(sender_id: str) -> bytes:
     return raw
 
 
+Row = tuple[int, int, float, float, float, int]
+"""One bearing as the wire holds it: capture time (UTC µs), emitter id, azimuth,
+sigma, SNR (float32 values) and channel number."""
+
+
+def wire_rows(bearings: BearingBatch) -> list[Row]:
+    """The rows of ``bearings`` as the wire holds them, not checked (:func:`row_ok`):
+    capture times in whole µs, the float columns rounded to float32 (an azimuth
+    below 360 that rounds up to 360.0 becomes 0, the same direction on the compass).
+
+    struct, not numpy, packs and checks the rows of one message (a few dozen at
+    most): for those a dozen numpy calls cost more than the rows.
+    """
+    az = bearings.azimuth_deg
+    return [
+        (t_ns // 1000, emitter, a32 if a32 < 360.0 or not a < 360.0 else 0.0, sigma, snr, ch)
+        for t_ns, emitter, a, a32, sigma, snr, ch in zip(
+            bearings.t_ns.tolist(),
+            bearings.emitter.tolist(),
+            az.tolist(),
+            az.astype(np.float32).tolist(),
+            bearings.sigma_deg.astype(np.float32).tolist(),
+            bearings.snr_db.astype(np.float32).tolist(),
+            bearings.channel.tolist(),
+            strict=True,
+        )
+    ]
+
+
+def row_ok(row: Row) -> bool:
+    """True when every value of a wire row is in its range: azimuth in [0, 360),
+    sigma finite and positive, SNR finite, capture time in 1970–2262, channel
+    0–32767 (comparisons with NaN are false, so NaN fails each)."""
+    t_us, _, az, sigma, snr, channel = row
+    return (
+        0.0 <= az < 360.0
+        and 0.0 < sigma < math.inf
+        and -math.inf < snr < math.inf
+        and 0 <= t_us <= _MAX_T_US
+        and 0 <= channel <= 0x7FFF
+    )
+
+
 def encode_body(msg: SafetyMessage, version: int = VERSION) -> bytes:
     """Every byte of ``msg`` that the signature covers (the datagram minus the signature
     and, in version 2, the tag).
@@ -197,44 +240,45 @@ def encode_body(msg: SafetyMessage, version: int = VERSION) -> bytes:
         LinkError: a field is out of range (sender id, bearing count, non-finite
             or out-of-range values, sequence or epoch overflow).
     """
-    if version not in VERSIONS:
-        raise LinkError(f"message version {version} is not one of {VERSIONS}")
-    sender = check_sender_id(msg.sender_id)
-    b = msg.bearings
-    n = len(b)
-    if not 1 <= n <= MAX_BEARINGS:
-        raise LinkError(f"a message carries 1-{MAX_BEARINGS} bearings, got {n}")
-    if not 0 <= msg.seq < 1 << 32:
-        raise LinkError(f"sequence number {msg.seq} does not fit 32 bits")
-    if not 0 <= msg.epoch < 1 << 64:
-        raise LinkError(f"epoch {msg.epoch} does not fit 64 bits")
-    pose = (msg.pose.x_m, msg.pose.y_m, msg.pose.heading_deg)
-    if not all(math.isfinite(v) for v in pose):
-        raise LinkError(f"sender pose must be finite, got {msg.pose}")
-    channel = b.channel.tolist()
-    if min(channel) < 0:
-        raise LinkError("channel numbers must not be negative")
-    # the float columns as the wire holds them (float32), checked as such; struct, not
-    # numpy, packs the rows: a message holds at most a few dozen (as in the decoder)
-    az32 = b.azimuth_deg.astype(np.float32)
-    # float32 rounds 359.99999 up to 360.0, which is 0 on the compass
-    az32[az32 >= np.float32(360.0)] = 0.0
-    rows = list(
-        zip(
-            (b.t_ns // 1000).tolist(),
-            b.emitter.tolist(),
-            az32.tolist(),
-            b.sigma_deg.astype(np.float32).tolist(),
-            b.snr_db.astype(np.float32).tolist(),
-            channel,
-            strict=True,
-        )
-    )
+    rows = wire_rows(msg.bearings)
     problem = _bad_rows(rows)
     if problem is not None:
         raise LinkError(f"bad bearing: {problem}")
+    return encode_rows(msg.sender_id, msg.pose, msg.t_gen_us, msg.seq, msg.epoch, rows, version)
+
+
+def encode_rows(
+    sender_id: str,
+    pose: Pose,
+    t_gen_us: int,
+    seq: int,
+    epoch: int,
+    rows: Sequence[Row],
+    version: int = VERSION,
+) -> bytes:
+    """:func:`encode_body` of a message whose bearings are already wire rows that passed
+    :func:`row_ok` (a publisher that drops bad rows made them so; they are not checked
+    again). The fields are :class:`SafetyMessage`'s.
+
+    Raises:
+        LinkError: a header field is out of range (version, sender id, bearing count,
+            sequence number, epoch, a pose that is not finite).
+    """
+    if version not in VERSIONS:
+        raise LinkError(f"message version {version} is not one of {VERSIONS}")
+    sender = check_sender_id(sender_id)
+    n = len(rows)
+    if not 1 <= n <= MAX_BEARINGS:
+        raise LinkError(f"a message carries 1-{MAX_BEARINGS} bearings, got {n}")
+    if not 0 <= seq < 1 << 32:
+        raise LinkError(f"sequence number {seq} does not fit 32 bits")
+    if not 0 <= epoch < 1 << 64:
+        raise LinkError(f"epoch {epoch} does not fit 64 bits")
+    xyh = (pose.x_m, pose.y_m, pose.heading_deg)
+    if not all(math.isfinite(v) for v in xyh):
+        raise LinkError(f"sender pose must be finite, got {pose}")
     head = pack_prefix(version, TYPE_SAFETY, sender)
-    fixed = _FIXED.pack(msg.t_gen_us, msg.seq, msg.epoch, *pose, n)
+    fixed = _FIXED.pack(t_gen_us, seq, epoch, *xyh, n)
     return b"".join([head, fixed, *(_BEARING.pack(*row) for row in rows)])
 
 
@@ -277,18 +321,11 @@ def peek_prefix(datagram: bytes, max_datagram: int = MAX_DATAGRAM) -> tuple[int,
     return version, kind, sender.decode("ascii")
 
 
-def _bad_rows(rows: Sequence[Sequence[Any]]) -> str | None:
-    """What is wrong with decoded bearing rows (t_us, emitter, az, sigma, snr, channel),
-    or None. One pass when all is well; comparisons with NaN are false, so NaN fails
-    every range check."""
-    for t_us, _, az, sigma, snr, channel in rows:
-        if not (
-            0.0 <= az < 360.0
-            and 0.0 < sigma < math.inf
-            and -math.inf < snr < math.inf
-            and 0 <= t_us <= _MAX_T_US
-            and channel <= 0x7FFF
-        ):
+def _bad_rows(rows: Sequence[Row]) -> str | None:
+    """What is wrong with bearing rows (t_us, emitter, az, sigma, snr, channel), or
+    None. One pass when all is well."""
+    for row in rows:
+        if not row_ok(row):
             break
     else:
         return None
@@ -302,6 +339,8 @@ def _bad_rows(rows: Sequence[Sequence[Any]]) -> str | None:
         return "capture time before 1970"
     if not all(r[0] <= _MAX_T_US for r in rows):
         return "capture time out of range"
+    if not all(r[5] >= 0 for r in rows):
+        return "channel numbers must not be negative"
     return "channel number above 32767"
 
 

@@ -20,8 +20,6 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import numpy as np
-
 from rfsas_hw.angles import wrap_deg_360
 from rfsas_hw.errors import KeyStoreError, LinkError
 from rfsas_hw.link.keys import KeyStore
@@ -30,10 +28,13 @@ from rfsas_hw.link.message import (
     MAX_DATAGRAM,
     VERSION,
     VERSION_PREAUTH,
-    SafetyMessage,
+    Row,
+    encode_rows,
     max_bearings,
+    row_ok,
+    wire_rows,
 )
-from rfsas_hw.link.preauth import NonceSource, PreauthKeys, seal
+from rfsas_hw.link.preauth import NonceSource, PreauthKeys, sign_datagram
 from rfsas_hw.link.signing import Signer
 from rfsas_hw.link.transport import Transport, open_transports
 from rfsas_hw.privacy.epochs import DEFAULT_EPOCH_S, NS_PER_S
@@ -181,62 +182,63 @@ class Publisher:
         return self._pose() if callable(self._pose) else self._pose
 
     def on_bearings(self, batch: BearingBatch) -> None:
-        """Send ``batch`` as one or more signed messages; bad rows are dropped and counted."""
-        if len(batch) == 0:
-            return
-        if np.isnan(batch.snr_db).any():
-            # an unmeasured SNR does not make the bearing less valid
-            batch = batch.select(slice(None))
-            batch.snr_db = np.where(np.isnan(batch.snr_db), SNR_UNKNOWN_DB, batch.snr_db)
-        ok = (
-            np.isfinite(batch.azimuth_deg)
-            & np.isfinite(batch.sigma_deg)
-            & (batch.sigma_deg > 0)
-            & np.isfinite(batch.snr_db)
-            & (batch.channel >= 0)
-            & (batch.t_ns >= 0)
-        )
-        self.stats.offered += len(batch)
-        if not ok.all():
-            self.stats.dropped["invalid"] += int(np.count_nonzero(~ok))
-            batch = batch.select(ok)
-            if len(batch) == 0:
-                return
-        epochs = batch.t_ns // self.epoch_ns
-        first, last = int(epochs.min()), int(epochs.max())
-        distinct = [first] if first == last else np.unique(epochs).tolist()
-        for epoch in distinct:
-            rows = batch if first == last else batch.select(epochs == epoch)
-            if len(rows) <= self.chunk:  # the usual case: one message, no copy
-                self._send(int(epoch), rows)
-                continue
-            for start in range(0, len(rows), self.chunk):
-                self._send(int(epoch), rows.select(slice(start, start + self.chunk)))
+        """Send ``batch`` as one or more signed messages; bad rows are dropped and counted.
 
-    def _send(self, epoch: int, rows: BearingBatch) -> None:
+        A bearing whose unit measured no SNR (NaN) goes with :data:`SNR_UNKNOWN_DB`; one
+        with a value the wire cannot carry (:func:`~rfsas_hw.link.message.row_ok`) is
+        dropped as ``invalid``. The checks run on the rows as the wire holds them, made
+        once and packed as they are (a message holds a few bearings: per-column numpy
+        calls cost more than the rows)."""
+        n = len(batch)
+        if n == 0:
+            return
+        self.stats.offered += n
+        rows = [
+            r if r[4] == r[4] else (r[0], r[1], r[2], r[3], SNR_UNKNOWN_DB, r[5])
+            for r in wire_rows(batch)
+        ]
+        if not all(row_ok(r) for r in rows):
+            rows = [r for r in rows if row_ok(r)]
+            self.stats.dropped["invalid"] += n - len(rows)
+            if not rows:
+                return
+        # the epoch of a bearing as a receiver finds it: from its time on the wire
+        epochs = [r[0] * 1000 // self.epoch_ns for r in rows]
+        first = epochs[0]
+        groups: dict[int, list[Row]] = {first: rows}
+        if not all(e == first for e in epochs):
+            groups = {}
+            for e, r in zip(epochs, rows, strict=True):
+                groups.setdefault(e, []).append(r)
+        for epoch in sorted(groups):
+            part = groups[epoch]
+            for start in range(0, len(part), self.chunk):
+                self._send(epoch, part[start : start + self.chunk])
+
+    def _send(self, epoch: int, rows: list[Row]) -> None:
         pose = self.pose
         if not all(math.isfinite(v) for v in (pose.x_m, pose.y_m, pose.heading_deg)):
             self.stats.dropped["no_pose"] += len(rows)
             return
         if not 0.0 <= pose.heading_deg < 360.0:
             pose = Pose(pose.x_m, pose.y_m, wrap_deg_360(pose.heading_deg))
-        msg = SafetyMessage(
-            sender_id=self.signer.sender_id,
-            pose=pose,
-            t_gen_us=self.clock() // 1000,
-            seq=self.seq,
-            epoch=epoch,
-            bearings=rows,
-        )
-        if self.preauth is None:
-            datagram = self.signer.encode(msg)
-        else:
-            key = self.preauth.key_for(msg.sender_id, epoch)
+        key = None
+        if self.preauth is not None:
+            key = self.preauth.key_for(self.signer.sender_id, epoch)
             if key is None:
                 self.stats.dropped["no_nonce"] += len(rows)
                 return
-            datagram = seal(self.signer, msg, key)
-        self.seq = (self.seq + 1) % (1 << 32)
+        seq, t_gen_us = self.seq, self.clock() // 1000
+        datagram = sign_datagram(
+            self.signer,
+            self.signer.sender_id,
+            "message",
+            lambda version: encode_rows(
+                self.signer.sender_id, pose, t_gen_us, seq, epoch, rows, version
+            ),
+            key,
+        )
+        self.seq = (seq + 1) % (1 << 32)
         try:
             self.transport.send(datagram)
         except LinkError as err:
@@ -256,7 +258,7 @@ class Publisher:
         if log.isEnabledFor(logging.DEBUG):
             log.debug(
                 "sent seq %d: %d bearings, epoch %d, %d bytes",
-                msg.seq,
+                seq,
                 len(rows),
                 epoch,
                 len(datagram),

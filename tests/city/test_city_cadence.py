@@ -111,28 +111,29 @@ def test_a_failing_publisher_stops_the_sender_and_is_reported() -> None:
     sender.close()
 
 
-def test_bearings_between_ticks_make_a_quick_step_once_quick_has_passed() -> None:
-    c = Cadence(step_ns=100 * MS, quick_ns=20 * MS, now_ns=0)
+def test_bearings_between_ticks_make_a_quick_step_at_the_next_point_of_the_slot_grid() -> None:
+    c = Cadence(step_ns=100 * MS, slot_ns=20 * MS, now_ns=0)
     assert c.wait_ns(0) == 100 * MS
     assert c.due(50 * MS) is None  # nothing arrived: wait for the tick
     c.bearings()
-    assert c.wait_ns(50 * MS) == 0  # the last step was long ago
+    assert c.wait_ns(50 * MS) == 0  # the slot grid's point after the start has passed
     assert c.due(50 * MS) == "quick"
-    # bearings 5 ms after that step: due 20 ms after it, without more bearings
+    # bearings 5 ms after that step: due at the next point of the grid, 60 ms,
+    # without more bearings
     c.bearings()
     assert c.due(55 * MS) is None
-    assert c.wait_ns(55 * MS) == 15 * MS
-    assert c.due(70 * MS) == "quick"
-    assert c.due(80 * MS) is None  # nothing new since
-    assert c.wait_ns(80 * MS) == 20 * MS
+    assert c.wait_ns(55 * MS) == 5 * MS
+    assert c.due(60 * MS) == "quick"
+    assert c.due(70 * MS) is None  # nothing new since
+    assert c.wait_ns(70 * MS) == 30 * MS
     assert c.due(100 * MS) == "tick"
     c.bearings()
-    assert c.due(110 * MS) is None  # within quick of the tick
+    assert c.due(110 * MS) is None  # within the tick's slot
     assert c.due(120 * MS) == "quick"
 
 
 def test_a_late_tick_is_made_once_and_the_next_keeps_the_beat() -> None:
-    c = Cadence(step_ns=100 * MS, quick_ns=20 * MS, now_ns=0)
+    c = Cadence(step_ns=100 * MS, slot_ns=20 * MS, now_ns=0)
     assert c.due(350 * MS) == "tick"  # ticks at 100, 200, 300 were missed: one step
     assert c.due(399 * MS) is None
     assert c.due(400 * MS) == "tick"
@@ -202,13 +203,43 @@ def test_the_ticks_fall_on_the_clocks_grid_whatever_the_start() -> None:
     # two backends started at different times tick at the same phase of the clock,
     # 5 ms after a multiple of the step (after the end of a 20 ms slot)
     for start in (1_234 * MS, 1_203 * MS, 1_205 * MS, 1_299 * MS):
-        c = Cadence(step_ns=100 * MS, quick_ns=20 * MS, now_ns=start, phase_ns=5 * MS)
+        c = Cadence(step_ns=100 * MS, slot_ns=20 * MS, now_ns=start, phase_ns=5 * MS)
         assert c.next_ns % (100 * MS) == 5 * MS and start < c.next_ns <= start + 100 * MS
         tick = c.next_ns
         assert c.due(tick - 1) is None and c.due(tick) == "tick"
         # the next slot ends 15 ms after the tick and its bearings arrive 2 ms later:
-        # they wait 3 ms for the step (20 ms after the tick)
+        # they wait 3 ms for the step (5 ms after the slot's end)
         c.bearings()
         assert c.due(tick + 17 * MS) is None
         assert c.wait_ns(tick + 17 * MS) == 3 * MS
         assert c.due(tick + 20 * MS) == "quick"
+
+
+@pytest.mark.parametrize("slot_ms", [20, 40, 50])
+def test_a_slots_bearings_wait_only_for_the_phase_whatever_the_slot(slot_ms: int) -> None:
+    # bearings that arrive 2 ms after the end of any slot are stepped on 3 ms later
+    # (5 ms after the slot's end), also when the slot does not divide the tick's step
+    c = Cadence(step_ns=100 * MS, slot_ns=slot_ms * MS, now_ns=1_000 * MS, phase_ns=5 * MS)
+    stepped = []
+    for end in range(1_000 + slot_ms, 2_000, slot_ms):
+        if c.next_ns <= end * MS:  # the ticks in between, on time
+            assert c.due(c.next_ns) == "tick"
+        c.bearings()
+        assert c.wait_ns(end * MS + 2 * MS) == 3 * MS
+        assert c.due(end * MS + 2 * MS) is None
+        what = c.due(end * MS + 5 * MS)
+        stepped.append(what)
+    # every slot stepped on, once: as a quick step, or as the tick that fell just then
+    assert all(w is not None for w in stepped)
+    assert stepped.count("quick") >= len(stepped) * (1 - slot_ms / 100) - 1
+
+
+def test_a_late_quick_step_is_made_at_once_and_the_next_keeps_the_slot_grid() -> None:
+    c = Cadence(step_ns=100 * MS, slot_ns=40 * MS, now_ns=10 * MS, phase_ns=5 * MS)
+    assert c.due(105 * MS) == "tick"
+    c.bearings()  # a slot's bearings that came late (the backend busy): at once
+    assert c.wait_ns(131 * MS) == 0 and c.due(131 * MS) == "quick"
+    c.bearings()  # at most one step per slot: the next point of the grid, 165 ms
+    assert c.due(150 * MS) is None
+    assert c.wait_ns(150 * MS) == 15 * MS
+    assert c.due(165 * MS) == "quick"

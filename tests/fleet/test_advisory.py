@@ -7,6 +7,7 @@ import os
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "link"))
@@ -20,6 +21,7 @@ from rfsas_hw.fleet.advisory import (
     AdvisoryMessage,
     AdvisoryReceiver,
     decode_advisory,
+    encode_advisory_body,
     sign_advisory,
 )
 from rfsas_hw.link import Signer
@@ -28,6 +30,10 @@ from rfsas_hw.link.preauth import PreauthKeys, derive_key
 from rfsas_hw.privacy.hashing import FixedNonce
 
 NOW_NS = 1_763_800_030_000_000_000
+ITEM_DTYPE = np.dtype(
+    [("t_us", ">i8"), ("emitter", ">u8"), ("f", ">f4", (11,)), ("advisory", "u1"), ("flags", "u1")]
+)
+"""An advisory item on the wire, as docs/protocol.md lays it out."""
 NAN = math.nan
 
 
@@ -75,6 +81,50 @@ def test_round_trip(signer: Signer) -> None:
     rx = receiver(signer)
     assert rx.feed(raw) is not None
     assert rx.latest["0123456789abcdef"][0].advisory == "brake"
+
+
+def test_rows_are_the_documented_layout_and_decode_as_plain_python_values() -> None:
+    # the rows of every item in one call: the same bytes as the layout filled in field
+    # by field; and what decodes is Python's own int, float, str and bool
+    rng = np.random.default_rng(4)
+    items = tuple(
+        AdvisoryItem(
+            NOW_NS - int(rng.integers(0, 10**9)),
+            f"{int(rng.integers(0, 2**63)):016x}",
+            *(float(v) for v in rng.normal(0.0, 50.0, 11)),
+            str(rng.choice(["none", "clear", "caution", "brake"])),
+            bool(rng.integers(2)),
+            bool(rng.integers(2)),
+        )
+        for _ in range(7)
+    )
+    msg = AdvisoryMessage("be-a", NOW_NS // 1000, 3, 29_396_667, "car-7", items)
+    ref = np.zeros(len(items), ITEM_DTYPE)
+    for i, it in enumerate(items):
+        ref[i]["t_us"] = it.t_ns // 1000
+        ref[i]["emitter"] = int(it.emitter, 16)
+        ref[i]["f"] = (
+            it.x_m,
+            it.y_m,
+            it.cov_xx_m2,
+            it.cov_xy_m2,
+            it.cov_yy_m2,
+            it.vx_mps,
+            it.vy_mps,
+            it.p_collision,
+            it.risk,
+            it.t_closest_s,
+            it.impact_speed_mps,
+        )
+        ref[i]["advisory"] = ("none", "clear", "caution", "brake").index(it.advisory)
+        ref[i]["flags"] = int(it.fix_ok) | int(it.link_alarm) << 1
+    body = encode_advisory_body(msg)
+    assert body.endswith(ref.tobytes())
+    back = decode_advisory(body + bytes(64))
+    for got, sent in zip(back.items, items, strict=True):
+        assert type(got.t_ns) is int and type(got.x_m) is float and type(got.fix_ok) is bool
+        assert got.emitter == sent.emitter and got.advisory == sent.advisory
+        assert got.impact_speed_mps == float(np.float32(sent.impact_speed_mps))
 
 
 def test_not_located_values_travel_as_nan(signer: Signer) -> None:

@@ -167,6 +167,9 @@ def test_encode_refuses_what_cannot_go_on_the_wire(change: object, match: str) -
         ("sigma_deg", float("nan"), "sigma"),
         ("sigma_deg", 0.0, "sigma"),
         ("azimuth_deg", -1.0, "azimuth"),
+        # not wrapped to 0 as a value that rounds up to 360 in float32 is
+        ("azimuth_deg", 365.0, "azimuth"),
+        ("azimuth_deg", float("inf"), "azimuth"),
         ("snr_db", float("inf"), "SNR"),
         ("channel", -6, "negative"),
     ],

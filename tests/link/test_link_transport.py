@@ -21,6 +21,9 @@ from rfsas_hw.link import (
     open_transport,
     parse_url,
 )
+from rfsas_hw.link.message import decode
+from rfsas_hw.link.publisher import SNR_UNKNOWN_DB
+from rfsas_hw.link.transport import Transport
 from rfsas_hw.records import Pose
 
 POSE = Pose(5.0, 6.0, 370.0)
@@ -102,6 +105,65 @@ def test_unicast_publish_split_by_size_and_epoch(signer: Signer, trust: TrustedK
     assert all(m.message.pose == Pose(5.0, 6.0, 10.0) for m in got)
     sent = np.sort(np.concatenate([m.bearings.emitter for m in got]))
     np.testing.assert_array_equal(sent, np.sort(batch.emitter[1:]))
+
+
+class Kept(Transport):
+    """Keeps what is sent (no socket)."""
+
+    def __init__(self) -> None:
+        self.sent: list[bytes] = []
+
+    def send(self, datagram: bytes) -> None:
+        self.sent.append(datagram)
+
+    def recv(self, timeout: float | None = None) -> bytes | None:
+        return None
+
+    def close(self) -> None:
+        pass
+
+
+def test_the_publisher_drops_every_row_the_wire_cannot_carry_and_sends_the_rest(
+    signer: Signer,
+) -> None:
+    batch = bearings("x", 9, NOW_NS)
+    batch.azimuth_deg[0] = 365.0  # finite but off the compass (was sent as 0 before)
+    batch.azimuth_deg[1] = np.inf
+    batch.sigma_deg[2] = 0.0
+    batch.channel[3] = -1
+    batch.t_ns[4] = -5_000
+    batch.snr_db[5] = np.inf
+    batch.snr_db[6] = np.nan  # a unit that measures no SNR: sent, with the marker
+    batch.azimuth_deg[7] = 359.99999  # rounds to 360.0 in float32: sent as 0
+    kept = Kept()
+    pub = Publisher(signer, kept, POSE, clock=lambda: NOW_NS)
+    pub.on_bearings(batch)
+    assert pub.stats.dropped == {"invalid": 6} and pub.stats.offered == 9
+    (raw,) = kept.sent
+    got = decode(raw).bearings
+    np.testing.assert_array_equal(got.emitter, batch.emitter[6:])
+    assert got.snr_db[0] == SNR_UNKNOWN_DB and got.azimuth_deg[1] == 0.0
+    np.testing.assert_allclose(got.azimuth_deg[2], batch.azimuth_deg[8], atol=1e-4)
+    # all of them bad: nothing sent, all counted
+    pub.on_bearings(batch.select(slice(0, 6)))
+    assert pub.stats.dropped == {"invalid": 12} and len(kept.sent) == 1
+
+
+def test_a_bearing_goes_in_the_epoch_a_receiver_finds_from_its_time_on_the_wire(
+    signer: Signer,
+) -> None:
+    # 1 ns before an epoch starts, its µs on the wire are still in the epoch before
+    k = SCHEDULE.epoch_of(NOW_NS)
+    batch = bearings("x", 3, NOW_NS)
+    batch.t_ns[:] = [SCHEDULE.start_ns(k) - 1, SCHEDULE.start_ns(k), SCHEDULE.start_ns(k) - 2_000]
+    kept = Kept()
+    pub = Publisher(signer, kept, POSE, clock=lambda: NOW_NS, epoch_s=SCHEDULE.epoch_s)
+    pub.on_bearings(batch)
+    msgs = [decode(raw) for raw in kept.sent]
+    assert [m.epoch for m in msgs] == [k - 1, k]
+    for m in msgs:
+        assert {int(t) // SCHEDULE.epoch_ns for t in m.bearings.t_ns} == {m.epoch}
+    assert [len(m.bearings) for m in msgs] == [2, 1]
 
 
 def test_multicast_on_loopback_reaches_two_receivers(signer: Signer, trust: TrustedKeys) -> None:

@@ -630,6 +630,9 @@ def _costs(
         # more than a slot after their time (the loop behind its lead)
         "bearing_slots": sum(w.slot_groups for w in stats.workers.values()),
         "bearing_slots_late": sum(w.slots_late for w in stats.workers.values()),
+        # groups not published at all: older than the receivers' age limit when their
+        # time came, so every backend would have refused them as stale
+        "bearing_slots_shed": sum(w.slots_shed for w in stats.workers.values()),
     }
     for b in stats.backends.values():
         for k, v in b.stats.items():

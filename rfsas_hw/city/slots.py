@@ -12,6 +12,13 @@ Each message is stamped with the time of its slot (:meth:`SlotSender.stamp_ns`,
 the publishers' clock): its age at a receiver is then the age of the frames it
 carries, give or take a slot, and a worker that publishes late shows as old
 messages, never as young ones.
+
+A group whose time is already further behind the clock than the receivers'
+age limit (``shed_after_s``) when it comes up is not published: every receiver
+would refuse it as ``stale``, so signing, sending and refusing it would only
+spend the CPU that a run behind its clock needs to catch up. Such groups are
+counted (:attr:`SlotStats.shed`), as a sensor that sheds its backlog would
+count them.
 """
 
 from __future__ import annotations
@@ -60,7 +67,10 @@ class SlotStats:
     late: int = 0
     """Of them, published more than ``late_s`` after their time."""
     late_max_s: float = 0.0
-    """The largest delay of a group behind its time, seconds of the clock."""
+    """The largest delay of a published group behind its time, seconds of the clock."""
+    shed: int = 0
+    """Groups not published: their time was more than ``shed_after_s`` behind the
+    clock when they came up."""
 
 
 class SlotSender:
@@ -71,6 +81,11 @@ class SlotSender:
         clock: the deployment's clock (UTC ns; ``wall_s`` converts its seconds to wall
             seconds).
         late_s: a group published more than this after its time counts as late, seconds.
+        shed_after_s: a group more than this behind its time is not published (the
+            receivers' age limit, seconds); None: every group is published.
+
+    Raises:
+        ValueError: ``shed_after_s`` is not above ``late_s``.
     """
 
     def __init__(
@@ -78,10 +93,14 @@ class SlotSender:
         publishers: Mapping[str, _Sends],
         clock: _Clock,
         late_s: float = 0.02,
+        shed_after_s: float | None = None,
     ) -> None:
+        if shed_after_s is not None and not shed_after_s > late_s:
+            raise ValueError(f"shed_after_s ({shed_after_s}) must be above late_s ({late_s})")
         self.publishers = publishers
         self.clock = clock
         self.late_ns = round(late_s * NS_PER_S)
+        self.shed_ns = None if shed_after_s is None else round(shed_after_s * NS_PER_S)
         self.stats = SlotStats()
         self.error: BaseException | None = None
         """What stopped the thread (it publishes nothing more), or None."""
@@ -133,6 +152,9 @@ class SlotSender:
             while (group := self._next()) is not None:
                 when, unit, batch = group
                 behind = self.clock() - when
+                if self.shed_ns is not None and behind > self.shed_ns:
+                    self.stats.shed += 1  # every receiver would refuse it as stale
+                    continue
                 self._stamp_ns = when
                 self.publishers[unit].on_bearings(batch)
                 self.stats.groups += 1

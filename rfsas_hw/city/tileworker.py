@@ -26,7 +26,9 @@ the main process sends it, over a pipe, the VRUs with a phone near its units
    time (:class:`~rfsas_hw.city.slots.SlotSender`, a thread of its own): the
    main process runs the simulation ahead of the clock, so a step's frames are
    known before they are "heard" and go out as a sensor would send them, while
-   the worker computes the next step.
+   the worker computes the next step. A slot whose time is already further
+   behind the clock than the receivers' age limit when it comes up (the loop
+   that far behind) is shed, not signed: every backend would refuse it.
 
 Raw MACs exist only inside this process, as in a sensor. The worker answers
 every step with ``("step", t_s, frames, bearings)`` so the main process knows it
@@ -65,6 +67,7 @@ from rfsas_hw.df.fovguard import MAX_EMITTERS, FovGuard
 from rfsas_hw.link.distribution import NonceInbox
 from rfsas_hw.link.keys import KeyStore
 from rfsas_hw.link.publisher import Publisher
+from rfsas_hw.link.receiver import ReceiverConfig
 from rfsas_hw.link.transport import open_transport
 from rfsas_hw.pipeline import SensorPipeline, process_units
 from rfsas_hw.privacy.epochs import EpochSchedule
@@ -163,7 +166,11 @@ class WorkerCounters:
     slots_late: int = 0
     """Of them, published more than a slot after their time."""
     slot_late_max_s: float = 0.0
-    """The largest delay of a group behind its time, seconds of the deployment's clock."""
+    """The largest delay of a published group behind its time, seconds of the
+    deployment's clock."""
+    slots_shed: int = 0
+    """Groups not published: already older than the receivers' age limit when their
+    time came (the loop that far behind its clock)."""
     messages: int = 0
     """Signed messages the publishers sent."""
     send_problems: list[str] = field(default_factory=list)
@@ -338,7 +345,9 @@ class TwinWorker:
         self.air = _UnitsTwin(self)
         """The worker's units and the phones near them, twinned."""
         self.publishers: dict[str, Publisher] = {}
-        self.sender = SlotSender(self.publishers, work.clock, late_s=SLOT_S)
+        self.sender = SlotSender(
+            self.publishers, work.clock, late_s=SLOT_S, shed_after_s=ReceiverConfig().max_age_s
+        )
         """Publishes each slot's bearings when its time has come."""
         first = work.units[0].id
         store = KeyStore.open(work.keys[first])
@@ -458,6 +467,7 @@ class TwinWorker:
         self.counters.slot_groups = self.sender.stats.groups
         self.counters.slots_late = self.sender.stats.late
         self.counters.slot_late_max_s = self.sender.stats.late_max_s
+        self.counters.slots_shed = self.sender.stats.shed
         for pub in self.publishers.values():
             pub.close()
             self.counters.sent += pub.stats.bearings

@@ -243,3 +243,24 @@ def test_a_late_quick_step_is_made_at_once_and_the_next_keeps_the_slot_grid() ->
     assert c.due(150 * MS) is None
     assert c.wait_ns(150 * MS) == 15 * MS
     assert c.due(165 * MS) == "quick"
+
+
+def test_a_slot_older_than_the_receivers_limit_is_shed_not_published() -> None:
+    clock = ManualClock(1_000 * MS)
+    holder: list[SlotSender] = []
+    a = Recorder(holder)
+    with pytest.raises(ValueError, match="shed_after_s"):
+        SlotSender({"a": a}, clock, late_s=0.02, shed_after_s=0.02)
+    sender = SlotSender({"a": a}, clock, late_s=0.02, shed_after_s=1.0)
+    holder.append(sender)
+    try:
+        clock.now_ns = 2_500 * MS  # the loop 1.5 s behind: the first slot is past the limit
+        sender.put([(1_000 * MS, "a", batch_at(995 * MS)), (1_600 * MS, "a", batch_at(1_590 * MS))])
+        # the second, 0.9 s behind, still goes (late), the first never
+        assert a.wait_for(1) == [(1_590 * MS, 1_600 * MS)]
+    finally:
+        sender.close()
+    assert a.sent == [(1_590 * MS, 1_600 * MS)]
+    assert sender.stats.shed == 1 and sender.stats.groups == 1 and sender.stats.late == 1
+    assert sender.stats.late_max_s == pytest.approx(0.9)
+    sender.check()

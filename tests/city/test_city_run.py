@@ -178,6 +178,7 @@ def test_small_district_end_to_end(grid_net: Path, tmp_path: Path) -> None:
     # the workers published their slots (some late when the machine is loaded)
     assert counts["bearing_slots"] > 0
     assert 0 <= counts["bearing_slots_late"] <= counts["bearing_slots"]
+    assert counts["bearing_slots_shed"] >= 0  # none at the test's slow clock, unless stalled
 
     # every advisory that reached a vehicle: signed by a backend owning a tile it was in
     advisories = [r for r in records if r["record"] == "advisory"]

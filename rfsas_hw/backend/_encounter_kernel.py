@@ -13,9 +13,11 @@ The path test of a brake: with ``n`` the unit normal left of the vehicle's
 heading, the threat's lateral offset is ``d = (x − p_v)·n``, its speed towards
 the path's centre line ``w = −(v·n)·sign(d)`` with one-sigma ``σ_w = √(nᵀ P_v n)``
 (``P_v`` its velocity covariance), and the gap to the path ``|d| − h`` with ``h``
-the sum of the two half-widths (the threat's larger side). The threat is in the
-path when the gap is ≤ 0, and shows evidence of entering it when
-``w − k·σ_w > 0`` and ``gap ≤ (w − k·σ_w)·t*``. Metres, seconds, m/s, radians.
+the sum of the two half-widths (the threat's larger side), whose one-sigma is
+``σ_d = √(nᵀ P_x n)`` (``P_x`` the position covariance). The threat is in the
+path when ``gap + k_d·σ_d ≤ 0`` (``k_d = 0``: its centre inside), and shows
+evidence of entering it when ``w − k·σ_w > 0`` and ``gap ≤ (w − k·σ_w)·t*``.
+Metres, seconds, m/s, radians.
 """
 
 from __future__ import annotations
@@ -45,6 +47,7 @@ def encounter_geometry(
     threat_width_m: float,
     moving_mps: float,
     path_sigmas: float,
+    position_sigmas: float,
 ) -> tuple[Any, ...]:
     """Per threat (states ``x`` (B, 4), covariances ``P`` (B, 4, 4)) against its vehicle
     ``v = vehicle_of[b]`` (B,): at ``pv[v]`` moving at ``vv[v]`` along the unit vector
@@ -56,9 +59,10 @@ def encounter_geometry(
         the position covariance at ``t*`` (B, 2, 2, symmetrised), the vehicle's and
         the threat's positions at ``t*`` (B, 2 each), whether the threat moves (B,),
         the math angle of its velocity (B, π/2 when not moving), the distance to
-        contact (B,), the gap to the vehicle's path (B,), the speed towards it and
-        that speed's one-sigma (B each), and whether it is in the path or shows
-        evidence of entering it with ``path_sigmas`` (B,).
+        contact (B,), the gap to the vehicle's path and its one-sigma (B each), the
+        speed towards it and that speed's one-sigma (B each), and whether it is in
+        the path by ``position_sigmas`` or shows evidence of entering it with
+        ``path_sigmas`` (B,).
     """
     B = x.shape[0]
     bad = -1
@@ -70,6 +74,7 @@ def encounter_geometry(
     heading = np.empty(B)
     contact = np.empty(B)
     gap = np.empty(B)
+    gap_sigma = np.empty(B)
     towards = np.empty(B)
     towards_sigma = np.empty(B)
     path = np.empty(B, np.bool_)
@@ -118,10 +123,12 @@ def encounter_geometry(
         w = -(x[b, 2] * nx + x[b, 3] * ny) * side
         var_w = nx * (P[b, 2, 2] * nx + P[b, 2, 3] * ny) + ny * (P[b, 3, 2] * nx + P[b, 3, 3] * ny)
         sigma_w = math.sqrt(max(var_w, 0.0))
+        var_d = nx * (P[b, 0, 0] * nx + P[b, 0, 1] * ny) + ny * (P[b, 1, 0] * nx + P[b, 1, 1] * ny)
+        sigma_d = math.sqrt(max(var_d, 0.0))
         g = abs(d) - half_widths
         w_low = w - path_sigmas * sigma_w
-        gap[b], towards[b], towards_sigma[b] = g, w, sigma_w
-        path[b] = g <= 0 or (w_low > 0 and g <= w_low * max(t, 0.0))
+        gap[b], gap_sigma[b], towards[b], towards_sigma[b] = g, sigma_d, w, sigma_w
+        path[b] = g + position_sigmas * sigma_d <= 0 or (w_low > 0 and g <= w_low * max(t, 0.0))
     return (
         bad,
         t_star,
@@ -132,6 +139,7 @@ def encounter_geometry(
         heading,
         contact,
         gap,
+        gap_sigma,
         towards,
         towards_sigma,
         path,

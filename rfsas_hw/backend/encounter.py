@@ -15,7 +15,8 @@ A brake can be held back to caution by the thresholds
 fixes since it (re)started, or — with ``brake_needs_path`` — a threat neither
 in the vehicle's path (lateral offset ``d`` of its centre from the path's
 centre line within ``h``, the sum of the two boxes' half-widths, the threat's
-larger side for its box) nor moving into it with evidence: with ``w`` its
+larger side for its box; with ``brake_position_sigmas`` ``k_d``, within
+``h − k_d·σ_d``, ``σ_d`` the one-sigma of ``d``) nor moving into it with evidence: with ``w`` its
 speed towards the centre line and ``σ_w`` that speed's one-sigma (from the
 velocity covariance), ``w − k·σ_w > 0`` and ``|d| − h ≤ (w − k·σ_w)·t*``.
 """
@@ -274,6 +275,7 @@ def assess_pairs(
         heading_rad,
         contact,
         gap,
+        gap_sigma,
         towards,
         towards_sigma,
         path,
@@ -290,6 +292,7 @@ def assess_pairs(
         size_t[1],
         MOVING_MPS,
         cfg.thresholds.brake_path_sigmas,
+        cfg.thresholds.brake_position_sigmas,
     )
     if bad >= 0:
         raise BackendError(f"threat {bad}: state and covariance must be finite")
@@ -314,7 +317,7 @@ def assess_pairs(
     )
     p_f = fatality_risk_of(v_imp)
     risk = p_coll * p_f
-    held = _brake_held(cfg, fixes, path, gap, towards, towards_sigma)
+    held = _brake_held(cfg, fixes, path, gap, gap_sigma, towards, towards_sigma)
     out = []
     for i, (pc, rk, ct, t_i, v_i, pf_i, ds) in enumerate(
         zip(
@@ -360,14 +363,15 @@ def _brake_held(
     fixes: list[int] | None,
     path: npt.NDArray[np.bool_],
     gap: Array,
+    gap_sigma: Array,
     towards: Array,
     towards_sigma: Array,
 ) -> list[str]:
     """Per threat, why a brake is not supported (empty: it is); see the module docstring.
 
     ``path`` says per threat whether it is in the vehicle's path or shows evidence
-    of entering it; ``gap`` (m), ``towards`` (m/s) and ``towards_sigma`` (m/s) are
-    the numbers that decided it.
+    of entering it; ``gap`` and its one-sigma ``gap_sigma`` (m), ``towards`` and
+    ``towards_sigma`` (m/s) are the numbers that decided it.
     """
     th = cfg.thresholds
     held = [""] * len(path)
@@ -378,8 +382,14 @@ def _brake_held(
     if not th.brake_needs_path:
         return held
     for i in np.flatnonzero(~path).tolist():
+        where = (
+            f"{gap[i]:.1f} m beside the path"
+            if gap[i] > 0 or th.brake_position_sigmas == 0
+            else f"{-gap[i]:.1f} ± {gap_sigma[i]:.1f} m inside the path "
+            f"(needs {th.brake_position_sigmas:g} sigma inside)"
+        )
         why = (
-            f"{gap[i]:.1f} m beside the path, moving towards it at {towards[i]:.2f} ± "
+            f"{where}, moving towards it at {towards[i]:.2f} ± "
             f"{towards_sigma[i]:.2f} m/s (needs {th.brake_path_sigmas:g} sigma to reach it)"
         )
         held[i] = f"{held[i]}; {why}" if held[i] else why

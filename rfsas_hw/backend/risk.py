@@ -192,12 +192,16 @@ class AdvisoryThresholds:
             before it may cause a brake; a younger track (one just restarted by a
             fix outside its gate) gives at most caution. 1: any track.
         brake_needs_path: brake only for a threat already in the vehicle's lane
-            (its centre within the two half-widths of the vehicle's path) or
+            (its centre within the two half-widths of the vehicle's path, by
+            ``brake_position_sigmas`` of its position's one-sigma across it) or
             moving into it with evidence: its speed towards the path less
             ``brake_path_sigmas`` of its one-sigma still reaches the path by closest
             approach. Without that evidence at most caution. False: no such test.
         brake_path_sigmas: how many sigmas of the speed towards the path must be
             left over for ``brake_needs_path``.
+        brake_position_sigmas: for ``brake_needs_path``, how many sigmas of the
+            threat's position across the path its centre must lie inside the path
+            by, to count as in it by position (0: its centre inside is enough).
 
     Raises:
         BackendError: thresholds out of order or outside [0, 1], fewer than one
@@ -214,6 +218,7 @@ class AdvisoryThresholds:
     brake_min_fixes: int = 1
     brake_needs_path: bool = False
     brake_path_sigmas: float = 2.0
+    brake_position_sigmas: float = 0.0
 
     def __post_init__(self) -> None:
         for name in ("brake_risk", "caution_risk", "brake_p_collision", "caution_p_collision"):
@@ -228,8 +233,10 @@ class AdvisoryThresholds:
             raise BackendError(f"stop_margin must be ≥ 1, got {self.stop_margin}")
         if not self.brake_min_fixes >= 1:
             raise BackendError(f"brake_min_fixes must be ≥ 1, got {self.brake_min_fixes}")
-        if not (self.brake_path_sigmas >= 0 and math.isfinite(self.brake_path_sigmas)):
-            raise BackendError(f"brake_path_sigmas must be ≥ 0, got {self.brake_path_sigmas}")
+        for name in ("brake_path_sigmas", "brake_position_sigmas"):
+            value = getattr(self, name)
+            if not (value >= 0 and math.isfinite(value)):
+                raise BackendError(f"{name} must be ≥ 0, got {value}")
 
 
 DEFAULT_THRESHOLDS = AdvisoryThresholds()

@@ -41,8 +41,11 @@ for units that see the threat at 10 Hz from its first steps, as in the Euro NCAP
 matrix; too strict for threats that appear late and are seen only a few times),
 ``urban-intersection-bearings`` (the same as ``-path``, the tracks fed by each
 unit's bearing within 50° of its boresight instead of by fixes, started with
-twice the start fix's sigma, see :mod:`rfsas_hw.backend.bearing_tracking`: what
-the Euro NCAP matrix uses)
+twice the start fix's sigma, readings taken as censored by the units' edge rule,
+see :mod:`rfsas_hw.backend.bearing_tracking`; a standing model beside the
+constant velocity, :mod:`rfsas_hw.backend.stop_go`; a brake by position only for
+a threat inside the path by one sigma of its position: what the Euro NCAP matrix
+uses)
 and ``backend-defaults`` (the backend's own defaults, tuned for longer ranges).
 """
 
@@ -234,15 +237,21 @@ def _urban_bearings() -> BackendConfig:
     # reading beyond 48.5° through, so a track predicted further out cannot be what the unit
     # saw, whose reading is then a direction folded back from its side. Measured on the
     # Euro NCAP matrix (docs/ncap.md)
-    # (the units' edge-rule censoring, fov_deg, is not set: measured on the matrix it
-    # removes the 10 km/h nuisance brakes of walkers the VUT overtakes, and the BRAKE in
-    # CBTA at 20 km/h that came from a track of folded bearings with them; docs/ncap.md)
-    # A person who stops is believed stopped through a standing model beside the
-    # constant-velocity one (docs/ncap.md, "A walker who stops")
-    bearings = BearingUpdateConfig(start_sigma_scale=2.0, max_off_boresight_deg=50.0)
+    # Readings near a unit's edge are taken as the DF's edge rule lets them through
+    # (censored, fov_deg: the units' calibrated field of view). A person who stops is
+    # believed stopped through a standing model beside the constant-velocity one. A
+    # BRAKE by position needs the threat inside the path by one sigma of its position
+    # across it (by motion: 2 sigma of its speed; docs/ncap.md, "Evidence of position")
+    bearings = BearingUpdateConfig(
+        start_sigma_scale=2.0, max_off_boresight_deg=50.0, fov_deg=(-58.0, 57.5)
+    )
     base = _urban_path()
     tracker = replace(base.tracker, stop_go=StopGoConfig())
-    return replace(base, tracking="bearings", bearings=bearings, tracker=tracker)
+    th = replace(base.encounter.thresholds, brake_position_sigmas=1.0)
+    encounter = replace(base.encounter, thresholds=th)
+    return replace(
+        base, tracking="bearings", bearings=bearings, tracker=tracker, encounter=encounter
+    )
 
 
 BACKEND_PROFILES: dict[str, BackendConfig] = {

@@ -114,3 +114,24 @@ def test_brake_held_for_a_young_track_or_a_threat_with_no_evidence_of_entering_t
         AdvisoryThresholds(brake_min_fixes=0)
     with pytest.raises(BackendError, match="brake_path_sigmas"):
         AdvisoryThresholds(brake_path_sigmas=-1.0)
+
+
+def test_brake_by_position_needs_the_position_inside_the_path_by_its_sigmas() -> None:
+    from rfsas_hw.backend.risk import AdvisoryThresholds
+
+    def rule(k_d: float) -> EncounterConfig:
+        return EncounterConfig(
+            thresholds=AdvisoryThresholds(brake_needs_path=True, brake_position_sigmas=k_d)
+        )
+
+    car = VehicleState(-20.0, 0.0, 90.0, 15.0)
+    # standing 0.5 m right of the lane centre: 0.65 m inside the path (0.9 + 0.25 − 0.5)
+    sure = still(0.0, -0.5, var=0.04)  # position sigma 0.2 m: inside by 3 sigma
+    wide = still(0.0, -0.5, var=1.0)  # position sigma 1 m: inside by 0.65 sigma
+    assert assess_encounter(car, *wide, rule(0.0)).advisory is Advisory.BRAKE  # centre inside
+    assert assess_encounter(car, *sure, rule(2.0)).advisory is Advisory.BRAKE
+    held = assess_encounter(car, *wide, rule(2.0))
+    assert held.advisory is Advisory.CAUTION
+    assert "0.6 ± 1.0 m inside the path (needs 2 sigma inside)" in held.reasons[0]
+    with pytest.raises(BackendError, match="brake_position_sigmas"):
+        AdvisoryThresholds(brake_position_sigmas=math.inf)

@@ -121,11 +121,13 @@ def test_rfsas_with_a_roadside_unit_brakes_for_the_hidden_child() -> None:
     pytest.importorskip("libsumo", reason="needs the sumo extra (pip install .[sumo])")
     from rfsas_hw.ncap.runner import RunSpec, run_one
 
-    # (at 50 % RF-SAS alone now brakes 0.3 s later than with fix-fed tracks and hits in
-    # some seeds: docs/ncap.md, "Tracks fed by bearings"; LOS, cued, still avoids it).
-    # At 75 % it brakes in every seed and avoids the child in most (seeds 0-3: 3 or 4)
+    # (RF-SAS alone brakes late for a hidden child now that a brake by position needs
+    # the child inside the path by a sigma of its position (docs/ncap.md, "Evidence of
+    # position"): at 30 km/h it hits the child at 75 %; LOS, cued, still avoids it).
+    # At 20 km/h and 75 % it brakes in every seed and avoids the child in most (seeds
+    # 0-3: 3)
     runs = [
-        run_one(RunSpec(Cell("CPNCO", 30.0, 0.75), "rfsas", "car+rsu", "phone-active", seed))
+        run_one(RunSpec(Cell("CPNCO", 20.0, 0.75), "rfsas", "car+rsu", "phone-active", seed))
         for seed in range(4)
     ]
     assert all(r.first_rf_brake_s is not None for r in runs)
@@ -138,11 +140,11 @@ def test_los_cued_by_rfsas_brakes_only_on_its_own_sight() -> None:
     pytest.importorskip("libsumo", reason="needs the sumo extra (pip install .[sumo])")
     from rfsas_hw.ncap.runner import RunSpec, run_one
 
-    # the kerb walker at 60 km/h, seed 4: RF-SAS advises BRAKE on a track 1.9 m towards
-    # the lane from where the walker stands (docs/ncap.md, "A walker who stops")...
-    kerb = run_one(RunSpec(Cell("TN-KERB", 60.0, 0.5), "los+cue", "car+rsu", "phone-active", 4))
-    assert kerb.first_rf_brake_s is not None
-    assert kerb.first_brake_s is None and not kerb.nuisance  # ...which this controller ignores
+    # the bicyclist from the side street at 10 km/h, seed 0: RF-SAS advises BRAKE at 4.6 s
+    # while the camera/radar never confirms the bicyclist...
+    side = run_one(RunSpec(Cell("CBNA", 10.0, 0.5), "los+cue", "car+rsu", "phone-active", 0))
+    assert side.first_rf_brake_s is not None
+    assert side.first_brake_s is None and side.contact  # ...and this controller ignores it
     child = run_one(RunSpec(Cell("CPNCO", 50.0, 0.5), "los+cue", "car+rsu", "phone-active", 0))
     alone = run_one(RunSpec(Cell("CPNCO", 50.0, 0.5), "los"))
     assert child.cued_steps > 0 and child.first_los_confirm_s is not None
@@ -167,6 +169,22 @@ def test_rfsas_does_not_brake_for_a_walker_standing_at_the_kerb() -> None:
     for seed in (4, 11):
         spec = RunSpec(Cell("TN-KERB", 30.0, 0.5), "rfsas", "car+rsu", "phone-active", seed)
         assert run_one(spec).first_rf_brake_s is None, seed
+    # 60 km/h, seed 4: braked at 3.8 s on a track 1.9 m towards the lane from the standing
+    # walker, 2 sigma of its position off; in the path by position now needs the track
+    # inside it by a sigma (docs/ncap.md, "Evidence of position")
+    spec = RunSpec(Cell("TN-KERB", 60.0, 0.5), "rfsas", "car+rsu", "phone-active", 4)
+    assert run_one(spec).first_rf_brake_s is None
+
+
+def test_rfsas_does_not_brake_for_a_walker_it_overtakes_at_the_edge_of_its_view() -> None:
+    """TN-ALONG at 10 km/h, seed 0: the VUT's unit reads the walker it overtakes at the
+    edge of its view, where its edge rule lets only readings that err towards boresight
+    through; taken as such (censored), they no longer pull the track into the lane."""
+    pytest.importorskip("libsumo", reason="needs the sumo extra (pip install .[sumo])")
+    from rfsas_hw.ncap.runner import RunSpec, run_one
+
+    spec = RunSpec(Cell("TN-ALONG", 10.0, 0.5), "rfsas", "car+rsu", "phone-active", 0)
+    assert run_one(spec).first_rf_brake_s is None
 
 
 def test_rfsas_does_not_brake_as_it_passes_a_walker_on_the_sidewalk() -> None:

@@ -44,7 +44,7 @@ from cryptography.hazmat.primitives.asymmetric import ec
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from bench_fleet import start_broker
-from bench_mqtt_client import setup
+from bench_mqtt_client import paho_receive, setup
 
 from rfsas_hw.fleet.broker import BrokerFiles
 from rfsas_hw.link import Publisher, Receiver, ReceiverConfig, TrustedKeys
@@ -176,43 +176,16 @@ def recv_ours(files: BrokerFiles, key_dir: str, n: int, q: MpQueue[object]) -> N
 
 
 def recv_paho(files: BrokerFiles, key_dir: str, n: int, q: MpQueue[object]) -> None:
-    import paho.mqtt.client as mqtt
-
     public = ec.derive_private_key(PAHO_KEY, ec.SECP256R1()).public_key()
-    pair = files.client("be-0")
-    done, subscribed = threading.Event(), threading.Event()
-    count = [0]
 
-    def on_message(_c: object, _u: object, message: mqtt.MQTTMessage) -> None:
+    def check(raw: bytes) -> None:
         # the sender appends a DER signature to a message encoded once: its length
         # follows from the bearing count byte
-        raw = message.payload
         n_rows = raw[6 + raw[5] + 32]
         end = 6 + raw[5] + 33 + 30 * n_rows
         public.verify(raw[end:], raw[:end], ECDSA)
-        count[0] += 1
-        if count[0] >= n:
-            done.set()
 
-    client = mqtt.Client(
-        mqtt.CallbackAPIVersion.VERSION2, client_id="bench-paho-recv", protocol=mqtt.MQTTv5
-    )
-    client.tls_set(str(files.ca_cert), str(pair.cert), str(pair.key))
-    client.on_connect = lambda c, *_: c.subscribe(FILTER, qos=0)
-    client.on_subscribe = lambda *_: subscribed.set()
-    client.on_message = on_message
-    client.connect(files.host, files.port, keepalive=30)
-    client.loop_start()
-    if not subscribed.wait(20):
-        raise RuntimeError("paho-mqtt did not subscribe within 20 s")
-    q.put("ready")
-    t0 = time.process_time()
-    last = -1
-    while not done.wait(IDLE_S if count[0] else 60.0) and count[0] != last:
-        last = count[0]
-    q.put((count[0], time.process_time() - t0, 0))
-    client.disconnect()
-    client.loop_stop()
+    paho_receive(files, n, q, "bench-paho-recv", check, tail=(0,))
 
 
 def run_pair(

@@ -35,6 +35,7 @@ import sys
 import tempfile
 import threading
 import time
+from collections.abc import Callable
 from multiprocessing.queues import Queue as MpQueue
 from pathlib import Path
 
@@ -97,7 +98,17 @@ def _ours(files: BrokerFiles, n: int, q: MpQueue[object]) -> None:
     transport.close()
 
 
-def _paho(files: BrokerFiles, n: int, q: MpQueue[object]) -> None:
+def paho_receive(
+    files: BrokerFiles,
+    n: int,
+    q: MpQueue[object],
+    client_id: str = "bench-paho",
+    check: Callable[[bytes], object] | None = None,
+    tail: tuple[object, ...] = (),
+) -> None:
+    """Receive up to ``n`` messages of :data:`FILTER` with paho-mqtt (mutual TLS), each
+    payload passed to ``check`` if given; put "ready" once subscribed, then (received, CPU
+    seconds, *tail) on ``q``. Stops after ``n`` or when nothing arrives for :data:`IDLE_S`."""
     import paho.mqtt.client as mqtt
 
     pair = files.client("be-0")
@@ -105,23 +116,19 @@ def _paho(files: BrokerFiles, n: int, q: MpQueue[object]) -> None:
     subscribed = threading.Event()
     count = [0]
 
-    def on_connect(client: mqtt.Client, *_: object) -> None:
-        client.subscribe(FILTER, qos=0)
-
-    def on_subscribe(*_: object) -> None:
-        subscribed.set()
-
-    def on_message(*_: object) -> None:
+    def on_message(_c: object, _u: object, message: mqtt.MQTTMessage) -> None:
+        if check is not None:
+            check(message.payload)
         count[0] += 1
         if count[0] >= n:
             done.set()
 
     client = mqtt.Client(
-        mqtt.CallbackAPIVersion.VERSION2, client_id="bench-paho", protocol=mqtt.MQTTv5
+        mqtt.CallbackAPIVersion.VERSION2, client_id=client_id, protocol=mqtt.MQTTv5
     )
     client.tls_set(str(files.ca_cert), str(pair.cert), str(pair.key))
-    client.on_connect = on_connect
-    client.on_subscribe = on_subscribe
+    client.on_connect = lambda c, *_: c.subscribe(FILTER, qos=0)
+    client.on_subscribe = lambda *_: subscribed.set()
     client.on_message = on_message
     client.connect(files.host, files.port, keepalive=30)
     client.loop_start()
@@ -132,9 +139,13 @@ def _paho(files: BrokerFiles, n: int, q: MpQueue[object]) -> None:
     last = -1
     while not done.wait(IDLE_S if count[0] else 60.0) and count[0] != last:
         last = count[0]
-    q.put((count[0], time.process_time() - t0))
+    q.put((count[0], time.process_time() - t0, *tail))
     client.disconnect()
     client.loop_stop()
+
+
+def _paho(files: BrokerFiles, n: int, q: MpQueue[object]) -> None:
+    paho_receive(files, n, q)
 
 
 def _gmqtt(files: BrokerFiles, n: int, q: MpQueue[object]) -> None:

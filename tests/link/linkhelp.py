@@ -68,3 +68,19 @@ class Queued(Transport):
 
     def close(self) -> None:
         self.items.clear()
+
+
+class Kept(Transport):
+    """Keeps what is sent, for a publisher's output (no socket)."""
+
+    def __init__(self) -> None:
+        self.sent: list[bytes] = []
+
+    def send(self, datagram: bytes) -> None:
+        self.sent.append(datagram)
+
+    def recv(self, timeout: float | None = None) -> bytes | None:
+        return None
+
+    def close(self) -> None:
+        pass

@@ -7,7 +7,7 @@ from pathlib import Path
 import click
 import numpy as np
 from click.testing import CliRunner
-from linkhelp import NOW_NS, SCHEDULE
+from linkhelp import NOW_NS, SCHEDULE, Kept
 
 from rfsas_hw.cli.linkopts import make_cue_publisher, send_options
 from rfsas_hw.link import Signer, TrustedKeys
@@ -15,22 +15,8 @@ from rfsas_hw.link.cue import CueKind, decode_cue
 from rfsas_hw.link.cue_publisher import CuePublisher
 from rfsas_hw.link.cue_receiver import CueReceiver, CueReceiverConfig
 from rfsas_hw.link.keys import KeyStore
-from rfsas_hw.link.transport import Transport, open_transport
+from rfsas_hw.link.transport import open_transport
 from rfsas_hw.records import BearingBatch, Pose
-
-
-class Capture(Transport):
-    def __init__(self) -> None:
-        self.sent: list[bytes] = []
-
-    def send(self, datagram: bytes) -> None:
-        self.sent.append(datagram)
-
-    def recv(self, timeout: float | None = None) -> bytes | None:
-        return None
-
-    def close(self) -> None:
-        pass
 
 
 def batch(t_ns: int, emitters: list[int], channel: int = 11) -> BearingBatch:
@@ -49,7 +35,7 @@ def batch(t_ns: int, emitters: list[int], channel: int = 11) -> BearingBatch:
 def test_one_cue_per_emitter_per_interval_and_each_verifies(
     signer: Signer, trust: TrustedKeys
 ) -> None:
-    link = Capture()
+    link = Kept()
     t0 = NOW_NS - 900_000_000
     pub = CuePublisher(
         signer, link, Pose(5.0, 6.0, 90.0), every_s=0.5, valid_s=2.0,

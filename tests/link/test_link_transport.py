@@ -7,7 +7,7 @@ import socket
 
 import numpy as np
 import pytest
-from linkhelp import NOW_NS, SCHEDULE, bearings, message
+from linkhelp import NOW_NS, SCHEDULE, Kept, bearings, message
 
 from rfsas_hw.errors import LinkError
 from rfsas_hw.link import (
@@ -23,7 +23,6 @@ from rfsas_hw.link import (
 )
 from rfsas_hw.link.message import decode
 from rfsas_hw.link.publisher import SNR_UNKNOWN_DB
-from rfsas_hw.link.transport import Transport
 from rfsas_hw.records import Pose
 
 POSE = Pose(5.0, 6.0, 370.0)
@@ -105,22 +104,6 @@ def test_unicast_publish_split_by_size_and_epoch(signer: Signer, trust: TrustedK
     assert all(m.message.pose == Pose(5.0, 6.0, 10.0) for m in got)
     sent = np.sort(np.concatenate([m.bearings.emitter for m in got]))
     np.testing.assert_array_equal(sent, np.sort(batch.emitter[1:]))
-
-
-class Kept(Transport):
-    """Keeps what is sent (no socket)."""
-
-    def __init__(self) -> None:
-        self.sent: list[bytes] = []
-
-    def send(self, datagram: bytes) -> None:
-        self.sent.append(datagram)
-
-    def recv(self, timeout: float | None = None) -> bytes | None:
-        return None
-
-    def close(self) -> None:
-        pass
 
 
 def test_the_publisher_drops_every_row_the_wire_cannot_carry_and_sends_the_rest(

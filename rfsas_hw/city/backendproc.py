@@ -105,6 +105,10 @@ class BackendWork:
     bearings have arrived (:class:`Cadence`), seconds."""
     repeat_s: float = 0.5
     """Unchanged advice about an emitter goes to a vehicle again after this long, seconds."""
+    ride_along_s: float = 0.25
+    """Unchanged advice sent at least this long ago goes with any advisory to the same
+    vehicle, so that its repeats travel together (``AdvisoryLimits.ride_along_s``),
+    seconds."""
     clock: SimClock = field(default_factory=lambda: SimClock(0))
     """The deployment's clock."""
     dashboard: bool = False
@@ -331,7 +335,9 @@ class CityBackend:
                 vehicle_id=vehicle_id,
                 epoch_s=self.work.epoch_s,
                 clock=self.clock,
-                limits=AdvisoryLimits(min_interval_s=self.work.repeat_s),
+                limits=AdvisoryLimits(
+                    min_interval_s=self.work.repeat_s, ride_along_s=self.work.ride_along_s
+                ),
                 monotonic=lambda: self.clock() / NS_PER_S,
                 tile_topics=False,
             )

@@ -11,6 +11,12 @@ broker keeps, per vehicle (one advisory sink):
   ``brake`` go out at once), or ``min_interval_s`` after the last one sent for
   it (0.09 s by default: one per step of the default 0.1 s, about 10 Hz, however
   often the backend steps);
+- with ``ride_along_s`` > 0, when a step sends anything to the vehicle, its
+  unchanged assessments sent at least ``ride_along_s`` ago go with them, early,
+  instead of each in a message of its own later: a vehicle near several
+  emitters then gets their repeats together, about one message per
+  ``min_interval_s``, instead of one per emitter, each at its own phase. No
+  assessment goes out later than without it (0, the default: off);
 - per vehicle: at most ``max_per_s`` assessments per second (100 by default, a
   token bucket with a burst of as many); when a step offers more, the most
   severe go first (then the highest collision probability), and the others
@@ -47,10 +53,18 @@ class AdvisoryLimits:
     """Assessments per second per vehicle, on average (also the burst)."""
     memory: int = 4096
     """Emitters remembered; the longest unsent go first."""
+    ride_along_s: float = 0.0
+    """When a step sends anything, unchanged assessments sent at least this long ago go
+    with it (0: off), seconds; at most ``min_interval_s``."""
 
     def __post_init__(self) -> None:
         if self.min_interval_s < 0 or self.max_per_s < 1 or self.memory < 1:
             raise ValueError("min_interval_s must be >= 0, max_per_s and memory >= 1")
+        if not 0.0 <= self.ride_along_s <= self.min_interval_s:
+            raise ValueError(
+                f"ride_along_s must be in [0, min_interval_s = {self.min_interval_s:g}], "
+                f"got {self.ride_along_s:g}"
+            )
 
 
 class AdvisoryLimiter:
@@ -66,17 +80,24 @@ class AdvisoryLimiter:
         self._filled_at: float | None = None
 
     def select(self, items: Sequence[AdvisoryItem], now_s: float) -> list[AdvisoryItem]:
-        """The items of one step that go out at ``now_s`` (monotonic seconds), most
-        severe first; the others are counted in :attr:`limited`."""
+        """The items of one step that go out at ``now_s`` (monotonic seconds): those due,
+        most severe first, then the riders (``ride_along_s``); the others are counted
+        in :attr:`limited`."""
         lim = self.limits
         due = []
+        riders = []
         for item in items:
             severity = ADVISORY_RANK.get(item.advisory, 0)
             last = self._last.get(item.emitter)
             if last is None or severity > last[1] or now_s - last[0] >= lim.min_interval_s:
                 due.append((severity, item))
+            elif lim.ride_along_s > 0 and now_s - last[0] >= lim.ride_along_s:
+                riders.append((severity, item))
         self._refill(now_s)
         due.sort(key=lambda d: (-d[0], -_finite(d[1].p_collision)))
+        if due:  # the riders only after every due one, and only with a message going
+            riders.sort(key=lambda d: (-d[0], -_finite(d[1].p_collision)))
+            due += riders
         take = min(len(due), int(self._tokens))
         self._tokens -= take
         self.limited += len(items) - take

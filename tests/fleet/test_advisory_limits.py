@@ -114,3 +114,57 @@ def test_limits_are_checked() -> None:
         AdvisoryLimits(max_per_s=0.5)
     limiter = AdvisoryLimiter(AdvisoryLimits(memory=3))
     assert limiter.limits.min_interval_s == 0.09
+
+
+def _messages(link: Collect) -> list[set[str]]:
+    return [
+        {item.emitter for item in decode_advisory(d).items}
+        for route, d in link.published
+        if "/vehicle/" in route.topic
+    ]
+
+
+def test_repeats_ride_together_and_none_goes_later() -> None:
+    """Three emitters first judged 0.1 s apart, the advice unchanged for 3 s: each on its
+    own phase makes a message at every third step; riding along, their repeats travel in
+    one message per interval, and each emitter still goes out at least once an interval."""
+    sent: dict[float, list[set[str]]] = {}
+    worst: dict[float, float] = {}
+    for ride in (0.0, 0.25):
+        clock = [0.0]
+        out, link = sink(clock, min_interval_s=0.5, ride_along_s=ride)
+        last_out: dict[str, float] = {}
+        worst_gap = 0.0
+        for step in range(31):
+            clock[0] = round(step * 0.1, 9)
+            before = len(link.published)
+            out.on_results([], [assessment(k) for k in range(min(step + 1, 3))])
+            for route, d in link.published[before:]:
+                if "/vehicle/" not in route.topic:
+                    continue
+                for item in decode_advisory(d).items:
+                    if item.emitter in last_out:
+                        worst_gap = max(worst_gap, clock[0] - last_out[item.emitter])
+                    last_out[item.emitter] = clock[0]
+        sent[ride] = _messages(link)
+        worst[ride] = worst_gap
+    assert worst[0.25] <= worst[0.0] <= 0.6 + 1e-9  # an interval, or the step after it
+    # apart: 3 new + 3 emitters repeated about every 0.5 s for 3 s, each on its own
+    assert len(sent[0.0]) >= 15
+    assert all(len(m) == 1 for m in sent[0.0])
+    # together: the 3 firsts, then one message per 0.5 s carrying all three
+    assert len(sent[0.25]) < len(sent[0.0]) / 2
+    assert sum(len(m) == 3 for m in sent[0.25]) >= 5
+
+
+def test_riders_never_displace_a_due_assessment() -> None:
+    clock = [0.0]
+    out, link = sink(clock, min_interval_s=0.5, ride_along_s=0.2, max_per_s=4.0)
+    out.on_results([], [assessment(k) for k in range(1, 5)])  # the burst of 4
+    clock[0] = 0.3
+    out.on_results([], [assessment(1), assessment(2), assessment(5, "brake", 0.9)])
+    # one token refilled (0.3 s x 4/s, rounded down): the new brake, not a rider
+    assert _messages(link)[-1] == {f"{5:016x}"}
+    assert out.stats.limited == 2
+    with pytest.raises(ValueError, match="ride_along_s"):
+        AdvisoryLimits(min_interval_s=0.5, ride_along_s=0.6)

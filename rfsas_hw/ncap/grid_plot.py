@@ -45,6 +45,7 @@ def plot_scenario(
         ncols,
         figsize=(0.8 + (0.6 * len(impacts) + 1.6) * ncols, 0.6 + (0.4 * len(speeds) + 0.9) * nrows),
         squeeze=False,
+        layout="constrained",  # keeps the figure's title clear of the panels' titles
     )
     flat = [ax for row in axes for ax in row]
     for ax in flat[n:]:
@@ -73,7 +74,6 @@ def plot_scenario(
         row[0].set_ylabel("VUT speed, km/h", fontsize=7)
     fig.suptitle(f"{name}: relative impact speed, km/h (impact location on the VUT front)",
                  fontsize=8)  # fmt: skip
-    fig.tight_layout()
     out = Path(path)
     fig.savefig(out, dpi=110)
     plt.close(fig)

@@ -415,7 +415,8 @@ class AdvisorySink:
         """Publish this step's assessments (nothing when there are none)."""
         if not assessments:
             return
-        chosen = self.limiter.select([AdvisoryItem.of(a) for a in assessments], self.monotonic())
+        # the limits choose among the assessments; only the chosen become wire items
+        chosen = [AdvisoryItem.of(a) for a in self.limiter.select(assessments, self.monotonic())]
         self.stats.limited = self.limiter.limited
         if not self.tile_topics:  # the vehicle's topic only: no tiles to sort them into
             if self.vehicle_id and chosen:

@@ -28,14 +28,26 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import Protocol, TypeVar
 
 from rfsas_hw.backend.risk import ADVISORY_RANK
 
-if TYPE_CHECKING:
-    from rfsas_hw.fleet.advisory import AdvisoryItem
+__all__ = ["Advice", "AdvisoryLimiter", "AdvisoryLimits"]
 
-__all__ = ["AdvisoryLimiter", "AdvisoryLimits"]
+
+class Advice(Protocol):
+    """What the limits look at in an assessment (an ``Assessment`` or an
+    ``AdvisoryItem``): whose it is, its advice, its collision probability."""
+
+    @property
+    def emitter(self) -> str: ...
+    @property
+    def advisory(self) -> str: ...
+    @property
+    def p_collision(self) -> float: ...
+
+
+A = TypeVar("A", bound=Advice)
 
 
 @dataclass(frozen=True, slots=True)
@@ -79,7 +91,7 @@ class AdvisoryLimiter:
         self._tokens = self.limits.max_per_s
         self._filled_at: float | None = None
 
-    def select(self, items: Sequence[AdvisoryItem], now_s: float) -> list[AdvisoryItem]:
+    def select(self, items: Sequence[A], now_s: float) -> list[A]:
         """The items of one step that go out at ``now_s`` (monotonic seconds): those due,
         most severe first, then the riders (``ride_along_s``); the others are counted
         in :attr:`limited`."""

@@ -77,7 +77,8 @@ def _speeds(value: str | None) -> list[float] | None:
     "--deployments",
     default="car,car+rsu",
     show_default=True,
-    help="RF-SAS deployments: car (the VUT's unit only), car+rsu.",
+    help="RF-SAS deployments: car (the VUT's unit only), car+rsu (and a roadside unit "
+    "across the road), car+2rsu (and a second one on the nearside kerb; opt-in).",
 )
 @click.option(
     "--devices",

@@ -74,6 +74,29 @@ def test_existing_outputs_are_kept_unless_forced(ran: tuple[Path, str]) -> None:
     assert (out / "runs.jsonl").read_bytes() == before
 
 
+def test_the_second_roadside_unit_is_opt_in(tmp_path: Path) -> None:
+    from rfsas_hw.cli.ncap import ncap
+
+    default = next(p.default for p in ncap.params if p.name == "deployments")
+    assert default == "car,car+rsu"  # the default matrix keeps one roadside unit
+    res = CliRunner().invoke(cli, ["ncap", "--help"])
+    assert res.exit_code == 0 and "car+2rsu" in res.output
+    args = ["ncap", "--scenarios", "CBNAO", "--speeds", "30", "--controllers", "rfsas+los",
+            "--deployments", "car+2rsu", "--devices", "phone-active", "--seeds", "1",
+            "--workers", "0", "--no-plots", "--out", str(tmp_path)]  # fmt: skip
+    res = CliRunner().invoke(cli, args)
+    assert res.exit_code == 0, res.output
+    (line,) = (tmp_path / "runs.jsonl").read_text().splitlines()
+    assert json.loads(line)["config"] == "rfsas+los/car+2rsu/phone-active"
+    # no raw MAC of the bicyclist (a SUMO vehicle: no person prefix) in any output either
+    cfg = bridge_config("car+2rsu", "phone-active", 0, ())
+    blobs = [p.read_bytes() for p in tmp_path.iterdir()] + [res.output.encode()]
+    for who in ("target", "person:target"):
+        mac = int_to_mac(device_mac(cfg, who, 0))
+        for form in _mac_forms(mac):
+            assert not any(form.search(b) for b in blobs), mac
+
+
 def test_bad_choices_name_the_option(tmp_path: Path) -> None:
     out = ["--out", str(tmp_path)]
     assert "--scenarios: unknown scenario 'CPXX'" in _error(["ncap", "--scenarios", "CPXX", *out])

@@ -136,6 +136,23 @@ def test_rfsas_with_a_roadside_unit_brakes_for_the_hidden_child() -> None:
     assert not fused.contact and fused.cued_steps > 0
 
 
+def test_a_second_roadside_unit_on_the_kerb_lets_rfsas_alone_avoid_the_hidden_child() -> None:
+    """CPNCO at 20 km/h and 50 %, seed 0, RF-SAS alone: with the farside unit only its BRAKE
+    comes at 4.7 s and the child is hit (16.6 km/h); with the kerb unit of ``car+2rsu``
+    beside it, which places the child across the road, the BRAKE comes at 4.3 s and the
+    child is avoided (seeds 0-3: avoided in 4, against 1 with one unit; docs/ncap.md,
+    "Two roadside units")."""
+    pytest.importorskip("libsumo", reason="needs the sumo extra (pip install .[sumo])")
+    from rfsas_hw.ncap.runner import RunSpec, run_one
+
+    cell = Cell("CPNCO", 20.0, 0.5)
+    one = run_one(RunSpec(cell, "rfsas", "car+rsu", "phone-active", 0))
+    two = run_one(RunSpec(cell, "rfsas", "car+2rsu", "phone-active", 0))
+    assert one.contact and one.impact_speed_kmh > 5.0
+    assert not two.contact and two.first_rf_brake_s is not None
+    assert one.first_rf_brake_s is not None and two.first_rf_brake_s < one.first_rf_brake_s
+
+
 def test_los_cued_by_rfsas_brakes_only_on_its_own_sight() -> None:
     pytest.importorskip("libsumo", reason="needs the sumo extra (pip install .[sumo])")
     from rfsas_hw.ncap.runner import RunSpec, run_one

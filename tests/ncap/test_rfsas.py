@@ -5,9 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from rfsas_hw.ncap.rfsas import RSU_POSE, SITE_FLOOR_DEG, bridge_config
+from rfsas_hw.ncap.rfsas import KERB_RSU_POSE, RSU_POSE, SITE_FLOOR_DEG, bridge_config
 from rfsas_hw.ncap.scenarios import PARKED_LOSS_DB, VAN_LOSS_DB, Cell, plan
 from rfsas_hw.twin.rfworld import blockage_db, building_array
+from rfsas_hw.twin.scenario import PoseSpec
 
 
 def test_deployments_and_devices() -> None:
@@ -21,6 +22,12 @@ def test_deployments_and_devices() -> None:
     assert both.devices["cyclist"].penetration == 1.0
     car = bridge_config("car", "phone-active", 0, obstacles)
     assert car.units == () and car.ego_unit is not None
+    # the opt-in second roadside unit: the farside one as in car+rsu, and one on the kerb
+    two = bridge_config("car+2rsu", "phone-active", 3, obstacles)
+    assert [u.pose for u in two.units] == [RSU_POSE, KERB_RSU_POSE]
+    assert two.units[0] == both.units[0] and len({u.id for u in two.units}) == 2
+    assert all(u.env_floor_deg == SITE_FLOOR_DEG for u in two.units)
+    assert two.ego_unit == both.ego_unit and two.buildings == both.buildings
     with pytest.raises(ValueError, match="unknown deployment"):
         bridge_config("drone", "phone-active", 0, ())  # type: ignore[arg-type]
     with pytest.raises(ValueError, match="unknown device"):
@@ -68,3 +75,21 @@ def test_the_roadside_unit_fixes_a_person_at_the_kerb_but_cannot_place_it_across
     for vut_range_m in (10.0, 20.0, 30.0):
         status, _ = _fix_from((6.0, -3.5), vut_range_m)
         assert status == "ILL_CONDITIONED"
+
+
+def test_the_kerb_unit_sees_the_hidden_child_cross_its_line_of_sight() -> None:
+    """The kerb unit stands clear of the parked vehicles (no loss on its line to the child
+    behind them) and the crossing moves the child's bearing by tens of degrees, while from
+    the farside unit it moves by a few."""
+    obstacles = plan(Cell("CPNCO", 30.0, 0.5)).obstacles
+    rects = building_array(list(bridge_config("car+2rsu", "phone-active", 0, obstacles).buildings))
+    behind, lane_edge = np.array([[0.0, -4.9]]), np.array([[0.0, -1.75]])
+    loss, hit = blockage_db(np.array([[KERB_RSU_POSE.x_m, KERB_RSU_POSE.y_m]]), behind, rects)
+    assert not hit[0] and loss[0] == 0.0
+
+    def sweep(pose: PoseSpec) -> float:
+        """How far the child's bearing from ``pose`` turns as it crosses, degrees."""
+        az = [np.arctan2(p[0, 0] - pose.x_m, p[0, 1] - pose.y_m) for p in (behind, lane_edge)]
+        return float(np.degrees(abs(az[1] - az[0])))
+
+    assert sweep(KERB_RSU_POSE) > 25.0 > 3 * sweep(RSU_POSE)

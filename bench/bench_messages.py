@@ -29,7 +29,6 @@ from __future__ import annotations
 
 import importlib.util
 import logging
-import multiprocessing as mp
 import sys
 import tempfile
 import threading
@@ -44,7 +43,7 @@ from cryptography.hazmat.primitives.asymmetric import ec
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from bench_fleet import start_broker
-from bench_mqtt_client import paho_receive, setup
+from bench_mqtt_client import paho_receive, ready_process, setup
 
 from rfsas_hw.fleet.broker import BrokerFiles
 from rfsas_hw.link import Publisher, Receiver, ReceiverConfig, TrustedKeys
@@ -192,23 +191,11 @@ def run_pair(
     files: BrokerFiles, keys: Path, k: int, n: int, sender: object, receiver: object
 ) -> tuple[float, float, int]:
     """Send-side and receive-side CPU µs per message, and messages received."""
-    ctx = mp.get_context("spawn")
-    q: MpQueue[object] = ctx.Queue()
-    proc = ctx.Process(target=receiver, args=(files, str(keys), n, q), daemon=True)  # type: ignore[arg-type]
-    proc.start()
-    try:
-        if q.get(timeout=60) != "ready":
-            raise RuntimeError("the receiver did not get ready")
+    with ready_process("the receiver", receiver, files, str(keys), n) as q:  # type: ignore[arg-type]
         send_us = sender(files, keys, k, n)  # type: ignore[operator]
         got, cpu, rejected = q.get(timeout=120)  # type: ignore[misc]
         if rejected:
             raise RuntimeError(f"the receiver refused {rejected} genuine messages")
-    finally:
-        proc.join(10)
-        if proc.is_alive():
-            proc.kill()
-            proc.join(5)
-        q.close()
     return float(send_us), float(cpu) / max(int(got), 1) * 1e6, int(got)
 
 

@@ -35,7 +35,7 @@ import sys
 import tempfile
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from multiprocessing.queues import Queue as MpQueue
 from pathlib import Path
 
@@ -189,15 +189,36 @@ CLIENTS = {
 }
 
 
-def measure(name: str, files: BrokerFiles, n: int) -> tuple[int, float]:
-    """Messages the client received and its CPU seconds for them."""
+@contextlib.contextmanager
+def ready_process(
+    name: str, target: Callable[..., None], *args: object
+) -> Iterator[MpQueue[object]]:
+    """A spawned process running ``target(*args, queue)`` that puts "ready" on the queue
+    first; the queue, to read its results. When the block ends the process is joined
+    (killed after 10 s) and the queue closed.
+
+    Raises:
+        RuntimeError: the process did not say "ready" within 60 s.
+    """
     ctx = mp.get_context("spawn")
     q: MpQueue[object] = ctx.Queue()
-    proc = ctx.Process(target=CLIENTS[name], args=(files, n, q), daemon=True)
+    proc = ctx.Process(target=target, args=(*args, q), daemon=True)
     proc.start()
     try:
         if q.get(timeout=60) != "ready":
             raise RuntimeError(f"{name}: did not get ready")
+        yield q
+    finally:
+        proc.join(10)
+        if proc.is_alive():
+            proc.kill()
+            proc.join(5)
+        q.close()
+
+
+def measure(name: str, files: BrokerFiles, n: int) -> tuple[int, float]:
+    """Messages the client received and its CPU seconds for them."""
+    with ready_process(name, CLIENTS[name], files, n) as q:
         load = LoadPublisher(files, "s-0")
         packet = LoadPublisher.packet(TOPIC, PAYLOAD)
         per_tick = int(RATE * TICK_S)
@@ -212,12 +233,6 @@ def measure(name: str, files: BrokerFiles, n: int) -> tuple[int, float]:
                 time.sleep(pause)
         load.close()
         got, cpu = q.get(timeout=120)  # type: ignore[misc]
-    finally:
-        proc.join(10)
-        if proc.is_alive():
-            proc.kill()
-            proc.join(5)
-        q.close()
     return int(got), float(cpu)
 
 

@@ -24,30 +24,18 @@ from rfsas_hw.link.cue_receiver import CueReceiver
 from rfsas_hw.link.keys import KeyStore
 from rfsas_hw.link.publisher import Publisher
 from rfsas_hw.link.signing import Signer, TrustedKeys
-from rfsas_hw.link.transport import Transport, open_transport
+from rfsas_hw.link.transport import open_transport
 from rfsas_hw.records import BearingBatch, Pose
 
 # the command test's scenario: two sensors, a pedestrian ahead of the car
 sys.path.insert(0, str(Path(__file__).parent))
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "link"))
+from linkhelp import Kept
 from test_cli_backend import EMITTER as CLI_EMITTER
 from test_cli_backend import SENSORS, TARGET, VEHICLE_JSON, free_port, send_rounds
 
 NOW_NS = 1_763_800_030_000_000_000
 EMITTER = 0x0123456789ABCDEF
-
-
-class Capture(Transport):
-    def __init__(self) -> None:
-        self.sent: list[bytes] = []
-
-    def send(self, datagram: bytes) -> None:
-        self.sent.append(datagram)
-
-    def recv(self, timeout: float | None = None) -> bytes | None:
-        return None
-
-    def close(self) -> None:
-        pass
 
 
 def bearing_to(sensor: str, xy: tuple[float, float], target: tuple[float, float]) -> BearingBatch:
@@ -65,7 +53,7 @@ def bearing_to(sensor: str, xy: tuple[float, float], target: tuple[float, float]
 
 def test_an_emitter_at_risk_gets_a_fix_cue_the_vehicle_accepts() -> None:
     signer = Signer("backend-1", ec.derive_private_key(0x4242, ec.SECP256R1()))
-    link = Capture()
+    link = Kept()
     cuer = BackendCuer(signer, link, clock=lambda: NOW_NS)
     backend = BackendService(sinks=[cuer], clock=lambda: NOW_NS)
     target = (1.0, 0.0)
@@ -90,7 +78,7 @@ def test_a_fix_older_than_a_cues_validity_is_not_cued() -> None:
     """A step that comes late (a loaded backend) must not send a cue that is already
     expired: the vehicle would refuse it as ``expired``."""
     signer = Signer("backend-1", ec.derive_private_key(0x4242, ec.SECP256R1()))
-    link = Capture()
+    link = Kept()
     late_ns = NOW_NS + 2_500_000_000  # the fix is 2.55 s old; cues are valid 2 s
     cuer = BackendCuer(signer, link, clock=lambda: late_ns, valid_s=2.0)
     backend = BackendService(sinks=[cuer], clock=lambda: NOW_NS)
@@ -104,7 +92,7 @@ def test_a_fix_older_than_a_cues_validity_is_not_cued() -> None:
 
 def test_an_emitter_judged_clear_is_not_cued() -> None:
     signer = Signer("backend-1", ec.derive_private_key(0x4242, ec.SECP256R1()))
-    link = Capture()
+    link = Kept()
     cuer = BackendCuer(signer, link, clock=lambda: NOW_NS)
     backend = BackendService(sinks=[cuer], clock=lambda: NOW_NS)
     for sensor, xy in (("rsu-a", (-20.0, 10.0)), ("rsu-b", (20.0, 10.0))):

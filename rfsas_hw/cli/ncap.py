@@ -110,7 +110,7 @@ def ncap(
     A simulation of RF-SAS's potential on the protocol's geometry, not a Euro NCAP rating.
     """
     from rfsas_hw.ncap.scenarios import cells
-    from rfsas_hw.ncap.scoring import goals, nuisance, points, score_cells
+    from rfsas_hw.ncap.scoring import goal_configs, goals, nuisance, points, score_cells
     from rfsas_hw.ncap.sweep import configs, run_sweep, specs_for
     from rfsas_hw.outpaths import AtomicFile, check_output, inside, safe_name, write_text_atomic
 
@@ -160,7 +160,9 @@ def ncap(
         "cells": [c.as_dict() for c in scored],
         "points": {k: {s: list(v) for s, v in d.items()} for k, d in pts.items()},
         "nuisance": {k: list(v) for k, v in nuis.items()},
-        "goals": goals(scored, pts, nuis),
+        "goals": [
+            goals(scored, pts, nuis, config) for config in goal_configs(r.config for r in results)
+        ],
         "wall_s_total": sum(r.wall_s for r in results),
         "cpu_s_total": sum(r.cpu_s for r in results),
     }

@@ -153,8 +153,18 @@ def nuisance(results: Iterable[RunResult]) -> dict[str, tuple[int, int]]:
 
 GOAL_CONFIG = "rfsas+los/car+rsu/phone-active"
 """The configuration the goals are stated for."""
+GOAL_CONTROLLER = "rfsas+los"
+"""The controller the goals are stated for; every deployment and device of it is measured."""
 GOAL_SCENARIOS = ("CPNCO", "CBNAO")
 """The obstructed scenarios that must be green in every cell."""
+
+
+def goal_configs(configs: Iterable[str]) -> list[str]:
+    """The configurations of ``configs`` the goals are measured for: :data:`GOAL_CONFIG`
+    and every other deployment and device of :data:`GOAL_CONTROLLER`, the stated one
+    first (it alone when none of them ran, so that the goals say what was not covered)."""
+    mine = {c for c in configs if c.split("/")[0] == GOAL_CONTROLLER}
+    return [GOAL_CONFIG, *sorted(mine - {GOAL_CONFIG})]
 
 
 def goals(

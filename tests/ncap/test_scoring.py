@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 
 from rfsas_hw.ncap.runner import RunResult
-from rfsas_hw.ncap.scoring import band, nuisance, points, score_cells
+from rfsas_hw.ncap.scoring import band, goal_configs, goals, nuisance, points, score_cells
 
 
 def _r(
@@ -63,3 +63,22 @@ def test_turning_cells_count_avoidance_only() -> None:
         "CBTA-50@10": ("green", 1.0),
     }
     assert points(score_cells(runs))["los"] == {"CBTA": (1.0, 2.0), "CPTA": (2.0, 2.0)}
+
+
+def test_goals_are_measured_for_every_deployment_of_the_goal_controller() -> None:
+    two = "rfsas+los/car+2rsu/phone-active"
+    runs = [
+        _r("CPNCO-50@20", "los", 20.0, 10.0),
+        _r("CPNCO-50@20", two, 20.0, 0.0),
+        _r("CBNAO-50@60", two, 60.0, 45.0),
+        _r("TN-KERB-50@20", two, 20.0, 0.0),
+        _r("CPNCO-50@20", "rfsas/car+rsu/phone-active", 20.0, 0.0),
+    ]
+    # the stated configuration first, even where it did not run: its goals say so
+    assert goal_configs(r.config for r in runs) == ["rfsas+los/car+rsu/phone-active", two]
+    cells = score_cells(runs)
+    pts, nuis = points(cells), nuisance(runs)
+    stated, other = (goals(cells, pts, nuis, c) for c in goal_configs(r.config for r in runs))
+    assert stated["green_obstructed"] is None and stated["not_below_los"] is None
+    assert other["green_obstructed"] is False and other["not_green"] == ["CBNAO-50@60"]
+    assert other["not_below_los"] is True and other["no_nuisance"] is True

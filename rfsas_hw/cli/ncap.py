@@ -10,6 +10,7 @@ from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
+from rfsas_hw.cli.exitcodes import Interrupted
 from rfsas_hw.cli.options import runner_options
 from rfsas_hw.cli.outopts import OutputPath
 from rfsas_hw.errors import ConfigError
@@ -108,7 +109,10 @@ def ncap(
     """Run part of the Euro NCAP VRU matrix in SUMO and score it like the protocol.
 
     A simulation of RF-SAS's potential on the protocol's geometry, not a Euro NCAP rating.
+    Ctrl-C or SIGTERM stops the sweep: the runs done by then are written and scored
+    (``interrupted`` in the summary) and the exit code is 130.
     """
+    from rfsas_hw.ncap.runner import RunResult
     from rfsas_hw.ncap.scenarios import cells
     from rfsas_hw.ncap.scoring import goal_configs, goals, nuisance, points, score_cells
     from rfsas_hw.ncap.sweep import configs, run_sweep, specs_for
@@ -137,26 +141,31 @@ def ncap(
         TextColumn("ncap"), BarColumn(), MofNCompleteColumn(), TextColumn("{task.fields[last]}"),
         TimeElapsedColumn(),
     )  # fmt: skip
+    got: dict[int, RunResult] = {}
+    interrupted = False
     try:
-        with (
-            AtomicFile(runs_path, newline=None) as sink,
-            Progress(*columns, console=console) as bar,
-        ):
+        with Progress(*columns, console=console) as bar:
             task = bar.add_task("runs", total=len(specs), last="")
 
-            def done(i: int, r: object) -> None:
+            def done(i: int, r: RunResult) -> None:
+                got[i] = r
                 bar.update(task, advance=1, last=specs[i].cell.key)
 
-            results = run_sweep(specs, workers=workers, scheduler=scheduler, on_result=done)
-            for r in results:
-                sink.stream.write(json.dumps({"record": "run", **r.as_dict()}) + "\n")
-    except OSError as err:
-        raise ConfigError(f"{runs_path}: cannot write: {err.strerror or err}") from err
+            run_sweep(specs, workers=workers, scheduler=scheduler, on_result=done)
+    except KeyboardInterrupt:  # Ctrl-C or SIGTERM: the runs done are still written
+        interrupted = True
+    results = [got[i] for i in sorted(got)]
+    # a failed write ends the command through the shared output rules (exit 1)
+    with AtomicFile(runs_path, newline=None) as sink:
+        for r in results:
+            sink.stream.write(json.dumps({"record": "run", **r.as_dict()}) + "\n")
     scored = score_cells(results)
     pts = points(scored)
     nuis = nuisance(results)
     summary = {
         "runs": len(results),
+        "runs_planned": len(specs),
+        "interrupted": interrupted,
         "cells": [c.as_dict() for c in scored],
         "points": {k: {s: list(v) for s, v in d.items()} for k, d in pts.items()},
         "nuisance": {k: list(v) for k, v in nuis.items()},
@@ -175,6 +184,10 @@ def ncap(
     _print_table(pts, nuis)
     Console().print(f"{len(results)} runs → {runs_path}, {summary_path}"
                     + (f", {len(pngs)} grids" if pngs else ""))  # fmt: skip
+    if interrupted:
+        raise Interrupted(
+            f"after {len(results)} of {len(specs)} runs (those runs are written and scored)"
+        )
 
 
 def _print_table(

@@ -103,3 +103,30 @@ def test_bad_choices_name_the_option(tmp_path: Path) -> None:
     assert "--speeds" in _error(["ncap", "--speeds", "fast", *out])
     assert "unknown device 'pager'" in _error(["ncap", "--devices", "pager", *out])
     assert "no cell" in _error(["ncap", "--scenarios", "CBLA", "--speeds", "10", *out])
+
+
+def test_an_interrupted_sweep_writes_and_scores_the_runs_done(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import rfsas_hw.ncap.sweep as sweep
+
+    real, calls = sweep.run_one, []
+
+    def stopped_at_the_third(spec: object) -> object:
+        calls.append(spec)
+        if len(calls) == 3:
+            raise KeyboardInterrupt  # what Ctrl-C, or SIGTERM through the CLI, raises
+        return real(spec)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(sweep, "run_one", stopped_at_the_third)
+    args = ["ncap", "--scenarios", "CPNCO", "--speeds", "20", "--controllers", "los"]
+    args += ["--seeds", "1", "--workers", "0", "--no-plots", "--out", str(tmp_path)]
+    res = CliRunner().invoke(cli, args)
+    assert res.exit_code == 130, res.output
+    assert "after 2 of 3 runs" in res.output
+    lines = [json.loads(x) for x in (tmp_path / "runs.jsonl").read_text().splitlines()]
+    assert [x["cell"] for x in lines] == ["CPNCO-25@20", "CPNCO-50@20"]
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    assert summary["interrupted"] is True
+    assert (summary["runs"], summary["runs_planned"]) == (2, 3)
+    assert {c["cell"] for c in summary["cells"]} == {"CPNCO-25@20", "CPNCO-50@20"}

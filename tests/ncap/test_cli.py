@@ -108,17 +108,17 @@ def test_bad_choices_name_the_option(tmp_path: Path) -> None:
 def test_an_interrupted_sweep_writes_and_scores_the_runs_done(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    import rfsas_hw.ncap.sweep as sweep
+    from rfsas_hw.ncap.runner import run_one
 
-    real, calls = sweep.run_one, []
+    calls: list[object] = []
 
     def stopped_at_the_third(spec: object) -> object:
         calls.append(spec)
         if len(calls) == 3:
             raise KeyboardInterrupt  # what Ctrl-C, or SIGTERM through the CLI, raises
-        return real(spec)  # type: ignore[arg-type]
+        return run_one(spec)  # type: ignore[arg-type]
 
-    monkeypatch.setattr(sweep, "run_one", stopped_at_the_third)
+    monkeypatch.setattr("rfsas_hw.ncap.sweep.run_one", stopped_at_the_third)
     args = ["ncap", "--scenarios", "CPNCO", "--speeds", "20", "--controllers", "los"]
     args += ["--seeds", "1", "--workers", "0", "--no-plots", "--out", str(tmp_path)]
     res = CliRunner().invoke(cli, args)

@@ -43,10 +43,14 @@ track on its own, whatever the fix of the moment:
   not applied and counted; a track whose last ``lost_after`` bearings were all
   outside the gate is dropped, and the next trustworthy fix starts a new one.
 
-Only the newest bearing of each sensor per step is used (the associator keeps
-no other): the same measurements the fixes are made of, so that a sensor's
-correlated errors (multipath at a slowly changing geometry) are not counted
-many times over.
+By default only the newest bearing of each sensor per step is used (the
+associator keeps no other): the same measurements the fixes are made of, so that
+a sensor's correlated errors (multipath at a slowly changing geometry) are not
+counted many times over. With ``readings: all`` every bearing a sensor reported
+since the last step is applied, oldest first, each at its own capture time
+(:meth:`BearingTracker.take` keeps one step's bearings): for units whose readings
+of one burst have independent errors (measured for the Euro NCAP matrix's,
+docs/ncap-log.md, section J) the track then sees a start sooner.
 """
 
 from __future__ import annotations
@@ -66,17 +70,22 @@ from rfsas_hw.backend.stop_go import Modes, combine, predict_modes, reweigh
 from rfsas_hw.backend.tracking import NS_PER_S, Tracker
 from rfsas_hw.df.fovrule import EDGE_SIGMAS
 from rfsas_hw.errors import BackendError
+from rfsas_hw.records import BearingBatch, Pose
 
 Array = npt.NDArray[np.float64]
 
 TrackingMode = Literal["fixes", "bearings"]
 """What updates a track: ``fixes`` (triangulated positions) or ``bearings`` (each unit's)."""
 
+Readings = Literal["newest", "all"]
+"""Which of a sensor's bearings in a step update a track: its ``newest`` or ``all``."""
+
 __all__ = [
     "BearingTracker",
     "BearingTrackerStats",
     "BearingUpdate",
     "BearingUpdateConfig",
+    "Readings",
     "TrackingMode",
     "bearing_update",
     "censored_reading",
@@ -111,11 +120,15 @@ class BearingUpdateConfig:
             uncensored (module docstring).
         edge_sigmas: the units' edge rule, sigmas (the DF's own,
             :data:`~rfsas_hw.df.fovrule.EDGE_SIGMAS`).
+        readings: ``newest``: each sensor's newest bearing per step updates a track;
+            ``all``: every bearing it reported since the last step, each at its own
+            time (a burst's frames as independent measurements: only for units whose
+            errors within a burst are uncorrelated).
 
     Raises:
         BackendError: a non-positive gate, iteration count or loss count, a
             negative station sigma, a field of view that does not hold boresight,
-            or a negative ``edge_sigmas``.
+            a negative ``edge_sigmas``, or an unknown ``readings``.
     """
 
     gate_sigmas: float = 3.0
@@ -126,6 +139,7 @@ class BearingUpdateConfig:
     start_sigma_scale: float = 1.0
     fov_deg: tuple[float, float] | None = None
     edge_sigmas: float = EDGE_SIGMAS
+    readings: Readings = "newest"
 
     def __post_init__(self) -> None:
         if not self.gate_sigmas > 0:
@@ -151,6 +165,8 @@ class BearingUpdateConfig:
             )
         if not self.edge_sigmas >= 0:
             raise BackendError(f"bearings edge_sigmas must be ≥ 0, got {self.edge_sigmas}")
+        if self.readings not in ("newest", "all"):
+            raise BackendError(f"bearings readings must be newest or all, got {self.readings!r}")
 
 
 @dataclass(frozen=True, slots=True)
@@ -359,6 +375,27 @@ class BearingTracker:
     """Per emitter, the time of the newest bearing of each sensor already used, ns."""
     _missed: dict[int, int] = field(default_factory=dict)
     """Per emitter, gated bearings in a row."""
+    _pending: dict[int, list[StationBearing]] = field(default_factory=dict)
+    """Per emitter, the bearings taken since the last step (``readings: all`` only)."""
+
+    def take(self, batch: BearingBatch, pose: Pose) -> None:
+        """Keep the bearings one sensor measured from ``pose`` until the next :meth:`step`
+        (with ``readings: all``; otherwise the associator's newest are used and this
+        does nothing)."""
+        if self.config.readings != "all" or len(batch) == 0:
+            return
+        sensor = batch.sensor_id
+        rows = zip(
+            batch.emitter.tolist(),
+            batch.t_ns.tolist(),
+            batch.azimuth_deg.tolist(),
+            batch.sigma_deg.tolist(),
+            strict=True,
+        )
+        for emitter, t_ns, azimuth, sigma in rows:
+            self._pending.setdefault(emitter, []).append(
+                StationBearing(sensor, t_ns, azimuth, sigma, pose.x_m, pose.y_m, pose.heading_deg)
+            )
 
     def step(
         self,
@@ -380,8 +417,14 @@ class BearingTracker:
         for emitter in [e for e in self._used if e not in self.tracker.tracks]:
             del self._used[emitter]
             self._missed.pop(emitter, None)
+        pending, self._pending = self._pending, {}
         for emitter in list(self.tracker.tracks):
-            self._apply(emitter, associator.newest(emitter))
+            if self.config.readings == "all":
+                taken = pending.get(emitter, [])
+                taken.sort(key=lambda b: (b.t_ns, b.sensor))
+                self._apply(emitter, taken)
+            else:
+                self._apply(emitter, associator.newest(emitter))
         new = [i for i, e in enumerate(emitters) if e not in self.tracker.tracks]
         if not new:
             return

@@ -369,6 +369,8 @@ class BackendService:
         self.stations[bearings.sensor_id] = pose
         self.stats.bearings += len(bearings)
         self.associator.add(bearings, pose)
+        if self.bearing_tracker is not None:
+            self.bearing_tracker.take(bearings, pose)
         for sink in self.sinks:
             take = getattr(sink, "on_bearings", None)
             if take is None:

@@ -469,8 +469,10 @@ class CityBackend:
             first, sent = sink.seq, sink.stats.messages
             sink.on_results([], assessed)
             n = sink.stats.messages - sent
+            if n == 0 or not fresh_ns:
+                continue
             fresh = [fresh_ns[e] for e in (int(a.emitter, 16) for a in assessed) if e in fresh_ns]
-            if n > 0 and fresh:
+            if fresh:
                 # the advisory that carries a fix made in this step: its latency counts
                 out.append((vid, first, (first + n - 1) % (1 << 32), max(fresh)))
         self._forget(set(states.ids))

@@ -385,11 +385,19 @@ class BackendService:
         self.stats.messages += 1
         self.on_bearings(message.bearings, message.message.pose)
 
-    def step(self, now_ns: int | None = None) -> list[Assessment]:
+    def step(self, now_ns: int | None = None, *, assess: bool = True) -> list[Assessment]:
         """Triangulate new groups, update tracks, judge every live emitter; feed the sinks.
 
+        Args:
+            now_ns: UTC ns of the step (default: the clock).
+            assess: judge every live emitter against the service's vehicle into
+                :attr:`assessments` (True, the default). False: only fixes and tracks;
+                :attr:`assessments` is emptied and the sinks get no assessments — for
+                a caller that judges other vehicles itself (:meth:`assess_many`) and
+                takes the emitters' positions from :meth:`predicted`.
+
         Returns:
-            This step's assessments, highest risk first.
+            This step's assessments, highest risk first (none with ``assess=False``).
         """
         now = self.clock() if now_ns is None else int(now_ns)
         self.stats.steps += 1
@@ -399,7 +407,11 @@ class BackendService:
         for emitter in [e for e, f in self.fixes.items() if f.t_ns < keep]:
             del self.fixes[emitter]
         held = list(self.fixes.items())
-        assessments = self._assess(now, [self._vehicle_at(now)], held, [range(len(held))])[0]
+        assessments = (
+            self._assess(now, [self._vehicle_at(now)], held, [range(len(held))])[0]
+            if assess
+            else []
+        )
         self.assessments = {int(a.emitter, 16): a for a in assessments}
         for sink in self.sinks:
             try:
@@ -518,18 +530,7 @@ class BackendService:
         ``fixes``, highest risk first. The tracks of ``fixes`` are predicted once;
         the encounters of every vehicle with its tracked rows are one batch."""
         alarm = bool(self.link_alarm()) if self.link_alarm is not None else False
-        nan = math.nan
-        accel = self.config.tracker.accel_sigma_mps2
-        tracks = [self.tracker.tracks.get(emitter) for emitter, _ in fixes]
-        live = [(i, t) for i, t in enumerate(tracks) if t is not None]
-        tracked = [i for i, _ in live]
-        if len(live) == len(fixes):  # every emitter tracked (the usual case): no NaN rows
-            states, covs = predict_tracks([t for _, t in live], now, accel)
-        else:
-            states = np.full((len(fixes), 4), nan)
-            covs = np.full((len(fixes), 4, 4), nan)
-            if live:
-                states[tracked], covs[tracked] = predict_tracks([t for _, t in live], now, accel)
+        tracks, states, covs = self._predict(now, fixes)
         # every (vehicle, tracked row) pair, judged in one batch
         owner: list[int] = []
         pair_rows: list[int] = []
@@ -546,9 +547,6 @@ class BackendService:
         encounters = iter(
             self._encounters(judged, owner, states, covs, fixes, pair_rows, alarm, tracks)
         )
-        for i, (_, fix) in enumerate(fixes):
-            if tracks[i] is None:  # not tracked: the fix's position, nothing else
-                states[i, 0], states[i, 1] = fix.x_m, fix.y_m
         # plain floats once for all rows (the same values float() gives one by one)
         state_rows = states.tolist()
         cov_rows = covs[:, :2, :2].reshape(-1, 4).tolist()
@@ -573,6 +571,42 @@ class BackendService:
             mine.sort(key=lambda a: -a.risk if math.isfinite(a.risk) else 1.0)
             out.append(mine)
         return out
+
+    def _predict(
+        self, now: int, fixes: list[tuple[int, Fix]]
+    ) -> tuple[list[Track | None], np.ndarray, np.ndarray]:
+        """Per row of ``fixes``: its emitter's track (None: not tracked), its predicted
+        state ``[x, y, vx, vy]`` at ``now`` (rows (N, 4); not tracked: the fix's
+        position and NaN velocity) and that state's 4×4 covariance (NaN when not
+        tracked)."""
+        nan = math.nan
+        accel = self.config.tracker.accel_sigma_mps2
+        tracks = [self.tracker.tracks.get(emitter) for emitter, _ in fixes]
+        live = [(i, t) for i, t in enumerate(tracks) if t is not None]
+        if len(live) == len(fixes):  # every emitter tracked (the usual case): no NaN rows
+            states, covs = predict_tracks([t for _, t in live], now, accel)
+            return tracks, states, covs
+        tracked = [i for i, _ in live]
+        states = np.full((len(fixes), 4), nan)
+        covs = np.full((len(fixes), 4, 4), nan)
+        if live:
+            states[tracked], covs[tracked] = predict_tracks([t for _, t in live], now, accel)
+        for i, (_, fix) in enumerate(fixes):
+            if tracks[i] is None:  # not tracked: the fix's position, nothing else
+                states[i, 0], states[i, 1] = fix.x_m, fix.y_m
+        return tracks, states, covs
+
+    def predicted(self, now_ns: int) -> tuple[np.ndarray, np.ndarray]:
+        """Every live emitter (one with a fix held, as :attr:`fixes`) at ``now_ns`` (UTC
+        ns): their ids (uint64, in the order of :attr:`fixes`) and ``[x_m, y_m, vx_mps,
+        vy_mps]`` per emitter (rfsas frame; its track predicted to ``now_ns``, or where
+        it is not tracked its fix's position, NaN when not located, and NaN velocity):
+        the positions and velocities :meth:`step` would give its assessments."""
+        held = list(self.fixes.items())
+        ids = np.fromiter((e for e, _ in held), np.uint64, len(held))
+        if not held:
+            return ids, np.empty((0, 4))
+        return ids, self._predict(int(now_ns), held)[1]
 
     def _assessment(
         self,

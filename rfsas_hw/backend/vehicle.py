@@ -17,7 +17,7 @@ import json
 import logging
 import math
 from collections import Counter
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -110,8 +110,17 @@ class VehicleState:
         # position + velocity·dt, element by element in floats
         a = compass_to_math_rad(float(self.heading_deg))
         vx, vy = math.cos(a) * self.speed_mps, math.sin(a) * self.speed_mps
-        return replace(
-            self, x_m=float(self.x_m + vx * dt), y_m=float(self.y_m + vy * dt), t_ns=t_ns
+        # every field named (dataclasses.replace looks the fields up on each call)
+        return VehicleState(
+            float(self.x_m + vx * dt),
+            float(self.y_m + vy * dt),
+            self.heading_deg,
+            self.speed_mps,
+            self.length_m,
+            self.width_m,
+            self.sigma_along_m,
+            self.sigma_across_m,
+            t_ns,
         )
 
 

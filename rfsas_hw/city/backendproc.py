@@ -61,6 +61,7 @@ from rfsas_hw.fleet.advisory_limits import AdvisoryLimits
 from rfsas_hw.geo import SiteOrigin
 from rfsas_hw.link.mqtt import open_mqtt
 from rfsas_hw.link.topics import TopicRouter
+from rfsas_hw.records import emitter_hex
 
 NS_PER_S = 1_000_000_000
 _SEVERITY = {"brake": 3, "caution": 2, "clear": 1, "none": 0}
@@ -68,6 +69,7 @@ _SEVERITY = {"brake": 3, "caution": 2, "clear": 1, "none": 0}
 __all__ = [
     "BackendWork",
     "Cadence",
+    "Reach",
     "StatesByTime",
     "VehicleStates",
     "backend_main",
@@ -96,6 +98,12 @@ class BackendWork:
     """Nonce epoch length, seconds."""
     near_m: float = 60.0
     """Emitters farther than this from a vehicle are not judged against it, metres."""
+    reach_margin_m: float | None = 15.0
+    """An emitter is judged against a vehicle only while they could meet within the
+    encounter model's horizon: closer than (the vehicle's speed + the emitter's tracked
+    speed) × ``horizon_s`` + this margin (:class:`Reach`), metres; None: within
+    :attr:`near_m` alone. A vehicle last told more than ``clear`` about an emitter is
+    judged against it within :attr:`near_m` until it has been told ``clear``."""
     slot_s: float = SLOT_S
     """The sensors' slot: between ticks, the service steps when bearings arrived, at
     most once per slot, on the slot grid (:class:`Cadence`), seconds."""
@@ -117,6 +125,31 @@ class BackendWork:
 
 
 @dataclass(frozen=True)
+class Reach:
+    """Which emitters a vehicle could meet within the encounter model's horizon.
+
+    Both move at constant velocity in the encounter model
+    (:mod:`rfsas_hw.backend.encounter`), so within ``horizon_s`` a vehicle at speed
+    ``u`` and an emitter at speed ``w`` close in by at most ``(u + w)·horizon_s``; one
+    farther than that plus ``margin_m`` (the two boxes and the position errors) is
+    judged ``clear`` by its geometry, and is not judged. An emitter of unknown speed
+    (not tracked) is judged within the fixed distance as before, and so is every
+    emitter in ``owed`` of a vehicle (it was last told more than ``clear`` about it:
+    it gets its ``clear``).
+    """
+
+    horizon_s: float
+    """The encounter model's horizon, seconds."""
+    margin_m: float
+    """Metres added to the distance they close in by."""
+    emitter_speed_mps: np.ndarray
+    """Per emitter, its tracked speed, m/s (NaN: unknown)."""
+    owed: dict[str, set[str]] = field(default_factory=dict)
+    """Per vehicle id, the emitters (16 hex digits) it was last told more than ``clear``
+    about."""
+
+
+@dataclass(frozen=True)
 class VehicleStates:
     """The vehicles in a backend's tiles at one moment (rfsas frame, box centres)."""
 
@@ -131,19 +164,50 @@ class VehicleStates:
     length_m: np.ndarray
     width_m: np.ndarray
 
-    def near(
-        self, emitters: np.ndarray, x_m: np.ndarray, y_m: np.ndarray, near_m: float, now_ns: int
-    ) -> list[tuple[int, VehicleState, list[int]]]:
-        """The vehicles with an emitter (ids ``emitters`` at ``x_m``, ``y_m``, rfsas frame,
-        metres) closer than ``near_m`` metres to their box centre: per such vehicle, in
-        the order of :attr:`ids`, its index, its state at ``now_ns`` (UTC ns; moved
-        along its heading at its speed since :attr:`t_ns`) and those emitters' ids."""
+    def within(
+        self,
+        emitters: np.ndarray,
+        x_m: np.ndarray,
+        y_m: np.ndarray,
+        near_m: float,
+        reach: Reach | None = None,
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Per (vehicle, emitter) — emitter ids ``emitters`` at ``x_m``, ``y_m`` (rfsas
+        frame, metres) —, whether the emitter is closer than ``near_m`` metres to the
+        vehicle's box centre (V × E), and of those the pairs to judge: all of them
+        without ``reach``, with it those within the vehicle's reach (:class:`Reach`)."""
         # every vehicle against every emitter at once
-        close = (x_m[None, :] - self.x_m[:, None]) ** 2 + (
-            y_m[None, :] - self.y_m[:, None]
-        ) ** 2 < near_m**2
+        d2 = (x_m[None, :] - self.x_m[:, None]) ** 2 + (y_m[None, :] - self.y_m[:, None]) ** 2
+        close = d2 < near_m**2
+        if reach is None:
+            return close, close
+        speed = np.maximum(self.speed_mps, 0.0)
+        limit = (speed[:, None] + reach.emitter_speed_mps[None, :]) * reach.horizon_s
+        limit += reach.margin_m
+        # an emitter of unknown speed (NaN limit) is judged within near_m
+        judged = close & ~(d2 >= limit * limit)
+        if reach.owed:
+            row = {v: i for i, v in enumerate(self.ids)}
+            col = {emitter_hex(e): j for j, e in enumerate(emitters.tolist())}
+            for vid, owed in reach.owed.items():
+                i = row.get(vid)
+                if i is None:
+                    continue
+                for e in owed:
+                    j = col.get(e)
+                    if j is not None and close[i, j]:
+                        judged[i, j] = True
+        return close, judged
+
+    def near(
+        self, emitters: np.ndarray, judged: np.ndarray, now_ns: int
+    ) -> list[tuple[int, VehicleState, list[int]]]:
+        """The vehicles with an emitter (ids ``emitters``) to judge (``judged``, V × E, as
+        :meth:`within` gives it): per such vehicle, in the order of :attr:`ids`, its
+        index, its state at ``now_ns`` (UTC ns; moved along its heading at its speed
+        since :attr:`t_ns`) and those emitters' ids."""
         out = []
-        for i in np.flatnonzero(close.any(axis=1)).tolist():
+        for i in np.flatnonzero(judged.any(axis=1)).tolist():
             vehicle = VehicleState(
                 x_m=float(self.x_m[i]),
                 y_m=float(self.y_m[i]),
@@ -153,7 +217,7 @@ class VehicleStates:
                 width_m=float(self.width_m[i]),
                 t_ns=self.t_ns,
             ).at(now_ns)
-            out.append((i, vehicle, emitters[close[i]].tolist()))
+            out.append((i, vehicle, emitters[judged[i]].tolist()))
         return out
 
 
@@ -167,6 +231,11 @@ class BackendCounters:
     advisories_failed: int = 0
     vehicles_judged: int = 0
     """Vehicle-steps with at least one emitter near."""
+    out_of_reach: int = 0
+    """Vehicle-steps with an emitter within ``near_m`` but none within reach, not judged
+    (:attr:`BackendWork.reach_margin_m`)."""
+    pairs_out_of_reach: int = 0
+    """(Vehicle, emitter) pairs within ``near_m`` not judged, out of reach."""
     judge_s: float = 0.0
     """Wall time spent judging vehicles, seconds."""
     cpu_s: float = 0.0
@@ -364,43 +433,64 @@ class CityBackend:
         advisory that carried a fix made in this step, (vehicle id, first and last
         sequence number, time of that fix in UTC ns)."""
         service = self.app.service
-        service.step(now_ns)
+        # the service's own vehicle is none: its assessments only feed the dashboard
+        service.step(now_ns, assess=self.work.dashboard)
         fresh_ns = {
             e: f.t_ns for e, f in service.fixes.items() if f.ok and self._stepped.get(e) is not f
         }
         self._stepped = dict(service.fixes)
         states = self.vehicles.at(now_ns)
-        if states is None or not len(states.ids) or not service.assessments:
+        if states is None or not len(states.ids) or not service.fixes:
             self._forget(set() if states is None else set(states.ids))
             return []
         if fresh_only and not fresh_ns:
             return []
         t0 = time.perf_counter()
-        chosen = fresh_ns if fresh_only else service.assessments
-        emitters = np.fromiter(chosen, np.uint64, len(chosen))
-        ax = np.array([service.assessments[e].x_m for e in chosen])
-        ay = np.array([service.assessments[e].y_m for e in chosen])
-        located = np.isfinite(ax) & np.isfinite(ay)
-        emitters, ax, ay = emitters[located], ax[located], ay[located]
+        emitters, predicted = service.predicted(now_ns)
+        chosen = np.isfinite(predicted[:, 0]) & np.isfinite(predicted[:, 1])
+        if fresh_only:
+            chosen &= np.isin(emitters, np.fromiter(fresh_ns, np.uint64, len(fresh_ns)))
+        emitters, predicted = emitters[chosen], predicted[chosen]
         out: list[tuple[str, int, int, int]] = []
-        near = states.near(emitters, ax, ay, self.work.near_m, now_ns)
-        requests = [(vehicle, close) for _, vehicle, close in near]
-        for (i, _, _), judged in zip(near, service.assess_many(requests, now_ns), strict=True):
-            if not judged:
+        close, judged = states.within(
+            emitters, predicted[:, 0], predicted[:, 1], self.work.near_m, self._reach(predicted)
+        )
+        if judged is not close:
+            self.counters.pairs_out_of_reach += int(close.sum() - judged.sum())
+            self.counters.out_of_reach += int((close.any(axis=1) & ~judged.any(axis=1)).sum())
+        near = states.near(emitters, judged, now_ns)
+        requests = [(vehicle, mine) for _, vehicle, mine in near]
+        for (i, _, _), assessed in zip(near, service.assess_many(requests, now_ns), strict=True):
+            if not assessed:
                 continue
             vid = states.ids[i]
             self.counters.vehicles_judged += 1
             sink = self._sink(vid)
             first, sent = sink.seq, sink.stats.messages
-            sink.on_results([], judged)
+            sink.on_results([], assessed)
             n = sink.stats.messages - sent
-            fresh = [fresh_ns[e] for e in (int(a.emitter, 16) for a in judged) if e in fresh_ns]
-            if n > 0 and fresh:
+            if n == 0 or not fresh_ns:
+                continue
+            fresh = [fresh_ns[e] for e in (int(a.emitter, 16) for a in assessed) if e in fresh_ns]
+            if fresh:
                 # the advisory that carries a fix made in this step: its latency counts
                 out.append((vid, first, (first + n - 1) % (1 << 32), max(fresh)))
         self._forget(set(states.ids))
         self.counters.judge_s += time.perf_counter() - t0
         return out
+
+    def _reach(self, predicted: np.ndarray) -> Reach | None:
+        """The reach rule for emitters of predicted states ``predicted`` (rows ``[x, y,
+        vx, vy]``), with what each vehicle is owed; None when it is off."""
+        if self.work.reach_margin_m is None:
+            return None
+        owed = {vid: sink.limiter.unsettled for vid, sink in self.sinks.items()}
+        return Reach(
+            self.app.service.config.encounter.horizon_s,
+            self.work.reach_margin_m,
+            np.hypot(predicted[:, 2], predicted[:, 3]),
+            owed,
+        )
 
     def _forget(self, present: set[str]) -> None:
         """Drop the sinks of vehicles no longer in the tiles (their counts are kept)."""

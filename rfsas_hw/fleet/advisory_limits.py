@@ -48,6 +48,7 @@ class Advice(Protocol):
 
 
 A = TypeVar("A", bound=Advice)
+_CLEAR = ADVISORY_RANK["clear"]
 
 
 @dataclass(frozen=True, slots=True)
@@ -90,6 +91,9 @@ class AdvisoryLimiter:
         """Emitter → (when its last assessment went out, monotonic s; its severity)."""
         self._tokens = self.limits.max_per_s
         self._filled_at: float | None = None
+        self.unsettled: set[str] = set()
+        """Emitters whose last assessment that went out was more severe than ``clear``
+        (the vehicle has not been told since that they are clear)."""
 
     def select(self, items: Sequence[A], now_s: float) -> list[A]:
         """The items of one step that go out at ``now_s`` (monotonic seconds): those due,
@@ -117,8 +121,14 @@ class AdvisoryLimiter:
         for severity, item in due[:take]:
             self._last.pop(item.emitter, None)
             self._last[item.emitter] = (now_s, severity)
+            if severity > _CLEAR:
+                self.unsettled.add(item.emitter)
+            else:
+                self.unsettled.discard(item.emitter)
         while len(self._last) > lim.memory:
-            del self._last[next(iter(self._last))]
+            forgotten = next(iter(self._last))
+            del self._last[forgotten]
+            self.unsettled.discard(forgotten)
         return chosen
 
     def _refill(self, now_s: float) -> None:

@@ -138,7 +138,9 @@ def test_the_cars_near_emitters_are_those_within_reach_moved_to_now() -> None:
     )
     emitters = np.arange(100, 160, dtype=np.uint64)
     ex, ey = rng.uniform(-300, 300, 60), rng.uniform(-300, 300, 60)
-    near = states.near(emitters, ex, ey, 60.0, 10 * S + S // 2)
+    close, judged = states.within(emitters, ex, ey, 60.0)
+    assert judged is close
+    near = states.near(emitters, judged, 10 * S + S // 2)
     want = {}
     for i in range(n):
         d = np.hypot(ex - states.x_m[i], ey - states.y_m[i])
@@ -153,7 +155,8 @@ def test_the_cars_near_emitters_are_those_within_reach_moved_to_now() -> None:
         assert car.x_m == pytest.approx(states.x_m[i] + np.sin(a) * half_s, abs=1e-9)
         assert car.y_m == pytest.approx(states.y_m[i] + np.cos(a) * half_s, abs=1e-9)
         assert 0 <= car.heading_deg < 360 and car.t_ns == 10 * S + S // 2
-    assert states.near(emitters[:0], ex[:0], ey[:0], 60.0, 10 * S) == []
+    _, none = states.within(emitters[:0], ex[:0], ey[:0], 60.0)
+    assert states.near(emitters[:0], none, 10 * S) == []
 
 
 class _Topics:

@@ -1,0 +1,168 @@
+"""What a district backend leaves out of its judging, and what it still sends: the service
+stepping without judging its own (absent) vehicle, the reach rule (an emitter a vehicle
+cannot meet within the encounter model's horizon is not judged against it), and the
+all-clear a vehicle is owed after a BRAKE or CAUTION."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import numpy as np
+import pytest
+from cryptography.hazmat.primitives.asymmetric import ec
+
+from rfsas_hw.backend.service import BackendService
+from rfsas_hw.backend.vehicle import VehicleState
+from rfsas_hw.city.backendproc import Reach, VehicleStates
+from rfsas_hw.fleet.advisory import AdvisorySink, decode_advisory
+from rfsas_hw.fleet.advisory_limits import AdvisoryLimiter, AdvisoryLimits
+from rfsas_hw.geo import SiteOrigin
+from rfsas_hw.link.signing import Signer
+from rfsas_hw.link.topics import Route, TopicRouter
+from rfsas_hw.records import BearingBatch, Pose, emitter_hex
+
+S = 1_000_000_000
+NOW = 1_800_000_000 * S
+
+
+def _walker(service: BackendService, emitter: int, x0: float, y0: float, steps: int) -> None:
+    """Bearings of an emitter walking east at 2 m/s from (x0, y0), heard by two units, one
+    service step per 0.1 s up to NOW."""
+    stations = {"rsu-a": Pose(x0 - 30.0, 0.0, 45.0), "rsu-b": Pose(x0 + 30.0, 0.0, 315.0)}
+    for k in range(steps):
+        t = NOW - (steps - k) * S // 10
+        target = np.array([x0 + 0.2 * k, y0])
+        for sid, pose in stations.items():
+            az = float(np.degrees(np.arctan2(target[0] - pose.x_m, target[1] - pose.y_m)) % 360)
+            service.on_bearings(
+                BearingBatch(
+                    sensor_id=sid,
+                    t_ns=np.array([t], np.int64),
+                    azimuth_deg=np.array([az]),
+                    sigma_deg=np.array([1.0]),
+                    snr_db=np.array([25.0]),
+                    channel=np.array([6], np.int16),
+                    emitter=np.array([emitter], np.uint64),
+                ),
+                pose,
+            )
+        service.step(t)
+
+
+def test_a_step_without_assessing_keeps_the_fixes_and_tracks_and_predicts_the_same() -> None:
+    judging, quiet = BackendService(clock=lambda: NOW), BackendService(clock=lambda: NOW)
+    for service in (judging, quiet):
+        _walker(service, 7, 0.0, 15.0, 8)
+        _walker(service, 9, 200.0, 15.0, 3)
+    assessed = judging.step(NOW)
+    assert quiet.step(NOW, assess=False) == []
+    assert quiet.assessments == {}
+    assert quiet.fixes == judging.fixes
+    assert quiet.tracker.tracks.keys() == judging.tracker.tracks.keys()
+    ids, states = quiet.predicted(NOW)
+    assert sorted(ids.tolist()) == sorted(judging.assessments) == [7, 9]
+    for e, row in zip(ids.tolist(), states.tolist(), strict=True):
+        a = judging.assessments[e]
+        assert row == pytest.approx([a.x_m, a.y_m, a.vx_mps, a.vy_mps], rel=1e-12, abs=1e-9)
+    assert {a.advisory for a in assessed} == {"none"}  # no vehicle: nothing judged
+    empty = BackendService(clock=lambda: NOW)
+    assert empty.predicted(NOW)[1].shape == (0, 4)
+
+
+def _cars(speeds: list[float], xs: list[float]) -> VehicleStates:
+    n = len(speeds)
+    return VehicleStates(
+        t_ns=NOW,
+        ids=tuple(f"car-{i}" for i in range(n)),
+        x_m=np.array(xs, float),
+        y_m=np.zeros(n),
+        heading_deg=np.full(n, 90.0),
+        speed_mps=np.array(speeds, float),
+        length_m=np.full(n, 4.5),
+        width_m=np.full(n, 1.8),
+    )
+
+
+def test_an_emitter_out_of_a_vehicles_reach_is_not_judged_unless_it_owes_a_clear() -> None:
+    # emitters at x = 40 (walking 1 m/s), 40 (speed unknown), 80 (beyond near_m)
+    emitters = np.array([1, 2, 3], np.uint64)
+    ex, ey = np.array([40.0, 40.0, 80.0]), np.zeros(3)
+    speed = np.array([1.0, math.nan, 1.0])
+    # a standing car and one at 5 m/s, both at x = 0: reach 0 + 10 + 15 = 25 m and 75 m
+    cars = _cars([0.0, 5.0], [0.0, 0.0])
+    close, judged = cars.within(emitters, ex, ey, 60.0, Reach(10.0, 15.0, speed))
+    assert close.tolist() == [[True, True, False], [True, True, False]]
+    assert judged.tolist() == [[False, True, False], [True, True, False]]
+    # the standing car was last told more than clear about emitter 1: it is judged
+    owed = {"car-0": {emitter_hex(1), emitter_hex(3)}, "gone": {emitter_hex(2)}}
+    _, judged = cars.within(emitters, ex, ey, 60.0, Reach(10.0, 15.0, speed, owed))
+    assert judged.tolist() == [[True, True, False], [True, True, False]]
+    # without the rule every emitter within near_m is judged
+    assert cars.within(emitters, ex, ey, 60.0)[1].tolist() == close.tolist()
+    # a margin that covers the gap judges the standing car too
+    _, wide = cars.within(emitters, ex, ey, 60.0, Reach(10.0, 31.0, speed))
+    assert wide[0].tolist() == [True, True, False]
+
+
+def test_the_limiter_knows_which_emitters_a_vehicle_was_last_told_more_than_clear() -> None:
+    limiter = AdvisoryLimiter(AdvisoryLimits(min_interval_s=0.5, memory=2))
+
+    class Item:
+        def __init__(self, emitter: str, advisory: str) -> None:
+            self.emitter, self.advisory, self.p_collision = emitter, advisory, 0.5
+
+    limiter.select([Item("a", "brake"), Item("b", "caution"), Item("c", "clear")], 0.0)
+    assert limiter.unsettled == {"b"}  # "a" forgotten (memory 2): nothing remembered owes
+    limiter.select([Item("b", "brake"), Item("d", "caution")], 1.0)
+    assert limiter.unsettled == {"b", "d"}
+    limiter.select([Item("b", "clear")], 2.0)
+    assert limiter.unsettled == {"d"}
+
+
+class _Sent:
+    def __init__(self) -> None:
+        self.items: list[tuple[str, str]] = []
+
+    def publish(self, route: Route, datagram: bytes) -> None:
+        self.items += [(it.emitter, it.advisory) for it in decode_advisory(datagram).items]
+
+
+def test_a_vehicle_told_to_brake_still_gets_its_clear_once_out_of_reach() -> None:
+    service = BackendService(clock=lambda: NOW)
+    _walker(service, 7, 0.0, 15.0, 8)
+    ids, states = service.predicted(NOW)
+    sent = _Sent()
+    sink = AdvisorySink(
+        Signer("be-1", ec.generate_private_key(ec.SECP256R1())),
+        sent,
+        TopicRouter(SiteOrigin(52.43, 13.53)),
+        "0" * 16,
+        vehicle_id="car-0",
+        clock=lambda: NOW,
+        monotonic=lambda: 0.0,
+        tile_topics=False,
+    )
+    standing = _cars([0.0], [float(states[0, 0])])
+    standing = replace(standing, y_m=np.array([float(states[0, 1]) - 40.0]))
+    car = VehicleState(x_m=0.0, y_m=0.0, heading_deg=0.0, speed_mps=0.0, t_ns=NOW)
+    told = [replace(a, advisory="brake") for a in service.assess_for(car, [7], NOW)]
+    sink.on_results([], told)
+    assert sent.items == [(emitter_hex(7), "brake")]
+
+    def rule() -> Reach:
+        speed = np.hypot(states[:, 2], states[:, 3])
+        return Reach(10.0, 15.0, speed, {"car-0": sink.limiter.unsettled})
+
+    # 40 m away, standing, the emitter walking 2 m/s: out of reach (35 m), but owed its clear
+    close, judged = standing.within(ids, states[:, 0], states[:, 1], 60.0, rule())
+    assert close.all() and judged.all()
+    ((_, vehicle, mine),) = standing.near(ids, judged, NOW)
+    assessed = service.assess_many([(vehicle, mine)], NOW)[0]
+    assert [a.advisory for a in assessed] == ["clear"]
+    sink.monotonic = lambda: 1.0
+    sink.on_results([], assessed)
+    assert sent.items[-1] == (emitter_hex(7), "clear")
+    # told: from now on the pair is out of reach
+    _, judged = standing.within(ids, states[:, 0], states[:, 1], 60.0, rule())
+    assert not judged.any()

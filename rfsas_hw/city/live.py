@@ -34,6 +34,7 @@ import logging
 import multiprocessing as mp
 import os
 import time
+from collections import deque
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from multiprocessing.connection import Connection
@@ -92,6 +93,13 @@ STATES_BACKLOG_S = 0.5
 """A backend whose pipe holds vehicle states it has not taken spanning more than this
 gets no new ones until it has taken them (the main process never blocks on a busy
 backend's full pipe), seconds."""
+ARRIVED_MEMORY_S = 5.0
+"""An advisory that arrived before its backend's report of what it carried is matched
+with that report for this long (then it is taken to have carried no fix of its step),
+seconds of the deployment's clock."""
+FRAMES_KEPT = 200_000
+"""At most this many advisories sent with a fix and not arrived are remembered (the
+oldest half is forgotten beyond it)."""
 OWNER_MEMORY_S = 1.0
 """An advisory from the backend of the tile a vehicle left this long ago still counts
 as its owner's (it was judged there and is on its way), seconds."""
@@ -383,7 +391,13 @@ class DistributedRfsas:
         self._pending: dict[str, int] = {}
         """Steps sent to each worker and not answered yet."""
         self._frame_ns: dict[tuple[str, int], int] = {}
+        """Per advisory that carried a fix of its step and has not arrived yet, (backend,
+        sequence number), the newest frame of that fix, UTC ns."""
         self._arrived: dict[tuple[str, int], int] = {}
+        """Per advisory that arrived before its backend said what it carried, its arrival,
+        UTC ns (kept :data:`ARRIVED_MEMORY_S`)."""
+        self._arrived_order: deque[tuple[int, tuple[str, int]]] = deque()
+        """The keys of :attr:`_arrived`, oldest first, to forget them in order."""
         self._owners = VehicleOwners(OWNER_MEMORY_S)
         """Per vehicle, the backends and tiles it was in lately."""
         self._codes: dict[str | None, int] = {}
@@ -608,13 +622,8 @@ class DistributedRfsas:
             self._gateway.send(tuple(present))
             self._present = present
         for arrival in self._arrivals():
-            key = (arrival.message.sender_id, arrival.message.seq)
-            self._arrived[key] = arrival.t_ns
-            owned = self._owners.owns(arrival.message.sender_id, arrival.vehicle_id)
-            out.foreign += not owned
-            lately = self._owners.tiles(arrival.vehicle_id)
-            out.arrivals.append(replace(arrival, owned=owned, tiles=lately))
-        self._match(out, now_ns)
+            self._arrival(out, arrival)
+        self._forget_arrived(now_ns)
         out.messages = self._wait_workers(t_s)
         self.stats.foreign += out.foreign
         return out
@@ -640,7 +649,7 @@ class DistributedRfsas:
                     for _vid, first, last, fix_ns in msg[1]:
                         seq = first
                         while True:
-                            self._frame_ns[(b, seq)] = fix_ns
+                            self._sent_with_fix(out, (b, seq), fix_ns)
                             if seq == last:
                                 break
                             seq = (seq + 1) % (1 << 32)
@@ -663,17 +672,43 @@ class DistributedRfsas:
                 elif msg[0] == "error":
                     raise SimulationError(str(msg[1]))
 
-    def _match(self, out: StepOut, now_ns: int) -> None:
-        for key in [k for k in self._arrived if k in self._frame_ns]:
-            arrived = self._arrived.pop(key)
+    def _arrival(self, out: StepOut, arrival: Arrival) -> None:
+        """Take one verified advisory: its owner check, its vehicle's tiles, its latency
+        when its backend said which fix it carried."""
+        message = arrival.message
+        key = (message.sender_id, message.seq)
+        fix_ns = self._frame_ns.pop(key, None)
+        if fix_ns is None:
+            self._arrived[key] = arrival.t_ns
+            self._arrived_order.append((arrival.t_ns, key))
+        else:
             # on the deployment's clock: wall seconds at time scale 1
-            out.latency_s[key] = (arrived - self._frame_ns.pop(key)) / NS_PER_S
-        old = now_ns - 5 * NS_PER_S
-        for key in [k for k, v in self._arrived.items() if v < old]:
-            del self._arrived[key]  # an advisory that carried no fix of its step
-        if len(self._frame_ns) > 200_000:  # sent but never arrived: bounded
-            for key in list(self._frame_ns)[:100_000]:
-                del self._frame_ns[key]
+            out.latency_s[key] = (arrival.t_ns - fix_ns) / NS_PER_S
+        vid = arrival.vehicle_id
+        owned = self._owners.owns(message.sender_id, vid)
+        out.foreign += not owned
+        out.arrivals.append(Arrival(vid, message, arrival.t_ns, owned, self._owners.tiles(vid)))
+
+    def _sent_with_fix(self, out: StepOut, key: tuple[str, int], fix_ns: int) -> None:
+        """A backend's advisory ``key`` carried a fix whose newest frame was at ``fix_ns``:
+        its latency now if it has arrived already, else when it arrives."""
+        arrived = self._arrived.pop(key, None)
+        if arrived is not None:
+            out.latency_s[key] = (arrived - fix_ns) / NS_PER_S
+            return
+        self._frame_ns[key] = fix_ns
+        if len(self._frame_ns) > FRAMES_KEPT:  # sent but never arrived: bounded
+            for old in list(self._frame_ns)[: FRAMES_KEPT // 2]:
+                del self._frame_ns[old]
+
+    def _forget_arrived(self, now_ns: int) -> None:
+        """Forget the arrivals older than :data:`ARRIVED_MEMORY_S` that no report matched
+        (advisories that carried no fix of their step)."""
+        old = now_ns - round(ARRIVED_MEMORY_S * NS_PER_S)
+        order = self._arrived_order
+        while order and order[0][0] < old:
+            _, key = order.popleft()
+            self._arrived.pop(key, None)
 
     def _wait_workers(self, t_s: float) -> int:
         """Wait until every worker has answered all steps but this one (a worker has the

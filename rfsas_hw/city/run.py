@@ -195,13 +195,15 @@ class _Log:
     def __init__(self, path: Path) -> None:
         self.path = path
         self._lock = threading.Lock()
+        # one encoder for every line (json.dumps with options builds a new one per call)
+        self._encode = json.JSONEncoder(allow_nan=False, default=_plain).encode
         try:
             self.fh: IO[str] = path.open("w", encoding="utf-8")
         except OSError as err:
             raise OutputError(f"{path}: cannot write: {err.strerror or err}") from err
 
     def write(self, record: dict[str, Any]) -> None:
-        line = json.dumps(record, allow_nan=False, default=_plain) + "\n"
+        line = self._encode(record) + "\n"
         try:
             with self._lock:
                 self.fh.write(line)

@@ -177,7 +177,8 @@ class SumoDistrict:
 
     def act(self, t_s: float, vehicle_id: str, advisory: str) -> str:
         """Apply ``advisory`` to ``vehicle_id`` at ``t_s``; what was done (as
-        :meth:`SumoAdapter.act`), ``gone`` when the vehicle has left."""
+        :meth:`SumoAdapter.act`), ``gone`` when the vehicle has left (as of the last
+        :meth:`read`)."""
         if vehicle_id not in self._static:
             return "gone"
         adapter = self._adapters.get(vehicle_id)
@@ -186,7 +187,7 @@ class SumoDistrict:
                 return "none"
             adapter = SumoAdapter(self.sumo, vehicle_id, control=self.control)
             self._adapters[vehicle_id] = adapter
-        return adapter.act(t_s, advisory)
+        return adapter.steer(t_s, advisory)
 
     def held(self) -> list[str]:
         """Vehicles an advisory acts on now (braking, held or capped)."""

@@ -1,4 +1,5 @@
-"""SumoDistrict.read: subscription results into the rfsas frame, cars apart from VRUs."""
+"""SumoDistrict: subscription results into the rfsas frame, cars apart from VRUs; each
+vehicle's own advisories acted on."""
 
 from __future__ import annotations
 
@@ -7,6 +8,7 @@ from typing import Any
 
 import numpy as np
 
+from rfsas_hw.bridges.sumo import SumoControl
 from rfsas_hw.city.sumoio import SumoDistrict
 
 POS, SPEED, ANGLE, DIST = 0x42, 0x40, 0x43, 0x84
@@ -36,8 +38,25 @@ class _Domain:
         return self.results
 
 
+class _Steered(_Domain):
+    """A vehicle domain that records speed commands and has no ``getIDList``: acting on
+    a vehicle must not ask SUMO for every vehicle's id (a list as long as the traffic,
+    per advisory)."""
+
+    def __init__(self, static: dict[str, tuple[str, float, float]]) -> None:
+        super().__init__(static)
+        self.speeds: dict[str, float] = dict.fromkeys(static, 10.0)
+        self.commands: list[tuple[str, float]] = []
+
+    def getSpeed(self, oid: str) -> float:  # noqa: N802
+        return self.speeds[oid]
+
+    def setSpeed(self, oid: str, speed: float) -> None:  # noqa: N802
+        self.commands.append((oid, speed))
+
+
 def _fake_sumo() -> Any:
-    vehicle = _Domain(
+    vehicle = _Steered(
         {"car": ("passenger", 4.0, 1.8), "bike": ("bicycle", 1.6, 0.6), "bus": ("bus", 12.0, 2.5)}
     )
     person = _Domain({"ped": ("pedestrian", 0.2, 0.5)})
@@ -87,3 +106,32 @@ def test_read_of_an_empty_simulation_gives_empty_arrays() -> None:
     cars, vrus = SumoDistrict(sumo, lambda x, y: (x, y), lambda a: np.asarray(a)).read()
     assert len(cars) == len(vrus) == 0
     assert cars.x_m.shape == vrus.speed_mps.shape == (0,)
+
+
+def test_act_brakes_holds_and_releases_only_the_advised_vehicle() -> None:
+    sumo = _fake_sumo()
+    district = SumoDistrict(sumo, lambda x, y: (x, y), lambda a: np.asarray(a), SumoControl(1.0))
+    district.read()
+    assert district.act(10.0, "car", "clear") == "none"  # nothing to hand back
+    assert district.act(10.0, "car", "brake") == "brake"
+    assert sumo.vehicle.commands == [("car", 0.0)]
+    assert district.held() == ["car"]
+    # held for hold_s after the last BRAKE, whatever else comes; then handed back
+    district.release_idle(10.5, set())
+    assert district.act(10.9, "car", "clear") == "hold"
+    district.release_idle(11.0, {"car"})
+    assert district.held() == ["car"]
+    district.release_idle(11.1, set())
+    assert sumo.vehicle.commands == [("car", 0.0), ("car", -1.0)]
+    assert district.held() == []
+    # CAUTION after a BRAKE keeps the speed the car came down to
+    district.act(12.0, "bus", "brake")
+    sumo.vehicle.speeds["bus"] = 2.5
+    assert district.act(13.5, "bus", "caution") == "cap"
+    assert sumo.vehicle.commands[-1] == ("bus", 2.5)
+    # a vehicle that has left the simulation is gone, not an error
+    sumo.departed["v"] = []
+    sumo.simulation.getArrivedIDList = lambda: ["bus"]
+    district.read()
+    assert district.act(14.0, "bus", "brake") == "gone"
+    assert "bus" not in district.held()

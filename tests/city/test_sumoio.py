@@ -20,7 +20,7 @@ class _Domain:
     def __init__(self, static: dict[str, tuple[str, float, float]]) -> None:
         self.static = static
         self.results: dict[str, dict[int, Any]] = {}
-        self.subscribed: list[str] = []
+        self.subscribed: list[tuple[str, tuple[int, ...]]] = []
 
     def getVehicleClass(self, oid: str) -> str:  # noqa: N802 (TraCI's name)
         return self.static[oid][0]
@@ -31,8 +31,8 @@ class _Domain:
     def getWidth(self, oid: str) -> float:  # noqa: N802
         return self.static[oid][2]
 
-    def subscribe(self, oid: str, _vars: tuple[int, ...]) -> None:
-        self.subscribed.append(oid)
+    def subscribe(self, oid: str, variables: tuple[int, ...]) -> None:
+        self.subscribed.append((oid, variables))
 
     def getAllSubscriptionResults(self) -> dict[str, dict[int, Any]]:  # noqa: N802
         return self.results
@@ -74,7 +74,7 @@ def test_read_puts_box_centres_in_the_frame_and_vrus_apart() -> None:
     sumo = _fake_sumo()
     sumo.vehicle.results = {
         "car": {POS: (10.0, 20.0), SPEED: 5.0, ANGLE: 90.0, DIST: 30.0},  # heading east
-        "bike": {POS: (0.0, 0.0), SPEED: -1.0, ANGLE: 0.0, DIST: 3.0},  # north; SUMO's -1
+        "bike": {POS: (0.0, 0.0), SPEED: -1.0, ANGLE: 0.0},  # north; SUMO's -1
         "bus": {POS: (-5.0, 0.0), SPEED: 0.0, ANGLE: 180.0, DIST: 0.0},
         "gone": {POS: (0.0, 0.0), SPEED: 0.0, ANGLE: 0.0, DIST: 0.0},  # never departed
     }
@@ -95,9 +95,14 @@ def test_read_puts_box_centres_in_the_frame_and_vrus_apart() -> None:
     np.testing.assert_allclose(vrus.y_m, [-0.8, 2.0], atol=1e-9)
     np.testing.assert_allclose(vrus.heading_deg, [0.0, 270.0])
     np.testing.assert_allclose(vrus.speed_mps, [0.0, 1.2])  # negative speeds clipped
-    np.testing.assert_allclose(vrus.odometer_m, [3.0, 0.0])
-    assert sumo.vehicle.subscribed == ["car", "bike", "bus"]
-    assert sumo.person.subscribed == ["ped"]
+    np.testing.assert_allclose(vrus.odometer_m, [0.0, 0.0])
+    # the odometer is read for vehicles only (each value read costs every step)
+    assert sumo.vehicle.subscribed == [
+        ("car", (POS, SPEED, ANGLE, DIST)),
+        ("bike", (POS, SPEED, ANGLE)),
+        ("bus", (POS, SPEED, ANGLE, DIST)),
+    ]
+    assert sumo.person.subscribed == [("ped", (POS, SPEED, ANGLE))]
 
 
 def test_read_of_an_empty_simulation_gives_empty_arrays() -> None:

@@ -34,7 +34,6 @@ import logging
 import multiprocessing as mp
 import os
 import time
-from collections import deque
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from multiprocessing.connection import Connection
@@ -58,6 +57,7 @@ from rfsas_hw.city.deploy import (
     LocalBroker,
     make_deployment,
 )
+from rfsas_hw.city.latency import LatencyMatch
 from rfsas_hw.city.owners import VehicleOwners
 from rfsas_hw.city.partition import Site, district_tiles, plan_tiles, split_units
 from rfsas_hw.city.sumoio import Movers
@@ -93,13 +93,6 @@ STATES_BACKLOG_S = 0.5
 """A backend whose pipe holds vehicle states it has not taken spanning more than this
 gets no new ones until it has taken them (the main process never blocks on a busy
 backend's full pipe), seconds."""
-ARRIVED_MEMORY_S = 5.0
-"""An advisory that arrived before its backend's report of what it carried is matched
-with that report for this long (then it is taken to have carried no fix of its step),
-seconds of the deployment's clock."""
-FRAMES_KEPT = 200_000
-"""At most this many advisories sent with a fix and not arrived are remembered (the
-oldest half is forgotten beyond it)."""
 OWNER_MEMORY_S = 1.0
 """An advisory from the backend of the tile a vehicle left this long ago still counts
 as its owner's (it was judged there and is on its way), seconds."""
@@ -234,7 +227,9 @@ class StepOut:
     latency_s: dict[tuple[str, int], float] = field(default_factory=dict)
     """Frame → advisory latency, seconds of the deployment's clock (wall seconds at time
     scale 1), of the advisories that carried a fix of their step (the others repeat a
-    track's state), by (backend, sequence number)."""
+    track's state), by (backend, sequence number): of this step's arrivals, and of
+    earlier arrivals whose backend reported the fix they carried only now
+    (:class:`~rfsas_hw.city.latency.LatencyMatch`)."""
     fixes: list[FixRecord] = field(default_factory=list)
     foreign: int = 0
     """Arrivals signed by a backend that does not own the vehicle's tile."""
@@ -390,14 +385,8 @@ class DistributedRfsas:
         self._sent: dict[str, int] = {}
         self._pending: dict[str, int] = {}
         """Steps sent to each worker and not answered yet."""
-        self._frame_ns: dict[tuple[str, int], int] = {}
-        """Per advisory that carried a fix of its step and has not arrived yet, (backend,
-        sequence number), the newest frame of that fix, UTC ns."""
-        self._arrived: dict[tuple[str, int], int] = {}
-        """Per advisory that arrived before its backend said what it carried, its arrival,
-        UTC ns (kept :data:`ARRIVED_MEMORY_S`)."""
-        self._arrived_order: deque[tuple[int, tuple[str, int]]] = deque()
-        """The keys of :attr:`_arrived`, oldest first, to forget them in order."""
+        self._latency = LatencyMatch()
+        """The backends' reports of fixes carried, matched with the arrivals."""
         self._owners = VehicleOwners(OWNER_MEMORY_S)
         """Per vehicle, the backends and tiles it was in lately."""
         self._codes: dict[str | None, int] = {}
@@ -623,7 +612,7 @@ class DistributedRfsas:
             self._present = present
         for arrival in self._arrivals():
             self._arrival(out, arrival)
-        self._forget_arrived(now_ns)
+        self._latency.forget(now_ns)
         out.messages = self._wait_workers(t_s)
         self.stats.foreign += out.foreign
         return out
@@ -649,7 +638,9 @@ class DistributedRfsas:
                     for _vid, first, last, fix_ns in msg[1]:
                         seq = first
                         while True:
-                            self._sent_with_fix(out, (b, seq), fix_ns)
+                            latency = self._latency.sent((b, seq), fix_ns)
+                            if latency is not None:  # it arrived at an earlier step
+                                out.latency_s[(b, seq)] = latency
                             if seq == last:
                                 break
                             seq = (seq + 1) % (1 << 32)
@@ -677,38 +668,13 @@ class DistributedRfsas:
         when its backend said which fix it carried."""
         message = arrival.message
         key = (message.sender_id, message.seq)
-        fix_ns = self._frame_ns.pop(key, None)
-        if fix_ns is None:
-            self._arrived[key] = arrival.t_ns
-            self._arrived_order.append((arrival.t_ns, key))
-        else:
-            # on the deployment's clock: wall seconds at time scale 1
-            out.latency_s[key] = (arrival.t_ns - fix_ns) / NS_PER_S
+        latency = self._latency.arrived(key, arrival.t_ns)
+        if latency is not None:
+            out.latency_s[key] = latency
         vid = arrival.vehicle_id
         owned = self._owners.owns(message.sender_id, vid)
         out.foreign += not owned
         out.arrivals.append(Arrival(vid, message, arrival.t_ns, owned, self._owners.tiles(vid)))
-
-    def _sent_with_fix(self, out: StepOut, key: tuple[str, int], fix_ns: int) -> None:
-        """A backend's advisory ``key`` carried a fix whose newest frame was at ``fix_ns``:
-        its latency now if it has arrived already, else when it arrives."""
-        arrived = self._arrived.pop(key, None)
-        if arrived is not None:
-            out.latency_s[key] = (arrived - fix_ns) / NS_PER_S
-            return
-        self._frame_ns[key] = fix_ns
-        if len(self._frame_ns) > FRAMES_KEPT:  # sent but never arrived: bounded
-            for old in list(self._frame_ns)[: FRAMES_KEPT // 2]:
-                del self._frame_ns[old]
-
-    def _forget_arrived(self, now_ns: int) -> None:
-        """Forget the arrivals older than :data:`ARRIVED_MEMORY_S` that no report matched
-        (advisories that carried no fix of their step)."""
-        old = now_ns - round(ARRIVED_MEMORY_S * NS_PER_S)
-        order = self._arrived_order
-        while order and order[0][0] < old:
-            _, key = order.popleft()
-            self._arrived.pop(key, None)
 
     def _wait_workers(self, t_s: float) -> int:
         """Wait until every worker has answered all steps but this one (a worker has the

@@ -239,9 +239,15 @@ class SumoAdapter:
         Raises:
             SimulationError: the ego is not in the network.
         """
-        v = self.sumo.vehicle
-        if self.ego_id not in v.getIDList():
+        if self.ego_id not in self.sumo.vehicle.getIDList():
             raise SimulationError(f"ego vehicle {self.ego_id!r} is not in the simulation")
+        return self.steer(t_s, advisory)
+
+    def steer(self, t_s: float, advisory: str) -> str:
+        """:meth:`act` for an ego the caller knows to be in the simulation (it skips
+        asking SUMO for every vehicle's id, a list as long as the traffic, which a caller
+        steering many vehicles per step cannot afford each time)."""
+        v = self.sumo.vehicle
         if advisory == "brake":
             self._braking_until = t_s + self.control.hold_s
             v.setSpeed(self.ego_id, 0.0)

@@ -19,8 +19,9 @@ Modules, each with one job:
 - :mod:`~rfsas_hw.city.scoring`: ``CityScorer``, fed online each step
   (``step(t_s, vehicles, vrus)`` with :class:`~rfsas_hw.city.scoring.Actors`
   arrays), each fix (``fix(t_s, emitter_id, person, x_m, y_m, sigma_m)``) and each
-  advisory that reached a vehicle (``advisory(t_s, vehicle_id, kind, latency_s)``);
-  ``summary() -> CitySummary`` (JSON-ready).
+  advisory that reached a vehicle (``advisory(t_s, vehicle_id, kind, latency_s)``;
+  ``latency(latency_s)`` for one known only later); ``summary() -> CitySummary``
+  (JSON-ready).
 - :mod:`~rfsas_hw.city.citymap`: ``write_map(scorer, units, info, png, geojson)``.
 
 Interface note between the model (this package's modules above) and the

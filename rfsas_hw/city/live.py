@@ -57,6 +57,7 @@ from rfsas_hw.city.deploy import (
     LocalBroker,
     make_deployment,
 )
+from rfsas_hw.city.latency import LatencyMatch
 from rfsas_hw.city.owners import VehicleOwners
 from rfsas_hw.city.partition import Site, district_tiles, plan_tiles, split_units
 from rfsas_hw.city.sumoio import Movers
@@ -226,7 +227,9 @@ class StepOut:
     latency_s: dict[tuple[str, int], float] = field(default_factory=dict)
     """Frame → advisory latency, seconds of the deployment's clock (wall seconds at time
     scale 1), of the advisories that carried a fix of their step (the others repeat a
-    track's state), by (backend, sequence number)."""
+    track's state), by (backend, sequence number): of this step's arrivals, and of
+    earlier arrivals whose backend reported the fix they carried only now
+    (:class:`~rfsas_hw.city.latency.LatencyMatch`)."""
     fixes: list[FixRecord] = field(default_factory=list)
     foreign: int = 0
     """Arrivals signed by a backend that does not own the vehicle's tile."""
@@ -382,8 +385,8 @@ class DistributedRfsas:
         self._sent: dict[str, int] = {}
         self._pending: dict[str, int] = {}
         """Steps sent to each worker and not answered yet."""
-        self._frame_ns: dict[tuple[str, int], int] = {}
-        self._arrived: dict[tuple[str, int], int] = {}
+        self._latency = LatencyMatch()
+        """The backends' reports of fixes carried, matched with the arrivals."""
         self._owners = VehicleOwners(OWNER_MEMORY_S)
         """Per vehicle, the backends and tiles it was in lately."""
         self._codes: dict[str | None, int] = {}
@@ -608,13 +611,8 @@ class DistributedRfsas:
             self._gateway.send(tuple(present))
             self._present = present
         for arrival in self._arrivals():
-            key = (arrival.message.sender_id, arrival.message.seq)
-            self._arrived[key] = arrival.t_ns
-            owned = self._owners.owns(arrival.message.sender_id, arrival.vehicle_id)
-            out.foreign += not owned
-            lately = self._owners.tiles(arrival.vehicle_id)
-            out.arrivals.append(replace(arrival, owned=owned, tiles=lately))
-        self._match(out, now_ns)
+            self._arrival(out, arrival)
+        self._latency.forget(now_ns)
         out.messages = self._wait_workers(t_s)
         self.stats.foreign += out.foreign
         return out
@@ -640,7 +638,9 @@ class DistributedRfsas:
                     for _vid, first, last, fix_ns in msg[1]:
                         seq = first
                         while True:
-                            self._frame_ns[(b, seq)] = fix_ns
+                            latency = self._latency.sent((b, seq), fix_ns)
+                            if latency is not None:  # it arrived at an earlier step
+                                out.latency_s[(b, seq)] = latency
                             if seq == last:
                                 break
                             seq = (seq + 1) % (1 << 32)
@@ -663,17 +663,18 @@ class DistributedRfsas:
                 elif msg[0] == "error":
                     raise SimulationError(str(msg[1]))
 
-    def _match(self, out: StepOut, now_ns: int) -> None:
-        for key in [k for k in self._arrived if k in self._frame_ns]:
-            arrived = self._arrived.pop(key)
-            # on the deployment's clock: wall seconds at time scale 1
-            out.latency_s[key] = (arrived - self._frame_ns.pop(key)) / NS_PER_S
-        old = now_ns - 5 * NS_PER_S
-        for key in [k for k, v in self._arrived.items() if v < old]:
-            del self._arrived[key]  # an advisory that carried no fix of its step
-        if len(self._frame_ns) > 200_000:  # sent but never arrived: bounded
-            for key in list(self._frame_ns)[:100_000]:
-                del self._frame_ns[key]
+    def _arrival(self, out: StepOut, arrival: Arrival) -> None:
+        """Take one verified advisory: its owner check, its vehicle's tiles, its latency
+        when its backend said which fix it carried."""
+        message = arrival.message
+        key = (message.sender_id, message.seq)
+        latency = self._latency.arrived(key, arrival.t_ns)
+        if latency is not None:
+            out.latency_s[key] = latency
+        vid = arrival.vehicle_id
+        owned = self._owners.owns(message.sender_id, vid)
+        out.foreign += not owned
+        out.arrivals.append(Arrival(vid, message, arrival.t_ns, owned, self._owners.tiles(vid)))
 
     def _wait_workers(self, t_s: float) -> int:
         """Wait until every worker has answered all steps but this one (a worker has the

@@ -195,13 +195,15 @@ class _Log:
     def __init__(self, path: Path) -> None:
         self.path = path
         self._lock = threading.Lock()
+        # one encoder for every line (json.dumps with options builds a new one per call)
+        self._encode = json.JSONEncoder(allow_nan=False, default=_plain).encode
         try:
             self.fh: IO[str] = path.open("w", encoding="utf-8")
         except OSError as err:
             raise OutputError(f"{path}: cannot write: {err.strerror or err}") from err
 
     def write(self, record: dict[str, Any]) -> None:
-        line = json.dumps(record, allow_nan=False, default=_plain) + "\n"
+        line = self._encode(record) + "\n"
         try:
             with self._lock:
                 self.fh.write(line)
@@ -526,16 +528,18 @@ def _run_loop(
                 advised: set[str] = set()
                 for f in out.fixes:
                     scorer.fix(f.t_s, f.emitter, f.person, f.x_m, f.y_m, f.sigma_m)
+                latencies = dict(out.latency_s)
                 for a in out.arrivals:
                     kind = most_severe(a.message)
-                    key = (a.message.sender_id, a.message.seq)
-                    latency = out.latency_s.get(key, math.nan)
+                    latency = latencies.pop((a.message.sender_id, a.message.seq), math.nan)
                     scorer.advisory(t, a.vehicle_id, kind, latency)
                     sim.act(t, a.vehicle_id, kind)
                     advised.add(a.vehicle_id)
                     advisories += 1
                     brakes += kind == "brake"
                     _log_arrival(log, t, a, kind, latency)
+                for latency in latencies.values():
+                    scorer.latency(latency)  # of an advisory that reached its car earlier
                 sim.release_idle(t, advised)
                 timers["path"] += time.thread_time() - w3
             if k % round(1.0 / STEP_S) == 0:

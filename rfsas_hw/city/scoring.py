@@ -45,6 +45,8 @@ located events for the map), so a run of any length fits.
   A conflict is *advised* when its car had a BRAKE episode that started no
   later than the conflict's end and at most ``advise_lead_s`` before its
   start, and *defused* when it was advised and the pair did not collide.
+  ``latency(latency_s)`` adds the latency of an advisory that became known only
+  after it reached its car (its backend's report came after it).
 
 - ``messages(n)``: bearing messages published (for messages per second).
 """
@@ -609,8 +611,7 @@ class CityScorer:
         """One advisory that reached a car: its kind (``brake``, ``caution``, ``clear``)
         and its frame → advisory latency, seconds."""
         self._advisories[kind] = self._advisories.get(kind, 0) + 1
-        if math.isfinite(latency_s) and latency_s >= 0:
-            self._latency[min(int(latency_s / LATENCY_BIN_S), len(self._latency) - 1)] += 1
+        self.latency(latency_s)
         if kind != "brake":
             return
         last = self._brake_last.get(vehicle_id)
@@ -629,6 +630,13 @@ class CityScorer:
             if len(self._nuisance_events) < MAX_EVENTS:
                 veh = self._vehicles
                 self._nuisance_events.append((float(veh.x_m[v]), float(veh.y_m[v]), vehicle_id))
+
+    def latency(self, latency_s: float) -> None:
+        """One frame → advisory latency, seconds (NaN or negative: none, not counted);
+        :meth:`advisory` takes it with its advisory, this one for an advisory whose
+        latency became known after it reached its car."""
+        if math.isfinite(latency_s) and latency_s >= 0:
+            self._latency[min(int(latency_s / LATENCY_BIN_S), len(self._latency) - 1)] += 1
 
     def messages(self, n: int) -> None:
         """``n`` more bearing messages were published."""

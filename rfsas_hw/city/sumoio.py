@@ -54,7 +54,8 @@ class Movers:
     length_m: Array
     width_m: Array
     odometer_m: Array
-    """Distance driven since departure, metres (0 for persons)."""
+    """Distance driven since departure, metres (vehicles; 0 for VRUs: nothing uses theirs,
+    and every value read costs libsumo time each step)."""
 
     def __len__(self) -> int:
         return len(self.ids)
@@ -95,7 +96,7 @@ class SumoDistrict:
         self._static: dict[str, _Static] = {}
         self._adapters: dict[str, SumoAdapter] = {}
         self._vehicle_vars = (_POSITION, _SPEED, _ANGLE, _DISTANCE)
-        self._person_vars = (_POSITION, _SPEED, _ANGLE)
+        self._vru_vars = (_POSITION, _SPEED, _ANGLE)
 
     def _subscribe(self) -> None:
         sumo = self.sumo
@@ -103,13 +104,14 @@ class SumoDistrict:
             vclass = str(sumo.vehicle.getVehicleClass(vid))
             length = float(sumo.vehicle.getLength(vid))
             width = float(sumo.vehicle.getWidth(vid))
-            self._static[vid] = _Static(vclass, (length, width, length / 2), vclass in VRU_VCLASSES)
-            sumo.vehicle.subscribe(vid, self._vehicle_vars)
+            vru = vclass in VRU_VCLASSES
+            self._static[vid] = _Static(vclass, (length, width, length / 2), vru)
+            sumo.vehicle.subscribe(vid, self._vru_vars if vru else self._vehicle_vars)
         for pid in sumo.simulation.getDepartedPersonIDList():
             length = float(sumo.person.getLength(pid))
             width = float(sumo.person.getWidth(pid))
             self._static[pid] = _Static(PERSON, (length, width, 0.0), True)
-            sumo.person.subscribe(pid, self._person_vars)
+            sumo.person.subscribe(pid, self._vru_vars)
         for vid in sumo.simulation.getArrivedIDList():
             self._static.pop(vid, None)
             self._adapters.pop(vid, None)
@@ -177,7 +179,8 @@ class SumoDistrict:
 
     def act(self, t_s: float, vehicle_id: str, advisory: str) -> str:
         """Apply ``advisory`` to ``vehicle_id`` at ``t_s``; what was done (as
-        :meth:`SumoAdapter.act`), ``gone`` when the vehicle has left."""
+        :meth:`SumoAdapter.act`), ``gone`` when the vehicle has left (as of the last
+        :meth:`read`)."""
         if vehicle_id not in self._static:
             return "gone"
         adapter = self._adapters.get(vehicle_id)
@@ -186,7 +189,7 @@ class SumoDistrict:
                 return "none"
             adapter = SumoAdapter(self.sumo, vehicle_id, control=self.control)
             self._adapters[vehicle_id] = adapter
-        return adapter.act(t_s, advisory)
+        return adapter.steer(t_s, advisory)
 
     def held(self) -> list[str]:
         """Vehicles an advisory acts on now (braking, held or capped)."""

@@ -212,6 +212,19 @@ def test_latency_percentiles_and_rates() -> None:
     assert doc["nuisance_per_100_vehicle_km"] is None
 
 
+def test_a_latency_known_after_its_advisory_counts_once() -> None:
+    s = CityScorer()
+    s.step(0.0, Actors.empty(), Actors.empty())
+    s.advisory(0.0, "c", "clear", math.nan)  # its backend had not reported yet
+    s.latency(0.040)  # the report came at a later step
+    s.latency(math.nan)
+    s.latency(-0.001)  # clocks disagree: not a latency
+    out = s.summary()
+    assert out.latency_n == 1
+    assert out.latency_p50_ms == pytest.approx(40.0, abs=0.5)
+    assert out.advisories_by_kind == {"clear": 1}
+
+
 def test_bad_input_is_refused() -> None:
     with pytest.raises(ConfigError, match="ttc_s"):
         ScoringConfig(ttc_s=-1.0)

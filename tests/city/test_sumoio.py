@@ -1,4 +1,5 @@
-"""SumoDistrict.read: subscription results into the rfsas frame, cars apart from VRUs."""
+"""SumoDistrict: subscription results into the rfsas frame, cars apart from VRUs; each
+vehicle's own advisories acted on."""
 
 from __future__ import annotations
 
@@ -7,6 +8,7 @@ from typing import Any
 
 import numpy as np
 
+from rfsas_hw.bridges.sumo import SumoControl
 from rfsas_hw.city.sumoio import SumoDistrict
 
 POS, SPEED, ANGLE, DIST = 0x42, 0x40, 0x43, 0x84
@@ -18,7 +20,7 @@ class _Domain:
     def __init__(self, static: dict[str, tuple[str, float, float]]) -> None:
         self.static = static
         self.results: dict[str, dict[int, Any]] = {}
-        self.subscribed: list[str] = []
+        self.subscribed: list[tuple[str, tuple[int, ...]]] = []
 
     def getVehicleClass(self, oid: str) -> str:  # noqa: N802 (TraCI's name)
         return self.static[oid][0]
@@ -29,15 +31,32 @@ class _Domain:
     def getWidth(self, oid: str) -> float:  # noqa: N802
         return self.static[oid][2]
 
-    def subscribe(self, oid: str, _vars: tuple[int, ...]) -> None:
-        self.subscribed.append(oid)
+    def subscribe(self, oid: str, variables: tuple[int, ...]) -> None:
+        self.subscribed.append((oid, variables))
 
     def getAllSubscriptionResults(self) -> dict[str, dict[int, Any]]:  # noqa: N802
         return self.results
 
 
+class _Steered(_Domain):
+    """A vehicle domain that records speed commands and has no ``getIDList``: acting on
+    a vehicle must not ask SUMO for every vehicle's id (a list as long as the traffic,
+    per advisory)."""
+
+    def __init__(self, static: dict[str, tuple[str, float, float]]) -> None:
+        super().__init__(static)
+        self.speeds: dict[str, float] = dict.fromkeys(static, 10.0)
+        self.commands: list[tuple[str, float]] = []
+
+    def getSpeed(self, oid: str) -> float:  # noqa: N802
+        return self.speeds[oid]
+
+    def setSpeed(self, oid: str, speed: float) -> None:  # noqa: N802
+        self.commands.append((oid, speed))
+
+
 def _fake_sumo() -> Any:
-    vehicle = _Domain(
+    vehicle = _Steered(
         {"car": ("passenger", 4.0, 1.8), "bike": ("bicycle", 1.6, 0.6), "bus": ("bus", 12.0, 2.5)}
     )
     person = _Domain({"ped": ("pedestrian", 0.2, 0.5)})
@@ -55,7 +74,7 @@ def test_read_puts_box_centres_in_the_frame_and_vrus_apart() -> None:
     sumo = _fake_sumo()
     sumo.vehicle.results = {
         "car": {POS: (10.0, 20.0), SPEED: 5.0, ANGLE: 90.0, DIST: 30.0},  # heading east
-        "bike": {POS: (0.0, 0.0), SPEED: -1.0, ANGLE: 0.0, DIST: 3.0},  # north; SUMO's -1
+        "bike": {POS: (0.0, 0.0), SPEED: -1.0, ANGLE: 0.0},  # north; SUMO's -1
         "bus": {POS: (-5.0, 0.0), SPEED: 0.0, ANGLE: 180.0, DIST: 0.0},
         "gone": {POS: (0.0, 0.0), SPEED: 0.0, ANGLE: 0.0, DIST: 0.0},  # never departed
     }
@@ -76,9 +95,14 @@ def test_read_puts_box_centres_in_the_frame_and_vrus_apart() -> None:
     np.testing.assert_allclose(vrus.y_m, [-0.8, 2.0], atol=1e-9)
     np.testing.assert_allclose(vrus.heading_deg, [0.0, 270.0])
     np.testing.assert_allclose(vrus.speed_mps, [0.0, 1.2])  # negative speeds clipped
-    np.testing.assert_allclose(vrus.odometer_m, [3.0, 0.0])
-    assert sumo.vehicle.subscribed == ["car", "bike", "bus"]
-    assert sumo.person.subscribed == ["ped"]
+    np.testing.assert_allclose(vrus.odometer_m, [0.0, 0.0])
+    # the odometer is read for vehicles only (each value read costs every step)
+    assert sumo.vehicle.subscribed == [
+        ("car", (POS, SPEED, ANGLE, DIST)),
+        ("bike", (POS, SPEED, ANGLE)),
+        ("bus", (POS, SPEED, ANGLE, DIST)),
+    ]
+    assert sumo.person.subscribed == [("ped", (POS, SPEED, ANGLE))]
 
 
 def test_read_of_an_empty_simulation_gives_empty_arrays() -> None:
@@ -87,3 +111,32 @@ def test_read_of_an_empty_simulation_gives_empty_arrays() -> None:
     cars, vrus = SumoDistrict(sumo, lambda x, y: (x, y), lambda a: np.asarray(a)).read()
     assert len(cars) == len(vrus) == 0
     assert cars.x_m.shape == vrus.speed_mps.shape == (0,)
+
+
+def test_act_brakes_holds_and_releases_only_the_advised_vehicle() -> None:
+    sumo = _fake_sumo()
+    district = SumoDistrict(sumo, lambda x, y: (x, y), lambda a: np.asarray(a), SumoControl(1.0))
+    district.read()
+    assert district.act(10.0, "car", "clear") == "none"  # nothing to hand back
+    assert district.act(10.0, "car", "brake") == "brake"
+    assert sumo.vehicle.commands == [("car", 0.0)]
+    assert district.held() == ["car"]
+    # held for hold_s after the last BRAKE, whatever else comes; then handed back
+    district.release_idle(10.5, set())
+    assert district.act(10.9, "car", "clear") == "hold"
+    district.release_idle(11.0, {"car"})
+    assert district.held() == ["car"]
+    district.release_idle(11.1, set())
+    assert sumo.vehicle.commands == [("car", 0.0), ("car", -1.0)]
+    assert district.held() == []
+    # CAUTION after a BRAKE keeps the speed the car came down to
+    district.act(12.0, "bus", "brake")
+    sumo.vehicle.speeds["bus"] = 2.5
+    assert district.act(13.5, "bus", "caution") == "cap"
+    assert sumo.vehicle.commands[-1] == ("bus", 2.5)
+    # a vehicle that has left the simulation is gone, not an error
+    sumo.departed["v"] = []
+    sumo.simulation.getArrivedIDList = lambda: ["bus"]
+    district.read()
+    assert district.act(14.0, "bus", "brake") == "gone"
+    assert "bus" not in district.held()

@@ -74,6 +74,7 @@ from rfsas_hw.privacy.epochs import EpochSchedule
 from rfsas_hw.privacy.hashing import MacHasher, NonceUnavailableError
 from rfsas_hw.records import BearingBatch, Pose, emitter_hex, int_to_mac
 from rfsas_hw.sources.twinstream import StreamTwinSource
+from rfsas_hw.twin.rfworld import blockage_db
 from rfsas_hw.twin.scenario import (
     BuildingSpec,
     EmitterSpec,
@@ -392,6 +393,9 @@ class TwinWorker:
                 preauth=self.nonces,
             )
         self._reported: dict[tuple[str, int], int] = {}
+        # the twin's compiled loops are loaded (compiled, the first time on a machine)
+        # now, not in the first step with phones
+        blockage_db(np.zeros((1, 2)), np.ones((1, 2)), np.array([[0.25, 0.75, 0.25, 0.75, 1.0]]))
 
     def truth(self) -> list[tuple[str, str]]:
         """(emitter id, VRU id) of every phone whose id in this epoch was not told yet.

@@ -123,6 +123,10 @@ class LiveTrack:
         """Unwrapped heading at each knot, degrees (NaN: not reported)."""
         self._n = 0
         self._cache: Track | None = None
+        self._last_t = -math.inf
+        """Time of the newest knot, seconds (a float: the checks of every step read it)."""
+        self._last_h = math.nan
+        """Unwrapped heading of the newest knot, degrees (NaN: none, or not reported)."""
 
     def __len__(self) -> int:
         return self._n
@@ -135,7 +139,7 @@ class LiveTrack:
     @property
     def last_s(self) -> float:
         """Time of the newest knot, seconds (-inf without knots)."""
-        return float(self._t[self._n - 1]) if self._n else -math.inf
+        return self._last_t
 
     def extend(self, t_s: float, x_m: float, y_m: float, heading_deg: float | None = None) -> None:
         """Add the knot ``(t_s, x_m, y_m)`` (and the heading, compass degrees, if known).
@@ -157,6 +161,7 @@ class LiveTrack:
                 setattr(self, name, grown)
         self._t[i], self._x[i], self._y[i], self._h[i] = t_s, x_m, y_m, h
         self._n = i + 1
+        self._last_t, self._last_h = t_s, h
         self._cache = None
 
     def forget_before(self, t_s: float) -> None:
@@ -249,12 +254,12 @@ def extend_tracks(
     if not math.isfinite(t_s) or not (np.isfinite(x).all() and np.isfinite(y).all()):
         bad = 0 if not math.isfinite(t_s) else int(np.flatnonzero(~np.isfinite(x + y))[0])
         raise SimulationError(f"track knot at t={t_s}: position ({x[bad]}, {y[bad]}) not finite")
-    for tr in tracks:
-        if tr._n and t_s < tr._t[tr._n - 1]:
-            raise SimulationError(
-                f"track knot at t={t_s:.6f} s is before the newest one "
-                f"({tr._t[tr._n - 1]:.6f} s); knots must come in time order"
-            )
+    if tracks and t_s < max([tr._last_t for tr in tracks]):
+        late = next(tr for tr in tracks if t_s < tr._last_t)
+        raise SimulationError(
+            f"track knot at t={t_s:.6f} s is before the newest one "
+            f"({late._last_t:.6f} s); knots must come in time order"
+        )
     if heading_deg is None:
         h = np.full(len(tracks), math.nan)
     else:
@@ -262,7 +267,7 @@ def extend_tracks(
         if not np.isfinite(heading).all():
             bad = int(np.flatnonzero(~np.isfinite(heading))[0])
             raise SimulationError(f"track knot at t={t_s}: heading {heading[bad]} not finite")
-        prev = np.array([tr._h[tr._n - 1] if tr._n else math.nan for tr in tracks], np.float64)
+        prev = np.array([tr._last_h for tr in tracks], np.float64)
         h = np.where(np.isnan(prev), np.mod(heading, 360.0), prev + wrap_deg_180(heading - prev))
     for tr, xi, yi, hi in zip(tracks, x.tolist(), y.tolist(), h.tolist(), strict=True):
         tr._push(t_s, xi, yi, hi)
@@ -310,6 +315,7 @@ class StreamTwin(World):
         )
         self.emitters: list[EmitterSpec] = list(scenario.spec.emitters)
         """The transmitters so far; ``Receptions.emitter`` indexes this list."""
+        self._emitter_ids = {e.id for e in self.emitters}
         self.live: dict[str, LiveTrack] = {m.id: LiveTrack() for m in scenario.spec.movers}
         """Track of every mover, by id."""
         seed = scenario.seed
@@ -371,7 +377,7 @@ class StreamTwin(World):
         Raises:
             SimulationError: duplicate id or MAC, or an unknown carrier.
         """
-        if any(e.id == emitter.id for e in self.emitters):
+        if emitter.id in self._emitter_ids:
             raise SimulationError(f"emitter {emitter.id!r} already exists")
         mac = mac_to_int(emitter.mac)
         if np.any(self.emitter_macs == np.uint64(mac)):
@@ -385,6 +391,7 @@ class StreamTwin(World):
                 f"{self.generated_s:.3f} s were already generated"
             )
         self.emitters.append(emitter)
+        self._emitter_ids.add(emitter.id)
         self._set_emitters()
         self.emitter_macs = np.append(self.emitter_macs, np.uint64(mac))
         streams = traffic_streams(self.scenario.seed, emitter.id, len(emitter.traffic))

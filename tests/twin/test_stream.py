@@ -123,11 +123,13 @@ def _crowded(n: int) -> Scenario:
     return Scenario(spec=spec, source=sc.source, base_dir=sc.base_dir)
 
 
-def test_many_carriers_streamed_equal_the_offline_run() -> None:
-    # many carriers at once: positions of many tracks in one window
+@pytest.mark.parametrize("lookahead_s", [0.35, 4.0])
+def test_many_carriers_streamed_equal_the_offline_run(lookahead_s: float) -> None:
+    # many carriers at once: positions of many tracks in one window; traffic generated
+    # less or more than a window ahead (the district's twin workers: 4 s)
     sc = _crowded(12)
     world = World(sc)
-    twin = StreamTwin(sc, lookahead_s=0.35)
+    twin = StreamTwin(sc, lookahead_s=lookahead_s)
     fed: dict[str, int] = {}
     parts: dict[str, list[Receptions]] = {s.id: [] for s in sc.spec.sensors}
     t0 = 0.0

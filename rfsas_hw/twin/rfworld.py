@@ -31,6 +31,15 @@ def building_array(buildings: Sequence[BuildingSpec]) -> Array:
     return np.array([[b.x_min_m, b.x_max_m, b.y_min_m, b.y_max_m, b.loss_db] for b in buildings])
 
 
+def _segments(p0: Array, p1: Array, rects: Array) -> tuple[Array, Array, Array]:
+    """The arguments of the compiled loops, as float64 C arrays."""
+    return (
+        np.ascontiguousarray(p0, dtype=np.float64).reshape(-1, 2),
+        np.ascontiguousarray(p1, dtype=np.float64).reshape(-1, 2),
+        np.ascontiguousarray(rects, dtype=np.float64),
+    )
+
+
 def segment_crossings(p0: Array, p1: Array, rects: Array) -> npt.NDArray[np.bool_]:
     """Which segments cross which rectangles, shape ``(n, m)``.
 
@@ -40,53 +49,71 @@ def segment_crossings(p0: Array, p1: Array, rects: Array) -> npt.NDArray[np.bool
     segment that only grazes an edge does not count, nor does one with a NaN
     end. Only the pairs whose boxes overlap are clipped (a segment cannot
     enter a rectangle its box does not overlap), so a district's buildings
-    cost what the few near each segment cost.
+    cost what the few near each segment cost. A compiled loop
+    (:mod:`rfsas_hw.twin._blockage_kernel`).
     """
-    n, m = len(p0), len(rects)
-    out = np.zeros((n, m), dtype=bool)
-    if n == 0 or m == 0:
-        return out
-    box_lo = np.minimum(p0, p1)
-    box_hi = np.maximum(p0, p1)
-    # NaN ends compare False everywhere: such a segment overlaps nothing
-    seg, rect = np.nonzero(
-        (rects[None, :, 0] < box_hi[:, None, 0])
-        & (rects[None, :, 1] > box_lo[:, None, 0])
-        & (rects[None, :, 2] < box_hi[:, None, 1])
-        & (rects[None, :, 3] > box_lo[:, None, 1])
-    )
-    if not len(seg):
-        return out
-    enter = np.zeros(len(seg))
-    leave = np.ones(len(seg))
-    for axis in (0, 1):
-        o = p0[seg, axis]
-        d = p1[seg, axis] - o
-        lo, hi = rects[rect, 2 * axis], rects[rect, 2 * axis + 1]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            t1 = (lo - o) / d
-            t2 = (hi - o) / d
-        t_near = np.minimum(t1, t2)
-        t_far = np.maximum(t1, t2)
-        parallel = d == 0
-        if parallel.any():
-            # along this axis: inside the slab for all t, or never
-            inside = (o[parallel] > lo[parallel]) & (o[parallel] < hi[parallel])
-            t_near[parallel] = np.where(inside, -np.inf, np.inf)
-            t_far[parallel] = np.where(inside, np.inf, -np.inf)
-        np.maximum(enter, t_near, out=enter)
-        np.minimum(leave, t_far, out=leave)
-    out[seg, rect] = leave - enter > 1e-9
+    from rfsas_hw.twin import _blockage_kernel as k
+
+    if len(p0) == 0 or len(rects) == 0:
+        return np.zeros((len(p0), len(rects)), dtype=bool)
+    out: npt.NDArray[np.bool_] = k.crossings(*_segments(p0, p1, rects))
     return out
 
 
-def blockage_db(p0: Array, p1: Array, rects: Array) -> tuple[Array, npt.NDArray[np.bool_]]:
-    """Extra loss of each path from the buildings it crosses, dB, and whether any was crossed."""
-    cross = segment_crossings(p0, p1, rects)
-    if cross.shape[1] == 0:
-        return np.zeros(len(p0)), np.zeros(len(p0), dtype=bool)
-    hit: npt.NDArray[np.bool_] = np.asarray(cross.any(axis=1), dtype=bool)
-    return cross.astype(np.float64) @ rects[:, 4], hit
+def blockage_db(
+    p0: Array,
+    p1: Array,
+    rects: Array,
+    candidates: Sequence[tuple[int, npt.NDArray[np.intp] | None]] | None = None,
+) -> tuple[Array, npt.NDArray[np.bool_]]:
+    """Extra loss of each path from the buildings it crosses (:func:`segment_crossings`;
+    ``rects`` column 4 is each building's loss), dB, and whether any was crossed.
+
+    Args:
+        p0, p1: the paths' end points, ``(n, 2)``, metres.
+        rects: the buildings, ``(m, 5)``.
+        candidates: the caller's knowledge of which buildings a path can cross at all:
+            consecutive groups of rows as ``(rows in the group, the building indices
+            its paths may cross, increasing; None: any)``, the counts adding up to
+            ``n``. A building left out of a group's list is not looked at for its
+            paths (it must be one they cannot cross); None: every path against every
+            building.
+
+    Raises:
+        ValueError: the groups' rows do not add up to ``n``.
+    """
+    from rfsas_hw.twin import _blockage_kernel as k
+
+    n, m = len(p0), len(rects)
+    if n == 0 or m == 0:
+        return np.zeros(n), np.zeros(n, dtype=bool)
+    every = np.arange(m, dtype=np.intp)
+    groups = [(n, every)] if candidates is None else candidates
+    counts = [c for c, _ in groups]
+    if sum(counts) != n:
+        raise ValueError(f"the groups of paths hold {sum(counts)} rows, not {n}")
+    lists = [every if idx is None else idx for _, idx in groups]
+    starts = np.zeros(len(groups) + 1, np.intp)
+    np.cumsum(counts, out=starts[1:])
+    cand_ptr = np.zeros(len(groups) + 1, np.intp)
+    np.cumsum([len(c) for c in lists], out=cand_ptr[1:])
+    cand_idx = np.ascontiguousarray(np.concatenate(lists), dtype=np.intp)
+    loss: Array
+    hit: npt.NDArray[np.bool_]
+    loss, hit = k.blockage(*_segments(p0, p1, rects), starts, cand_ptr, cand_idx)
+    return loss, hit
+
+
+def nearest_first(point: tuple[float, float], rects: Array) -> tuple[Array, npt.NDArray[np.intp]]:
+    """The rectangles ordered by their distance from ``point`` (metres; 0 inside one):
+    the sorted distances and the rectangles' indices in that order. A segment that
+    starts at ``point`` and is ``L`` long can cross only those within ``L``."""
+    x, y = point
+    dx = np.maximum(np.maximum(rects[:, 0] - x, x - rects[:, 1]), 0.0)
+    dy = np.maximum(np.maximum(rects[:, 2] - y, y - rects[:, 3]), 0.0)
+    dist = np.hypot(dx, dy)
+    order = np.argsort(dist, kind="stable")
+    return np.asarray(dist[order], np.float64), order.astype(np.intp)
 
 
 def link_path_loss_db(distance_m: Array, freq_mhz: npt.ArrayLike, rf: RfSpec) -> Array:

@@ -81,26 +81,27 @@ def _interp_tracks(
 ) -> Array:
     """Positions at times ``t`` on tracks ``knots[track]`` (knot times, east, north), (n, 2).
 
-    ``np.interp`` on each track, as the offline world interpolates one track;
-    the rows are grouped by track with one sort, so a track costs two calls.
+    What ``np.interp`` gives on each track, as the offline world interpolates one
+    track, for every row in one compiled loop (:mod:`rfsas_hw.twin._interp_kernel`).
     """
-    if len(knots) == 1:  # one track (the usual case of a small scene): nothing to group
-        ts, xs, ys = knots[0]
-        one = np.empty((len(t), 2))
-        one[:, 0] = np.interp(t, ts, xs)
-        one[:, 1] = np.interp(t, ts, ys)
-        return one
-    order = np.argsort(track, kind="stable")
-    bounds = np.searchsorted(track[order], np.arange(len(knots) + 1)).tolist()
-    t_sorted = t[order]
-    xy = np.empty((len(t), 2))
-    for u, (ts, xs, ys) in enumerate(knots):
-        lo, hi = bounds[u], bounds[u + 1]
-        if lo < hi:
-            xy[lo:hi, 0] = np.interp(t_sorted[lo:hi], ts, xs)
-            xy[lo:hi, 1] = np.interp(t_sorted[lo:hi], ts, ys)
-    out = np.empty_like(xy)
-    out[order] = xy
+    from rfsas_hw.twin import _interp_kernel as k
+
+    ptr = np.zeros(len(knots) + 1, np.intp)
+    np.cumsum([len(ts) for ts, _, _ in knots], out=ptr[1:])
+    if len(knots) == 1:  # one track (the usual case of a small scene): nothing to join
+        kt, kx, ky = knots[0]
+    else:
+        kt = np.concatenate([ts for ts, _, _ in knots])
+        kx = np.concatenate([xs for _, xs, _ in knots])
+        ky = np.concatenate([ys for _, _, ys in knots])
+    out: Array = k.positions(
+        np.ascontiguousarray(kt, np.float64),
+        np.ascontiguousarray(kx, np.float64),
+        np.ascontiguousarray(ky, np.float64),
+        ptr,
+        np.ascontiguousarray(track, np.intp),
+        np.ascontiguousarray(t, np.float64),
+    )
     return out
 
 
@@ -123,6 +124,10 @@ class LiveTrack:
         """Unwrapped heading at each knot, degrees (NaN: not reported)."""
         self._n = 0
         self._cache: Track | None = None
+        self._last_t = -math.inf
+        """Time of the newest knot, seconds (a float: the checks of every step read it)."""
+        self._last_h = math.nan
+        """Unwrapped heading of the newest knot, degrees (NaN: none, or not reported)."""
 
     def __len__(self) -> int:
         return self._n
@@ -135,7 +140,7 @@ class LiveTrack:
     @property
     def last_s(self) -> float:
         """Time of the newest knot, seconds (-inf without knots)."""
-        return float(self._t[self._n - 1]) if self._n else -math.inf
+        return self._last_t
 
     def extend(self, t_s: float, x_m: float, y_m: float, heading_deg: float | None = None) -> None:
         """Add the knot ``(t_s, x_m, y_m)`` (and the heading, compass degrees, if known).
@@ -157,6 +162,7 @@ class LiveTrack:
                 setattr(self, name, grown)
         self._t[i], self._x[i], self._y[i], self._h[i] = t_s, x_m, y_m, h
         self._n = i + 1
+        self._last_t, self._last_h = t_s, h
         self._cache = None
 
     def forget_before(self, t_s: float) -> None:
@@ -204,11 +210,7 @@ class LiveTrack:
             return self.track().position(t_s)
         # what Track.position computes, on the knots themselves (no copy of them)
         t = np.atleast_1d(np.asarray(t_s, dtype=np.float64))
-        ts = self._t[:n]
-        out = np.empty((len(t), 2))
-        out[:, 0] = np.interp(t, ts, self._x[:n])
-        out[:, 1] = np.interp(t, ts, self._y[:n])
-        return out
+        return _interp_tracks([self.knots()], np.zeros(len(t), np.intp), t)
 
     def velocity(self, t_s: npt.ArrayLike) -> Array:
         """Velocities at times ``t_s``, shape ``(n, 2)``, m/s."""
@@ -249,12 +251,12 @@ def extend_tracks(
     if not math.isfinite(t_s) or not (np.isfinite(x).all() and np.isfinite(y).all()):
         bad = 0 if not math.isfinite(t_s) else int(np.flatnonzero(~np.isfinite(x + y))[0])
         raise SimulationError(f"track knot at t={t_s}: position ({x[bad]}, {y[bad]}) not finite")
-    for tr in tracks:
-        if tr._n and t_s < tr._t[tr._n - 1]:
-            raise SimulationError(
-                f"track knot at t={t_s:.6f} s is before the newest one "
-                f"({tr._t[tr._n - 1]:.6f} s); knots must come in time order"
-            )
+    if tracks and t_s < max([tr._last_t for tr in tracks]):
+        late = next(tr for tr in tracks if t_s < tr._last_t)
+        raise SimulationError(
+            f"track knot at t={t_s:.6f} s is before the newest one "
+            f"({late._last_t:.6f} s); knots must come in time order"
+        )
     if heading_deg is None:
         h = np.full(len(tracks), math.nan)
     else:
@@ -262,7 +264,7 @@ def extend_tracks(
         if not np.isfinite(heading).all():
             bad = int(np.flatnonzero(~np.isfinite(heading))[0])
             raise SimulationError(f"track knot at t={t_s}: heading {heading[bad]} not finite")
-        prev = np.array([tr._h[tr._n - 1] if tr._n else math.nan for tr in tracks], np.float64)
+        prev = np.array([tr._last_h for tr in tracks], np.float64)
         h = np.where(np.isnan(prev), np.mod(heading, 360.0), prev + wrap_deg_180(heading - prev))
     for tr, xi, yi, hi in zip(tracks, x.tolist(), y.tolist(), h.tolist(), strict=True):
         tr._push(t_s, xi, yi, hi)
@@ -310,6 +312,7 @@ class StreamTwin(World):
         )
         self.emitters: list[EmitterSpec] = list(scenario.spec.emitters)
         """The transmitters so far; ``Receptions.emitter`` indexes this list."""
+        self._emitter_ids = {e.id for e in self.emitters}
         self.live: dict[str, LiveTrack] = {m.id: LiveTrack() for m in scenario.spec.movers}
         """Track of every mover, by id."""
         seed = scenario.seed
@@ -371,7 +374,7 @@ class StreamTwin(World):
         Raises:
             SimulationError: duplicate id or MAC, or an unknown carrier.
         """
-        if any(e.id == emitter.id for e in self.emitters):
+        if emitter.id in self._emitter_ids:
             raise SimulationError(f"emitter {emitter.id!r} already exists")
         mac = mac_to_int(emitter.mac)
         if np.any(self.emitter_macs == np.uint64(mac)):
@@ -385,6 +388,7 @@ class StreamTwin(World):
                 f"{self.generated_s:.3f} s were already generated"
             )
         self.emitters.append(emitter)
+        self._emitter_ids.add(emitter.id)
         self._set_emitters()
         self.emitter_macs = np.append(self.emitter_macs, np.uint64(mac))
         streams = traffic_streams(self.scenario.seed, emitter.id, len(emitter.traffic))

@@ -43,6 +43,7 @@ from rfsas_hw.twin.rfworld import (
     fading_from_normals,
     fading_normals,
     link_path_loss_db,
+    nearest_first,
 )
 from rfsas_hw.twin.rng import stream
 from rfsas_hw.twin.scan import ScanPlan
@@ -355,6 +356,8 @@ class World:
         self._tables: dict[str, tuple[int, npt.NDArray[np.uint8], Array, Array]] = {}
         """Per sensor id: how many emitters its table covers, and the table."""
         self._layouts: dict[tuple[object, ...], _Layout] = {}
+        self._near_rects: dict[str, tuple[Array, npt.NDArray[np.intp]]] = {}
+        """Per standing sensor id: the buildings nearest first (:func:`nearest_first`)."""
 
     # -- geometry -----------------------------------------------------------------
 
@@ -492,6 +495,32 @@ class World:
                 xy[p], heading[p] = self.sensor_pose(s, c["t"])
         return xy, heading
 
+    def _blockage(
+        self,
+        sensors: list[SensorSpec],
+        parts: list[slice],
+        sxy: Array,
+        exy: Array,
+        dist: Array,
+    ) -> tuple[Array, npt.NDArray[np.bool_]]:
+        """:func:`blockage_db` of the paths ``sxy → exy`` (``dist`` long, metres), sensor
+        ``k`` owning rows ``parts[k]``: a standing sensor's paths are clipped only against
+        the buildings within its longest path of the call (a path from the sensor cannot
+        reach farther; the buildings nearest each sensor are sorted once)."""
+        groups: list[tuple[int, npt.NDArray[np.intp] | None]] = []
+        for s, p in zip(sensors, parts, strict=True):
+            count = p.stop - p.start
+            if s.pose is None or count == 0:
+                groups.append((count, None))
+                continue
+            near = self._near_rects.get(s.id)
+            if near is None:
+                near = self._near_rects[s.id] = nearest_first((s.pose.x_m, s.pose.y_m), self.rects)
+            # a metre more than the longest path: no rounding can leave a building out
+            within = int(np.searchsorted(near[0], float(dist[p].max()) + 1.0, side="right"))
+            groups.append((count, np.sort(near[1][:within])))
+        return blockage_db(sxy, exy, self.rects, groups)
+
     def _layout(
         self, items: Sequence[tuple[SensorSpec, dict[str, Any], ReceiverStreams]], counts: list[int]
     ) -> _Layout:
@@ -569,7 +598,7 @@ class World:
         pl = link_path_loss_db(dist, freq, rf)
         physical = self.detail == "high"
         if physical:
-            block, blocked = blockage_db(sxy, exy, self.rects)
+            block, blocked = self._blockage(sensors, parts, sxy, exy, dist)
             if rf.fading == "none":
                 fade = np.zeros((n, 2))
             else:

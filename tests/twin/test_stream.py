@@ -123,11 +123,13 @@ def _crowded(n: int) -> Scenario:
     return Scenario(spec=spec, source=sc.source, base_dir=sc.base_dir)
 
 
-def test_many_carriers_streamed_equal_the_offline_run() -> None:
-    # many carriers at once: positions of many tracks in one window
+@pytest.mark.parametrize("lookahead_s", [0.35, 4.0])
+def test_many_carriers_streamed_equal_the_offline_run(lookahead_s: float) -> None:
+    # many carriers at once: positions of many tracks in one window; traffic generated
+    # less or more than a window ahead (the district's twin workers: 4 s)
     sc = _crowded(12)
     world = World(sc)
-    twin = StreamTwin(sc, lookahead_s=0.35)
+    twin = StreamTwin(sc, lookahead_s=lookahead_s)
     fed: dict[str, int] = {}
     parts: dict[str, list[Receptions]] = {s.id: [] for s in sc.spec.sensors}
     t0 = 0.0
@@ -156,6 +158,31 @@ def test_live_track_positions_are_the_offline_tracks() -> None:
         t_k, x_k, y_k = (a.copy() for a in live.knots())
         _assert_column(live.position(q), Track(t_k, x_k, y_k).position(q), "position")
     _assert_column(live.position(1.0), Track(t_k, x_k, y_k).position(1.0), "position")
+
+
+def test_a_live_track_moves_in_straight_lines_between_its_knots() -> None:
+    """Hand-made knots, one of them at a repeated time (a jump): before the first knot
+    the first position, between knots the straight line at constant speed, at a
+    repeated time the later knot, after the last knot the last position."""
+    live = LiveTrack()
+    for t, x, y in ((0.0, 0.0, 0.0), (2.0, 10.0, -4.0), (2.0, 20.0, 6.0), (5.0, 20.0, 12.0)):
+        live.extend(t, x, y)
+    q = np.array([-1.0, 0.0, 0.5, 1.0, 2.0, 3.5, 5.0, 9.0])
+    want = [
+        [0.0, 0.0],
+        [0.0, 0.0],
+        [2.5, -1.0],
+        [5.0, -2.0],
+        [20.0, 6.0],
+        [20.0, 9.0],
+        [20.0, 12.0],
+        [20.0, 12.0],
+    ]
+    np.testing.assert_allclose(live.position(q), want, rtol=0.0, atol=1e-12)
+    assert np.isnan(live.position(np.array([np.nan]))).all()
+    one = LiveTrack()
+    one.extend(1.0, 3.0, 4.0)
+    np.testing.assert_array_equal(one.position([0.0, 1.0, 2.0]), [[3.0, 4.0]] * 3)
 
 
 def test_other_seed_differs() -> None:

@@ -67,7 +67,7 @@ from rfsas_hw.city.tileworker import (
     unit_sensor,
     worker_main,
 )
-from rfsas_hw.city.vehicles import Arrival, GatewayStats, GatewayWork, gateway_main
+from rfsas_hw.city.vehicles import Arrival, GatewayStats, GatewayWork, arrivals_of, gateway_main
 from rfsas_hw.errors import SimulationError
 from rfsas_hw.fleet.broker import BrokerFiles
 from rfsas_hw.fleet.tiles import TilePlan
@@ -608,9 +608,9 @@ class DistributedRfsas:
             self._gateway.send(tuple(present))
             self._present = present
         for arrival in self._arrivals():
-            key = (arrival.message.sender_id, arrival.message.seq)
+            key = (arrival.backend_id, arrival.seq)
             self._arrived[key] = arrival.t_ns
-            owned = self._owners.owns(arrival.message.sender_id, arrival.vehicle_id)
+            owned = self._owners.owns(arrival.backend_id, arrival.vehicle_id)
             out.foreign += not owned
             lately = self._owners.tiles(arrival.vehicle_id)
             out.arrivals.append(replace(arrival, owned=owned, tiles=lately))
@@ -627,7 +627,7 @@ class DistributedRfsas:
         while conn.poll():
             msg = conn.recv()
             if msg[0] == "arrivals":
-                out += msg[1]
+                out += arrivals_of(msg[1])
             elif msg[0] == "error":
                 raise SimulationError(str(msg[1]))
         return out
@@ -737,7 +737,7 @@ class DistributedRfsas:
             while conn.poll(max(deadline - time.monotonic(), 0.0)):
                 msg = conn.recv()
                 if msg[0] == "arrivals":
-                    late += msg[1]
+                    late += arrivals_of(msg[1])
                     continue
                 if msg[0] == "end":
                     totals: GatewayStats = msg[1]
@@ -770,7 +770,7 @@ class DistributedRfsas:
         if self._gateway is not None:
             time.sleep(DRAIN_S)
             for arrival in self._stop_gateway(self._gateway, deadline):
-                owned = self._owners.owns(arrival.message.sender_id, arrival.vehicle_id)
+                owned = self._owners.owns(arrival.backend_id, arrival.vehicle_id)
                 self.stats.foreign += not owned
                 lately = self._owners.tiles(arrival.vehicle_id)
                 self.late.append(replace(arrival, owned=owned, tiles=lately))

@@ -275,7 +275,7 @@ def gateway_main(work: GatewayWork, conn: Connection) -> None:
         while True:
             # asleep until the broker connection or the pipe has something
             with contextlib.suppress(OSError, ValueError):  # a socket replaced meanwhile
-                select.select([*transport.wait_fds(), conn], [], [], IDLE_S)
+                select.select([*transport.wait_fds(), conn.fileno()], [], [], IDLE_S)
             arrivals = gateway.receive(0)
             if arrivals:
                 conn.send(("arrivals", arrival_rows(arrivals)))

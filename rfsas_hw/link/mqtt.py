@@ -72,7 +72,9 @@ from rfsas_hw.link.mqtt_wire import (
     Ping,
     Publish,
     connect_packet,
+    framed,
     puback_packet,
+    publish_head,
     publish_packet,
     reason_text,
     subscribe_packet,
@@ -363,6 +365,8 @@ class MqttTransport(Transport):
         """Held for every read and write of the socket."""
         self._sock: socket.socket | TlsStream | None = None
         self._reader = PacketReader()
+        self._heads: dict[Route, tuple[int, bytes]] = {}
+        """First byte and variable header of QoS-0 publishes, by route."""
         self._queue: deque[tuple[bytes, str]] = deque()
         self._qlock = threading.Lock()
         self._wake_r, self._wake_w = socket.socketpair()
@@ -795,14 +799,25 @@ class MqttTransport(Transport):
                     oldest.wait(0.05)
             packet_id = self._packet_id()
             self._pending[packet_id] = threading.Event()
-        packet = publish_packet(
-            route.topic,
-            datagram,
-            qos=route.qos,
-            retain=route.retain,
-            packet_id=packet_id,
-            expiry_s=route.expiry_s,
-        )
+        if route.qos:
+            packet = publish_packet(
+                route.topic,
+                datagram,
+                qos=route.qos,
+                retain=route.retain,
+                packet_id=packet_id,
+                expiry_s=route.expiry_s,
+            )
+        else:
+            # a QoS-0 route's header is the same for every message on it: made once
+            head = self._heads.get(route)
+            if head is None:
+                if len(self._heads) >= 1024:
+                    self._heads.clear()
+                head = self._heads[route] = publish_head(
+                    route.topic, retain=route.retain, expiry_s=route.expiry_s
+                )
+            packet = framed(head[0], head[1], datagram)
         try:
             self._write(packet)
         except OSError as err:

@@ -419,32 +419,41 @@ class PacketReader:
     def __init__(self, max_packet: int = MAX_PACKET) -> None:
         self.max_packet = max_packet
         self._buf = bytearray()
+        self._offset = 0
+        """Bytes of the stream before the first one held in the buffer."""
 
     def feed(self, data: bytes) -> list[Packet]:
         """Add ``data`` and return every packet now complete, in order.
 
         Raises:
-            MqttProtocolError: a malformed or oversized packet (the stream is lost).
+            MqttProtocolError: a malformed or oversized packet (the stream is lost);
+                the message names the byte of the stream where that packet starts.
         """
         buf = self._buf
         buf += data
         out: list[Packet] = []
         at, size = 0, len(buf)
-        while size - at >= 2:
-            length, start = _varint_at(buf, at + 1, size)
-            if length < 0:
-                break
-            if length > self.max_packet:
-                raise MqttProtocolError(f"a {length}-byte packet exceeds {self.max_packet}")
-            end = start + length
-            if end > size:
-                break
-            packet = _parse(buf[at], bytes(buf[start:end]))
-            if packet is not None:
-                out.append(packet)
-            at = end
+        try:
+            while size - at >= 2:
+                length, start = _varint_at(buf, at + 1, size)
+                if length < 0:
+                    break
+                if length > self.max_packet:
+                    raise MqttProtocolError(f"a {length}-byte packet exceeds {self.max_packet}")
+                end = start + length
+                if end > size:
+                    break
+                packet = _parse(buf[at], bytes(buf[start:end]))
+                if packet is not None:
+                    out.append(packet)
+                at = end
+        except MqttProtocolError as err:
+            raise MqttProtocolError(
+                f"{err} (the packet at byte {self._offset + at} of the stream)"
+            ) from None
         if at:
             del buf[:at]
+            self._offset += at
         return out
 
     @property

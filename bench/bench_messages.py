@@ -1,6 +1,7 @@
 """What one bearing message costs at each end, through mosquitto (mutual TLS, loopback).
 
     python bench/bench_messages.py [N]
+    python bench/bench_messages.py --client [N]
 
 Needs ``mosquitto`` (Debian package); paho-mqtt (the ``dev`` extra) for the rows
 beside. The broker is started as ``bench_fleet.py`` starts it (mutual TLS, the
@@ -19,6 +20,12 @@ backend takes about 400 a second):
   header times, tag, signature, decoding, replay, latency); beside it a
   paho-mqtt 2 ``on_message`` that only verifies the signature.
 
+``--client``: the MQTT client alone, each side — a sensor's transport publishing
+N pre-signed 2-bearing messages (``send``: the route, the PUBLISH packet, the TLS
+record and its write) and a backend's transport taking them (``recv_many``: the
+socket reads, TLS, the packets), at the same pace; CPU µs per message, user and
+system, so that a change to the client shows without the signing and checks around it.
+
 CPU µs per message (the process's, every thread, over the messages) and per
 bearing: the cost per message is nearly flat in the bearings it carries, so
 fewer, fuller messages (a longer slot) cost less per bearing. One run on a
@@ -29,6 +36,7 @@ from __future__ import annotations
 
 import importlib.util
 import logging
+import resource
 import sys
 import tempfile
 import threading
@@ -49,6 +57,7 @@ from rfsas_hw.fleet.broker import BrokerFiles
 from rfsas_hw.link import Publisher, Receiver, ReceiverConfig, TrustedKeys
 from rfsas_hw.link.keys import KeyStore
 from rfsas_hw.link.message import SafetyMessage, encode_body
+from rfsas_hw.link.mqtt import open_mqtt
 from rfsas_hw.link.preauth import PreauthKeys
 from rfsas_hw.link.topics import TopicRouter
 from rfsas_hw.privacy.hashing import FixedNonce
@@ -187,6 +196,66 @@ def recv_paho(files: BrokerFiles, key_dir: str, n: int, q: MpQueue[object]) -> N
     paho_receive(files, n, q, "bench-paho-recv", check, tail=(0,))
 
 
+def _usage() -> tuple[float, float]:
+    """This process's user and system CPU seconds so far."""
+    r = resource.getrusage(resource.RUSAGE_SELF)
+    return r.ru_utime, r.ru_stime
+
+
+def send_client(files: BrokerFiles, signer_dir: Path, k: int, n: int) -> tuple[float, float]:
+    """User and system CPU µs per message of ``MqttTransport.send`` of pre-signed messages."""
+    signer = KeyStore.open(signer_dir).signer()
+    datagrams = [
+        signer.encode(SafetyMessage("s-0", POSE, time.time_ns() // 1000, i, 0, _batch(k, i)))
+        for i in range(n)
+    ]
+    transport = open_mqtt(files.url("s-0", origin=ORIGIN_Q), "send")
+    try:
+        u0, s0 = _usage()
+        _paced(n, lambda i: transport.send(datagrams[i]))
+        u1, s1 = _usage()
+        assert transport.stats.sent == n, transport.stats.as_dict()
+    finally:
+        transport.close()
+    return (u1 - u0) / n * 1e6, (s1 - s0) / n * 1e6
+
+
+def recv_client(files: BrokerFiles, key_dir: str, n: int, q: MpQueue[object]) -> None:
+    transport = open_mqtt(files.url("be-0", sub=FILTER, queue="1000000"), "recv")
+    time.sleep(0.5)  # the subscription settles
+    q.put("ready")
+    got = 0
+    u0, s0 = _usage()
+    while got < n:
+        batch = transport.recv_many(timeout=IDLE_S if got else 60.0)
+        if not batch:
+            break
+        got += len(batch)
+    u1, s1 = _usage()
+    q.put((got, u1 - u0, s1 - s0))
+    transport.close()
+
+
+def client_only(n: int) -> None:
+    """The ``--client`` table (see the module docstring)."""
+    with tempfile.TemporaryDirectory() as tmp:
+        files = setup(Path(tmp))
+        keys = Path(tmp) / "keys" / "s-0"
+        broker = start_broker(files, Path(tmp) / "mosquitto.log")
+        try:
+            with ready_process("the receiver", recv_client, files, str(keys), n) as q:
+                send_user, send_sys = send_client(files, keys, 2, n)
+                got, user, system = q.get(timeout=120)  # type: ignore[misc]
+        finally:
+            broker.terminate()
+            broker.wait(10)
+    recv_user, recv_sys = user / max(got, 1) * 1e6, system / max(got, 1) * 1e6
+    print(f"the MQTT client alone: {n:,} messages of 2 bearings at {RATE:,.0f}/s, mosquitto,")
+    print(f"mutual TLS, loopback; {got:,} received; CPU µs per message (user + system)")
+    print(f"send    {send_user + send_sys:6.1f} ({send_user:.1f} + {send_sys:.1f})")
+    print(f"receive {recv_user + recv_sys:6.1f} ({recv_user:.1f} + {recv_sys:.1f})")
+
+
 def run_pair(
     files: BrokerFiles, keys: Path, k: int, n: int, sender: object, receiver: object
 ) -> tuple[float, float, int]:
@@ -200,7 +269,11 @@ def run_pair(
 
 
 def main() -> None:
-    n = int(sys.argv[1]) if len(sys.argv) > 1 else 2000
+    args = sys.argv[1:]
+    if args and args[0] == "--client":
+        client_only(int(args[1]) if len(args) > 1 else 3000)
+        return
+    n = int(args[0]) if args else 2000
     paho = importlib.util.find_spec("paho") is not None
     with tempfile.TemporaryDirectory() as tmp:
         files = setup(Path(tmp))

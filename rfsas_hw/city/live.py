@@ -68,7 +68,7 @@ from rfsas_hw.city.tileworker import (
     unit_sensor,
     worker_main,
 )
-from rfsas_hw.city.vehicles import Arrival, GatewayStats, GatewayWork, gateway_main
+from rfsas_hw.city.vehicles import Arrival, GatewayStats, GatewayWork, arrivals_of, gateway_main
 from rfsas_hw.errors import SimulationError
 from rfsas_hw.fleet.broker import BrokerFiles
 from rfsas_hw.fleet.tiles import TilePlan
@@ -625,7 +625,7 @@ class DistributedRfsas:
         while conn.poll():
             msg = conn.recv()
             if msg[0] == "arrivals":
-                out += msg[1]
+                out += arrivals_of(msg[1])
             elif msg[0] == "error":
                 raise SimulationError(str(msg[1]))
         return out
@@ -666,15 +666,14 @@ class DistributedRfsas:
     def _arrival(self, out: StepOut, arrival: Arrival) -> None:
         """Take one verified advisory: its owner check, its vehicle's tiles, its latency
         when its backend said which fix it carried."""
-        message = arrival.message
-        key = (message.sender_id, message.seq)
+        key = (arrival.backend_id, arrival.seq)
         latency = self._latency.arrived(key, arrival.t_ns)
         if latency is not None:
             out.latency_s[key] = latency
         vid = arrival.vehicle_id
-        owned = self._owners.owns(message.sender_id, vid)
+        owned = self._owners.owns(arrival.backend_id, vid)
         out.foreign += not owned
-        out.arrivals.append(Arrival(vid, message, arrival.t_ns, owned, self._owners.tiles(vid)))
+        out.arrivals.append(replace(arrival, owned=owned, tiles=self._owners.tiles(vid)))
 
     def _wait_workers(self, t_s: float) -> int:
         """Wait until every worker has answered all steps but this one (a worker has the
@@ -738,7 +737,7 @@ class DistributedRfsas:
             while conn.poll(max(deadline - time.monotonic(), 0.0)):
                 msg = conn.recv()
                 if msg[0] == "arrivals":
-                    late += msg[1]
+                    late += arrivals_of(msg[1])
                     continue
                 if msg[0] == "end":
                     totals: GatewayStats = msg[1]
@@ -771,7 +770,7 @@ class DistributedRfsas:
         if self._gateway is not None:
             time.sleep(DRAIN_S)
             for arrival in self._stop_gateway(self._gateway, deadline):
-                owned = self._owners.owns(arrival.message.sender_id, arrival.vehicle_id)
+                owned = self._owners.owns(arrival.backend_id, arrival.vehicle_id)
                 self.stats.foreign += not owned
                 lately = self._owners.tiles(arrival.vehicle_id)
                 self.late.append(replace(arrival, owned=owned, tiles=lately))

@@ -55,7 +55,7 @@ from rfsas_hw.city.net import NetInfo, district_net, read_net, sumo_home
 from rfsas_hw.city.placement import UnitSite, buildings, load_placement, place_units
 from rfsas_hw.city.scoring import Actors, CityScorer, CitySummary, ScoringConfig
 from rfsas_hw.city.sumoio import Movers, SumoDistrict
-from rfsas_hw.city.vehicles import Arrival, most_severe
+from rfsas_hw.city.vehicles import Arrival
 from rfsas_hw.errors import ConfigError, OutputError, SimulationError
 from rfsas_hw.geo import SiteOrigin
 from rfsas_hw.outpaths import write_text_atomic
@@ -530,8 +530,8 @@ def _run_loop(
                     scorer.fix(f.t_s, f.emitter, f.person, f.x_m, f.y_m, f.sigma_m)
                 latencies = dict(out.latency_s)
                 for a in out.arrivals:
-                    kind = most_severe(a.message)
-                    latency = latencies.pop((a.message.sender_id, a.message.seq), math.nan)
+                    kind = a.advice
+                    latency = latencies.pop((a.backend_id, a.seq), math.nan)
                     scorer.advisory(t, a.vehicle_id, kind, latency)
                     sim.act(t, a.vehicle_id, kind)
                     advised.add(a.vehicle_id)
@@ -578,7 +578,7 @@ def _run_loop(
             tmp.cleanup()
     for a in live.late if live is not None else ():
         # reached its vehicle after the simulation's end: logged, not acted on
-        _log_arrival(log, cfg.duration_s, a, most_severe(a.message), math.nan)
+        _log_arrival(log, cfg.duration_s, a, a.advice, math.nan)
     _costs(runtime, timers, cpu_s() - cpu0, stats)
     return runtime
 
@@ -589,9 +589,9 @@ def _log_arrival(log: _Log, t_s: float, a: Arrival, kind: str, latency_s: float)
             "record": "advisory",
             "t_s": round(t_s, 1),
             "vehicle": a.vehicle_id,
-            "backend": a.message.sender_id,
+            "backend": a.backend_id,
             "advice": kind,
-            "emitters": [it.emitter for it in a.message.items],
+            "emitters": list(a.emitters),
             "latency_ms": _finite(round(latency_s * 1e3, 2)),
             "owned": a.owned,
             "tiles": list(a.tiles),

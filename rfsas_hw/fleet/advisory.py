@@ -568,12 +568,16 @@ class AdvisoryReceiver:
         self.latest: dict[str, tuple[AdvisoryItem, str]] = {}
         """Emitter id → (newest assessment, backend that sent it)."""
 
-    def feed(self, datagram: bytes, now_ns: int | None = None) -> AdvisoryMessage | None:
-        """Check one datagram; the verified message, or None (counted). Never raises."""
+    def feed(
+        self, datagram: bytes, now_ns: int | None = None, head: PeekedAdvisory | None = None
+    ) -> AdvisoryMessage | None:
+        """Check one datagram; the verified message, or None (counted). Never raises.
+        ``head``: :func:`peek_advisory` of this very datagram, when the caller already
+        has it (a gateway that sorts datagrams by vehicle), so it is not parsed twice."""
         now = self.clock() if now_ns is None else now_ns
         self.stats.datagrams += 1
         try:
-            msg = self._check(bytes(datagram), now)
+            msg = self._check(bytes(datagram), now, head)
         except MessageFormatError as err:
             self.stats.rejected[err.reason] += 1
             return None
@@ -587,10 +591,13 @@ class AdvisoryReceiver:
                 self.latest[it.emitter] = (it, msg.sender_id)
         return msg
 
-    def _check(self, datagram: bytes, now_ns: int) -> AdvisoryMessage:
+    def _check(
+        self, datagram: bytes, now_ns: int, head: PeekedAdvisory | None = None
+    ) -> AdvisoryMessage:
         if len(datagram) > MAX_DATAGRAM:
             raise MessageFormatError("oversized", f"{len(datagram)} bytes")
-        head = peek_advisory(datagram)
+        if head is None:
+            head = peek_advisory(datagram)
         if self.vehicle_id and head.vehicle_id not in ("", self.vehicle_id):
             raise _RejectError("not_for_us")
         key = self.trust.backend_key(head.sender_id)

@@ -72,7 +72,9 @@ from rfsas_hw.link.mqtt_wire import (
     Ping,
     Publish,
     connect_packet,
+    framed,
     puback_packet,
+    publish_head,
     publish_packet,
     reason_text,
     subscribe_packet,
@@ -363,9 +365,13 @@ class MqttTransport(Transport):
         """Held for every read and write of the socket."""
         self._sock: socket.socket | TlsStream | None = None
         self._reader = PacketReader()
+        self._heads: dict[Route, tuple[int, bytes]] = {}
+        """First byte and variable header of QoS-0 publishes, by route."""
         self._queue: deque[tuple[bytes, str]] = deque()
         self._qlock = threading.Lock()
         self._wake_r, self._wake_w = socket.socketpair()
+        self._woken = False
+        """Set after the network thread wrote a wake-up byte; cleared by the drain."""
         self._wake_r.setblocking(False)
         self._wake_w.setblocking(False)
         self._connected = threading.Event()
@@ -582,28 +588,37 @@ class MqttTransport(Transport):
             except (OSError, ValueError) as err:  # closed under us
                 raise _LostError(str(err)) from None
             if ready or (pending is not None and pending()):
-                self._read_and_handle(sock)
+                self._read_and_handle(sock, wake=True)
             self._keep_alive()
 
-    def _read_and_handle(self, sock: socket.socket | TlsStream) -> None:
-        """Read what the socket has and act on it (any thread).
+    def _read_and_handle(self, sock: socket.socket | TlsStream, wake: bool) -> bool:
+        """Read what the socket has and act on it (any thread); ``wake`` a caller waiting
+        on :meth:`fileno` when messages were queued. True when the socket was emptied.
 
         Raises:
             _LostError: the connection is lost.
         """
         with self._io:
             if self._sock is not sock:
-                return
-            packets = self._read_available(sock)
-        self._handle(packets)
+                return True
+            packets, drained = self._read_available(sock)
+        self._handle(packets, wake)
+        return drained
 
-    def _read_available(self, sock: socket.socket | TlsStream) -> list[Packet]:
+    def _read_available(self, sock: socket.socket | TlsStream) -> tuple[list[Packet], bool]:
+        """The packets in what the socket holds, and whether it was emptied: reading
+        stops at a read that took less than it could, instead of asking the socket once
+        more to hear that nothing is left (a system call and an exception per wake-up).
+
+        Raises:
+            _LostError: the connection failed, closed, or carried a malformed packet.
+        """
         out: list[Packet] = []
         for _ in range(64):  # then let writers in
             try:
-                data = sock.recv(262_144)
+                data = sock.recv(_READ_BYTES)
             except (ssl.SSLWantReadError, ssl.SSLWantWriteError, BlockingIOError):
-                break
+                return out, True
             except OSError as err:
                 raise _LostError(str(err)) from None
             if not data:
@@ -612,9 +627,11 @@ class MqttTransport(Transport):
                 out += self._reader.feed(data)
             except MqttProtocolError as err:
                 raise _LostError(str(err)) from None
-        return out
+            if sock.drained if isinstance(sock, TlsStream) else len(data) < _READ_BYTES:
+                return out, True
+        return out, False
 
-    def _handle(self, packets: list[Packet]) -> None:
+    def _handle(self, packets: list[Packet], wake: bool = True) -> None:
         messages: list[tuple[bytes, str]] = []
         for packet in packets:
             if isinstance(packet, Publish):
@@ -640,7 +657,7 @@ class MqttTransport(Transport):
             elif packet.kind == wire.DISCONNECT:
                 raise _LostError(f"the broker disconnected: {reason_text(packet.reasons[0])}")
         if messages:
-            self._enqueue(messages)
+            self._enqueue(messages, wake)
 
     def _count_suback(self, ack: Ack) -> None:
         for code in ack.reasons:
@@ -650,7 +667,10 @@ class MqttTransport(Transport):
                     "%s: a subscription was refused: %s", self.endpoint.url(), reason_text(code)
                 )
 
-    def _enqueue(self, messages: list[tuple[bytes, str]]) -> None:
+    def _enqueue(self, messages: list[tuple[bytes, str]], wake: bool) -> None:
+        """Queue received messages (the oldest go when the queue is full); ``wake``: the
+        network thread read them, so a caller waiting in ``select`` must hear of it (a
+        caller that read them itself takes them before it waits again)."""
         with self._qlock:
             was_empty = not self._queue
             overflow = len(self._queue) + len(messages) - self.endpoint.queue
@@ -662,9 +682,11 @@ class MqttTransport(Transport):
                 self.stats.dropped += 1
             self._queue.extend(messages)
             self.stats.received += len(messages)
-        if was_empty:
+        if wake and was_empty:
             with contextlib.suppress(OSError):  # a full wake-up buffer already wakes
                 self._wake_w.send(b"\0")
+            # after the byte: a caller that clears this drains every byte sent before
+            self._woken = True
 
     def _keep_alive(self) -> None:
         now = time.monotonic()
@@ -733,7 +755,9 @@ class MqttTransport(Transport):
         return sock.raw if isinstance(sock, TlsStream) else sock
 
     def fileno(self) -> int:
-        """A descriptor that is readable while received messages wait."""
+        """A descriptor that becomes readable when the network thread has queued
+        messages (those a caller read itself it takes before it waits again); wait on
+        :meth:`wait_fds`, which adds the broker socket."""
         return self._wake_r.fileno()
 
     def wait_fds(self) -> list[int]:
@@ -775,14 +799,25 @@ class MqttTransport(Transport):
                     oldest.wait(0.05)
             packet_id = self._packet_id()
             self._pending[packet_id] = threading.Event()
-        packet = publish_packet(
-            route.topic,
-            datagram,
-            qos=route.qos,
-            retain=route.retain,
-            packet_id=packet_id,
-            expiry_s=route.expiry_s,
-        )
+        if route.qos:
+            packet = publish_packet(
+                route.topic,
+                datagram,
+                qos=route.qos,
+                retain=route.retain,
+                packet_id=packet_id,
+                expiry_s=route.expiry_s,
+            )
+        else:
+            # a QoS-0 route's header is the same for every message on it: made once
+            head = self._heads.get(route)
+            if head is None:
+                if len(self._heads) >= 1024:
+                    self._heads.clear()
+                head = self._heads[route] = publish_head(
+                    route.topic, retain=route.retain, expiry_s=route.expiry_s
+                )
+            packet = framed(head[0], head[1], datagram)
         try:
             self._write(packet)
         except OSError as err:
@@ -837,11 +872,11 @@ class MqttTransport(Transport):
             out = self._take(limit)
             self._drain_wake()
             while len(out) < limit:
-                self._caller_read()
+                drained = self._caller_read()
                 more = self._take(limit - len(out))
-                if not more:
-                    break
                 out += more
+                if drained or not more:
+                    break
             if out:
                 return out
             left = None if deadline is None else deadline - time.monotonic()
@@ -858,17 +893,19 @@ class MqttTransport(Transport):
                 out = [queue.popleft() for _ in range(limit)]
         return out
 
-    def _caller_read(self) -> None:
+    def _caller_read(self) -> bool:
         """Read the socket from the caller's thread, if connected; a lost connection
-        is left to the network thread to notice and mend."""
+        is left to the network thread to notice and mend. True when nothing more is
+        there to read now."""
         self._caller_at = time.monotonic()
         sock = self._sock
         if sock is None:
-            return
+            return True
         try:
-            self._read_and_handle(sock)
+            return self._read_and_handle(sock, wake=False)
         except _LostError as err:
             self._lose(str(err))
+            return True
 
     def _wait(self, timeout: float | None) -> bool:
         # wait in slices, so the network thread sees a caller present and stays away
@@ -884,6 +921,9 @@ class MqttTransport(Transport):
         return timeout is None or timeout > slice_s
 
     def _drain_wake(self) -> None:
+        if not self._woken:  # no byte sent since the last drain: no system call
+            return
+        self._woken = False
         with contextlib.suppress(OSError):
             while self._wake_r.recv(4096):
                 pass
@@ -923,6 +963,8 @@ class MqttTransport(Transport):
 
 
 _NAMES = {wire.CONNACK: "CONNACK", wire.SUBACK: "SUBACK"}
+_READ_BYTES = 262_144
+"""Most bytes taken from the socket per read."""
 CALLER_IDLE_S = 0.1
 """The network thread reads the socket only when no caller of ``recv_from`` has
 read or waited for this long, seconds."""

@@ -180,6 +180,27 @@ def publish_packet(
         ValueError: QoS other than 0 or 1, a missing packet id, or an expiry
             outside 0…2**32 − 1 s.
     """
+    first, head = publish_head(
+        topic, qos=qos, retain=retain, packet_id=packet_id, expiry_s=expiry_s
+    )
+    return framed(first, head, payload)
+
+
+def publish_head(
+    topic: str,
+    *,
+    qos: int = 0,
+    retain: bool = False,
+    packet_id: int = 0,
+    expiry_s: int | None = None,
+) -> tuple[int, bytes]:
+    """The first byte and the variable header (topic, packet id, properties) of a
+    PUBLISH: the same for every message a sender publishes on one topic at QoS 0, so it
+    can be made once (:func:`framed` adds the payload).
+
+    Raises:
+        ValueError: as :func:`publish_packet`.
+    """
     if qos not in (0, 1):
         raise ValueError(f"QoS {qos} is not supported (0 or 1)")
     first = (PUBLISH << 4) | (qos << 1) | (1 if retain else 0)
@@ -194,7 +215,16 @@ def publish_packet(
         if not 0 <= expiry_s <= 0xFFFFFFFF:
             raise ValueError(f"message expiry {expiry_s} s out of range")
         head += b"\x05" + bytes((PROP_MESSAGE_EXPIRY,)) + _U32.pack(expiry_s)
-    return _packet(first, head + payload)
+    return first, head
+
+
+def framed(first: int, head: bytes, payload: bytes) -> bytes:
+    """A whole packet: its first byte, remaining length, ``head`` and ``payload``.
+
+    Raises:
+        ValueError: longer than a packet can be (2**28 − 1 bytes after the fixed header).
+    """
+    return b"".join((bytes((first,)), varint(len(head) + len(payload)), head, payload))
 
 
 def puback_packet(packet_id: int) -> bytes:
@@ -389,32 +419,41 @@ class PacketReader:
     def __init__(self, max_packet: int = MAX_PACKET) -> None:
         self.max_packet = max_packet
         self._buf = bytearray()
+        self._offset = 0
+        """Bytes of the stream before the first one held in the buffer."""
 
     def feed(self, data: bytes) -> list[Packet]:
         """Add ``data`` and return every packet now complete, in order.
 
         Raises:
-            MqttProtocolError: a malformed or oversized packet (the stream is lost).
+            MqttProtocolError: a malformed or oversized packet (the stream is lost);
+                the message names the byte of the stream where that packet starts.
         """
         buf = self._buf
         buf += data
         out: list[Packet] = []
         at, size = 0, len(buf)
-        while size - at >= 2:
-            length, start = _varint_at(buf, at + 1, size)
-            if length < 0:
-                break
-            if length > self.max_packet:
-                raise MqttProtocolError(f"a {length}-byte packet exceeds {self.max_packet}")
-            end = start + length
-            if end > size:
-                break
-            packet = _parse(buf[at], bytes(buf[start:end]))
-            if packet is not None:
-                out.append(packet)
-            at = end
+        try:
+            while size - at >= 2:
+                length, start = _varint_at(buf, at + 1, size)
+                if length < 0:
+                    break
+                if length > self.max_packet:
+                    raise MqttProtocolError(f"a {length}-byte packet exceeds {self.max_packet}")
+                end = start + length
+                if end > size:
+                    break
+                packet = _parse(buf[at], bytes(buf[start:end]))
+                if packet is not None:
+                    out.append(packet)
+                at = end
+        except MqttProtocolError as err:
+            raise MqttProtocolError(
+                f"{err} (the packet at byte {self._offset + at} of the stream)"
+            ) from None
         if at:
             del buf[:at]
+            self._offset += at
         return out
 
     @property

@@ -5,7 +5,9 @@ returns one record per call, each call reading the socket twice (the record's
 header, then its body). :class:`TlsStream` reads the socket once for everything
 that has arrived, decrypts every complete record from memory and returns their
 bytes together: one system call and one packet-parser pass for a batch of
-messages instead of two system calls and one pass per message.
+messages instead of two system calls and one pass per message. It tells
+(:attr:`TlsStream.drained`) when that read emptied the socket's buffer, so a
+reader need not ask the socket again only to hear that nothing is left.
 
 It offers the part of the socket interface :mod:`rfsas_hw.link.mqtt` uses
 (``recv``, ``send``, ``sendall``, ``settimeout``, ``setblocking``, ``fileno``,
@@ -52,6 +54,9 @@ class TlsStream:
         self._tls = context.wrap_bio(self._in, self._out, server_hostname=server_hostname)
         self._timeout: float | None = timeout
         self._eof = False
+        self.drained = False
+        """True when the last read of the socket took less than it could (its buffer was
+        emptied) or found nothing: reading again now would most likely find nothing."""
         raw.setblocking(False)
         deadline = time.monotonic() + timeout
         while True:
@@ -122,6 +127,7 @@ class TlsStream:
             try:
                 data = self.raw.recv(_READ)
             except (BlockingIOError, InterruptedError):
+                self.drained = True
                 if not wait:
                     raise ssl.SSLWantReadError("nothing to read") from None
                 left = None if deadline is None else deadline - time.monotonic()
@@ -132,6 +138,7 @@ class TlsStream:
             if not data:
                 self._in.write_eof()
                 return False
+            self.drained = len(data) < _READ
             self._in.write(data)
             return True
 

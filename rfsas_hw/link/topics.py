@@ -221,6 +221,9 @@ class TopicRouter:
         self.origin = origin
         self.schedule = schedule or EpochSchedule()
         self._tiles: dict[tuple[float, float], str] = {}
+        self._bearing_routes: dict[bytes, Route] = {}
+        """Route of a safety message by its sender id and position bytes: a sensor
+        publishes from one place, so its topic is made and checked once."""
 
     def tile_of(self, x_m: float, y_m: float) -> str:
         """The zoom-16 quadkey of local position (``x_m`` east, ``y_m`` north), metres.
@@ -258,9 +261,16 @@ class TopicRouter:
             at = 6 + n + 20
             if len(datagram) < at + 8:
                 raise LinkError("safety message too short to route")
-            sender = datagram[6 : 6 + n].decode("ascii", "replace")
-            x_m, y_m = _POSE_XY.unpack_from(datagram, at)
-            return Route(bearing_topic(sender, self.tile_of(x_m, y_m)))
+            key = bytes(datagram[5 : 6 + n]) + bytes(datagram[at : at + 8])
+            route = self._bearing_routes.get(key)
+            if route is None:
+                sender = datagram[6 : 6 + n].decode("ascii", "replace")
+                x_m, y_m = _POSE_XY.unpack_from(datagram, at)
+                route = Route(bearing_topic(sender, self.tile_of(x_m, y_m)))
+                if len(self._bearing_routes) > 1024:
+                    self._bearing_routes.clear()
+                self._bearing_routes[key] = route
+            return route
         if kind == _TYPE_NONCE:
             try:
                 env = parse_envelope(datagram)

@@ -16,13 +16,20 @@ from rfsas_hw.backend.vehicle import VehicleState
 from rfsas_hw.city.backendproc import VehicleStates
 from rfsas_hw.city.clock import SimClock
 from rfsas_hw.city.partition import plan_tiles, split_units
-from rfsas_hw.city.vehicles import KnownBackends, VehicleGateway
+from rfsas_hw.city.vehicles import (
+    KnownBackends,
+    VehicleGateway,
+    arrival_rows,
+    arrivals_of,
+    most_severe,
+)
 from rfsas_hw.errors import ConfigError
-from rfsas_hw.fleet.advisory import AdvisorySink
+from rfsas_hw.fleet.advisory import AdvisorySink, decode_advisory
 from rfsas_hw.fleet.broker import Identity, acl_lines
 from rfsas_hw.geo import SiteOrigin
 from rfsas_hw.link.signing import Signer
 from rfsas_hw.link.topics import Route, TopicRouter
+from rfsas_hw.link.transport import Transport
 from rfsas_hw.records import BearingBatch, Pose
 
 S = 1_000_000_000
@@ -198,9 +205,12 @@ class _Collect:
         self.datagrams.append(datagram)
 
 
-class _Queue:
+class _Queue(Transport):
     def __init__(self, items: list[bytes]) -> None:
         self.items = items
+
+    def send(self, datagram: bytes) -> None:
+        raise AssertionError("the gateway never sends")
 
     def recv(self, timeout: float | None = None) -> bytes | None:
         return self.items.pop(0) if self.items else None
@@ -234,6 +244,13 @@ def test_the_gateway_hands_each_advisory_to_its_own_vehicle() -> None:
     gateway.vehicles(["car-1", "car-2"])
     got = gateway.receive(0)
     assert sorted(a.vehicle_id for a in got) == ["car-1", "car-2"]
+    # what the simulator uses of each message, taken from the message itself
+    sent_to = {m.vehicle_id: m for m in map(decode_advisory, sent.datagrams)}
+    for a in got:
+        msg = sent_to[a.vehicle_id]
+        assert (a.backend_id, a.seq) == (msg.sender_id, msg.seq)
+        assert a.advice == most_severe(msg)
+        assert a.emitters == tuple(it.emitter for it in msg.items) and a.emitters
     totals = gateway.totals()
     assert totals.unknown_vehicle == 1
     assert sum(totals.rejected.values()) == 1
@@ -266,9 +283,9 @@ def test_the_gateway_process_verifies_with_keys_given_as_der_and_its_arrivals_cr
     gateway = VehicleGateway(KnownBackends({"be-1": der, "be-2": der}), _Queue(sent.datagrams))
     gateway.vehicles(["car-1"])
     got = gateway.receive(0)
-    assert [a.message.sender_id for a in got] == ["be-1"]
+    assert [a.backend_id for a in got] == ["be-1"]
     assert gateway.totals().rejected["bad_signature"] == 1
-    assert pickle.loads(pickle.dumps(got)) == got
+    assert arrivals_of(pickle.loads(pickle.dumps(arrival_rows(got)))) == got
 
 
 def test_a_unit_hears_the_phones_near_any_unit_of_its_junction() -> None:

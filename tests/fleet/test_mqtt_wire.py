@@ -25,7 +25,9 @@ from rfsas_hw.link.mqtt_wire import (
     Ping,
     Publish,
     connect_packet,
+    framed,
     parse_properties,
+    publish_head,
     publish_packet,
     subscribe_packet,
     varint,
@@ -119,6 +121,35 @@ def test_acks_carry_their_reason_codes() -> None:
 def test_malformed_packets_are_refused_with_the_reason(stream: bytes, match: str) -> None:
     with pytest.raises(MqttProtocolError, match=match):
         PacketReader().feed(stream)
+
+
+def test_a_malformed_packet_is_refused_with_its_place_in_the_stream() -> None:
+    reader = PacketReader()
+    good = publish_packet("t/1", b"payload")
+    bad = b"\x30\x05\x00\x01a\x01\x7f"  # a PUBLISH with an unknown property
+    # a good packet, then the bad one split across two reads: its place counts from the
+    # start of the stream, not of the read or of the buffer
+    assert [p.payload for p in reader.feed(good + bad[:3]) if isinstance(p, Publish)] == [
+        b"payload"
+    ]
+    with pytest.raises(MqttProtocolError, match=rf"unknown property .* at byte {len(good)} of"):
+        reader.feed(bad[3:])
+
+
+@pytest.mark.parametrize("size", [0, 1, 100, 118, 119, 120, 16_000, 20_000])
+def test_a_publish_header_made_once_frames_the_same_bytes(size: int) -> None:
+    # sizes across the remaining length's one- and two-byte forms (127 / 128 bytes after
+    # a 9-byte header) and its two- and three-byte forms
+    payload = bytes(range(256)) * (size // 256) + bytes(size % 256)
+    for kwargs in ({}, {"retain": True}, {"expiry_s": 65}):
+        first, head = publish_head("rfsas/v1/bearing/s-1/1/2", **kwargs)  # type: ignore[arg-type]
+        assert framed(first, head, payload) == publish_packet(
+            "rfsas/v1/bearing/s-1/1/2",
+            payload,
+            **kwargs,  # type: ignore[arg-type]
+        )
+    # the standard's layout: PUBLISH QoS 0, remaining length, topic, no properties, payload
+    assert framed(*publish_head("t/1"), b"xyz") == b"\x30\x09\x00\x03t/1\x00xyz"
 
 
 # --- interoperation with paho-mqtt through mosquitto ---

@@ -86,6 +86,38 @@ def test_records_that_have_arrived_come_back_from_one_read(
     stream.close()
 
 
+def test_a_read_that_empties_the_socket_says_so(
+    serve: Callable[..., tuple[TlsStream, threading.Thread]],
+) -> None:
+    sent = threading.Event()
+    done = threading.Event()
+
+    def body(tls: ssl.SSLSocket) -> None:
+        for _ in range(5):
+            tls.sendall(RECORD)
+        sent.set()
+        done.wait(5)
+
+    stream, thread = serve(body)
+    try:
+        assert sent.wait(5)
+        stream.settimeout(2.0)
+        got = b""
+        while len(got) < 5 * len(RECORD):
+            got += stream.recv()
+        assert got == RECORD * 5
+        # everything that came was read, and the flag says so: a reader that stops here
+        # loses nothing (asking again finds nothing)
+        assert stream.drained
+        stream.setblocking(False)
+        with pytest.raises(ssl.SSLWantReadError):
+            stream.recv()
+    finally:
+        done.set()
+        thread.join(5)
+        stream.close()
+
+
 def test_non_blocking_and_timed_reads_say_nothing_has_arrived(
     serve: Callable[..., tuple[TlsStream, threading.Thread]],
 ) -> None:

@@ -9,7 +9,7 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "link"))
 
-from linkhelp import key, message
+from linkhelp import POSE, key, message
 
 from rfsas_hw.errors import LinkError
 from rfsas_hw.geo import SiteOrigin
@@ -24,6 +24,7 @@ from rfsas_hw.link.topics import (
     topic_sender,
 )
 from rfsas_hw.privacy.nonces import NonceAuthority
+from rfsas_hw.records import Pose
 
 
 def test_quadkey_matches_the_published_tile_scheme() -> None:
@@ -77,6 +78,28 @@ def test_router_places_a_sensor_in_the_tile_of_its_position() -> None:
     assert route.qos == 0 and not route.retain
     with pytest.raises(LinkError, match="origin"):
         TopicRouter(None).route(raw, 0)
+
+
+def test_a_route_made_once_is_that_sender_and_place_only() -> None:
+    # the router keeps each sensor's route: messages of other senders, other places and
+    # other contents, interleaved, must each still get the topic of their own sender and tile
+    origin = SiteOrigin(48.137, 11.575)
+    router = TopicRouter(origin)
+    far = Pose(3000.0, 2000.0, 90.0)  # kilometres from the helper's pose: another tile
+    cases = [
+        (sender, pose, seq)
+        for seq in (1, 2)
+        for sender in ("rsu-1", "rsu-2")
+        for pose in (POSE, far)
+    ]
+    tiles = set()
+    for sender, pose, seq in cases:
+        raw = Signer(sender, key(0x1234)).encode(message(sender, seq=seq, pose=pose))
+        lat, lon, _ = origin.to_geodetic(pose.x_m, pose.y_m)
+        tile = quadkey(float(lat), float(lon))
+        tiles.add(tile)
+        assert router.route(raw, 0).topic == bearing_topic(sender, tile)
+    assert len(tiles) == 2
 
 
 def test_nonce_envelopes_are_retained_until_their_grace_period_ends() -> None:

@@ -20,41 +20,18 @@ from rfsas_hw.fleet.advisory_limits import AdvisoryLimiter, AdvisoryLimits
 from rfsas_hw.geo import SiteOrigin
 from rfsas_hw.link.signing import Signer
 from rfsas_hw.link.topics import Route, TopicRouter
-from rfsas_hw.records import BearingBatch, Pose, emitter_hex
+from rfsas_hw.records import emitter_hex
+from tests.city.servicehelp import walk_east
 
 S = 1_000_000_000
 NOW = 1_800_000_000 * S
 
 
-def _walker(service: BackendService, emitter: int, x0: float, y0: float, steps: int) -> None:
-    """Bearings of an emitter walking east at 2 m/s from (x0, y0), heard by two units, one
-    service step per 0.1 s up to NOW."""
-    stations = {"rsu-a": Pose(x0 - 30.0, 0.0, 45.0), "rsu-b": Pose(x0 + 30.0, 0.0, 315.0)}
-    for k in range(steps):
-        t = NOW - (steps - k) * S // 10
-        target = np.array([x0 + 0.2 * k, y0])
-        for sid, pose in stations.items():
-            az = float(np.degrees(np.arctan2(target[0] - pose.x_m, target[1] - pose.y_m)) % 360)
-            service.on_bearings(
-                BearingBatch(
-                    sensor_id=sid,
-                    t_ns=np.array([t], np.int64),
-                    azimuth_deg=np.array([az]),
-                    sigma_deg=np.array([1.0]),
-                    snr_db=np.array([25.0]),
-                    channel=np.array([6], np.int16),
-                    emitter=np.array([emitter], np.uint64),
-                ),
-                pose,
-            )
-        service.step(t)
-
-
 def test_a_step_without_assessing_keeps_the_fixes_and_tracks_and_predicts_the_same() -> None:
     judging, quiet = BackendService(clock=lambda: NOW), BackendService(clock=lambda: NOW)
     for service in (judging, quiet):
-        _walker(service, 7, 0.0, 15.0, 8)
-        _walker(service, 9, 200.0, 15.0, 3)
+        walk_east(service, 7, 0.0, 15.0, 8, NOW)
+        walk_east(service, 9, 200.0, 15.0, 3, NOW)
     assessed = judging.step(NOW)
     assert quiet.step(NOW, assess=False) == []
     assert quiet.assessments == {}
@@ -130,7 +107,7 @@ class _Sent:
 
 def test_a_vehicle_told_to_brake_still_gets_its_clear_once_out_of_reach() -> None:
     service = BackendService(clock=lambda: NOW)
-    _walker(service, 7, 0.0, 15.0, 8)
+    walk_east(service, 7, 0.0, 15.0, 8, NOW)
     ids, states = service.predicted(NOW)
     sent = _Sent()
     sink = AdvisorySink(

@@ -30,7 +30,7 @@ from rfsas_hw.geo import SiteOrigin
 from rfsas_hw.link.signing import Signer
 from rfsas_hw.link.topics import Route, TopicRouter
 from rfsas_hw.link.transport import Transport
-from rfsas_hw.records import BearingBatch, Pose
+from tests.city.servicehelp import walk_east
 
 S = 1_000_000_000
 
@@ -92,25 +92,9 @@ def test_sim_clock_runs_at_its_scale() -> None:
 
 
 def _fixed_service(now_ns: int) -> BackendService:
-    """A service with one tracked emitter at (0, 15) walking east."""
+    """A service with one tracked emitter (7) at (0, 15) walking east."""
     service = BackendService(clock=lambda: now_ns)
-    stations = {"rsu-a": Pose(-30.0, 0.0, 45.0), "rsu-b": Pose(30.0, 0.0, 315.0)}
-    for k in range(8):
-        t = now_ns - (8 - k) * S // 10
-        target = np.array([0.2 * k, 15.0])
-        for sid, pose in stations.items():
-            az = float(np.degrees(np.arctan2(target[0] - pose.x_m, target[1] - pose.y_m)) % 360)
-            batch = BearingBatch(
-                sensor_id=sid,
-                t_ns=np.array([t], np.int64),
-                azimuth_deg=np.array([az]),
-                sigma_deg=np.array([1.0]),
-                snr_db=np.array([25.0]),
-                channel=np.array([6], np.int16),
-                emitter=np.array([7], np.uint64),
-            )
-            service.on_bearings(batch, pose)
-        service.step(t)
+    walk_east(service, 7, 0.0, 15.0, 8, now_ns)
     return service
 
 

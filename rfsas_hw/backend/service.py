@@ -551,6 +551,10 @@ class BackendService:
         state_rows = states.tolist()
         cov_rows = covs[:, :2, :2].reshape(-1, 4).tolist()
         th = self.config.encounter.thresholds
+        # an untracked emitter's assessment does not depend on the vehicle (only on
+        # whether there is one): built once per row and shared (it is immutable)
+        unlocated: dict[tuple[int, bool], Assessment] = {}
+        counts = self.stats.assessments
         out = []
         for vehicle, chosen in zip(vehicles, rows, strict=True):
             unjudged = Advisory.CLEAR.value
@@ -562,12 +566,30 @@ class BackendService:
             for i in chosen:
                 fix = fixes[i][1]
                 track = tracks[i]
-                enc = next(encounters) if vehicle is not None and track is not None else None
+                if track is None:
+                    shared = unlocated.get((i, vehicle is None))
+                    if shared is None:
+                        shared = unlocated[i, vehicle is None] = self._assessment(
+                            now,
+                            fix,
+                            None,
+                            state_rows[i],
+                            cov_rows[i],
+                            None,
+                            alarm,
+                            vehicle,
+                            unjudged,
+                        )
+                    counts[shared.advisory] += 1
+                    mine.append(shared)
+                    continue
+                enc = next(encounters) if vehicle is not None else None
                 mine.append(
                     self._assessment(
                         now, fix, track, state_rows[i], cov_rows[i], enc, alarm, vehicle, unjudged
                     )
                 )
+                counts[mine[-1].advisory] += 1
             mine.sort(key=lambda a: -a.risk if math.isfinite(a.risk) else 1.0)
             out.append(mine)
         return out
@@ -620,7 +642,8 @@ class BackendService:
         vehicle: VehicleState | None,
         unjudged: str,
     ) -> Assessment:
-        """One emitter's assessment from its fix, track, predicted state and encounter."""
+        """One emitter's assessment from its fix, track, predicted state and encounter
+        (not counted in :attr:`stats`: the caller counts each pair it gives out)."""
         nan = math.nan
         reasons: tuple[str, ...]
         if track is not None:
@@ -645,7 +668,6 @@ class BackendService:
             else:
                 unlocated = ("emitter not located: " + fix.reason,)
                 reasons = unlocated + (("link latency alarm",) if alarm else ())
-        self.stats.assessments[advisory] += 1
         return Assessment(
             t_ns=now,
             emitter=fix.emitter,

@@ -181,10 +181,16 @@ def test_many_vehicles_judged_at_once_get_what_each_gets_alone() -> None:
         VehicleState(x_m=-6.0, y_m=-5.0, heading_deg=0.0, speed_mps=9.0, t_ns=now),
         VehicleState(x_m=30.0, y_m=8.0, heading_deg=270.0, speed_mps=3.0, t_ns=now),
     ]
-    asked = [[11, 12, OTHER, 999], [12, 13, 11], [13]]
+    asked = [[11, 12, OTHER, 999], [12, 13, 11, OTHER], [13]]
     before = sum(service.stats.assessments.values())
     many = service.assess_many(list(zip(cars, asked, strict=True)), now)
-    assert sum(service.stats.assessments.values()) - before == 3 + 3 + 1
+    # every pair counted, the untracked emitter's once per car asking
+    assert sum(service.stats.assessments.values()) - before == 3 + 4 + 1
+    # the untracked emitter's assessment is the same for every car: not located, caution
+    (other_0,) = [a for a in many[0] if a.emitter == f"{OTHER:016x}"]
+    (other_1,) = [a for a in many[1] if a.emitter == f"{OTHER:016x}"]
+    assert other_0 == other_1 and other_0.advisory == "caution"
+    assert other_0.reasons[0].startswith("emitter not located")
     assert [sorted(a.emitter for a in got) for got in many] == [
         sorted(f"{e:016x}" for e in ems if e != 999) for ems in asked
     ]

@@ -13,10 +13,12 @@ listener is closed, so the outputs and the summary are complete.
 
 from __future__ import annotations
 
+import contextlib
+import signal
 import threading
 import time
 from collections import Counter
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
@@ -33,6 +35,30 @@ NS_PER_S = 1_000_000_000
 
 class Terminated(KeyboardInterrupt):
     """SIGTERM, raised in the main thread so that it ends a run as Ctrl-C does."""
+
+
+@contextlib.contextmanager
+def signals_held() -> Iterator[None]:
+    """Hold Ctrl-C (SIGINT) and SIGTERM for the block, then deliver the first that came
+    to the handler that was in place before: a delivery of bearings that is counted
+    and written is not cut between the two. Outside the main thread (where Python
+    runs no signal handler) it holds nothing."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    came: list[int] = []
+
+    def hold(signum: int, _frame: object) -> None:
+        came.append(signum)
+
+    before = {sig: signal.signal(sig, hold) for sig in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield
+    finally:
+        for sig, handler in before.items():
+            signal.signal(sig, handler)
+        if came:
+            signal.raise_signal(came[0])
 
 
 class Clock(Protocol):
@@ -271,8 +297,9 @@ class Runner:
 
     def _emit(self, bearings: BearingBatch) -> None:
         if len(bearings):
-            self.summary.bearings += len(bearings)
-            self.listener.on_bearings(bearings)
+            with signals_held():  # counted and written, or neither
+                self.summary.bearings += len(bearings)
+                self.listener.on_bearings(bearings)
 
     def _deliver(self, batch: ObservationBatch) -> bool:
         """Process ``batch`` (paced in realtime mode); False when the run must end."""
@@ -314,9 +341,10 @@ class Runner:
     def _process(self, batch: ObservationBatch | BearingBatch) -> None:
         s = self.summary
         if isinstance(batch, BearingBatch):
-            s.bearings += len(batch)
-            self._source_emitters.update(batch.emitter.tolist())
-            self.listener.on_bearings(batch)
+            with signals_held():  # counted and written, or neither
+                s.bearings += len(batch)
+                self._source_emitters.update(batch.emitter.tolist())
+                self.listener.on_bearings(batch)
             return
         if self.pipeline is None:
             raise ConfigError("observations need a calibration: this source does not give bearings")

@@ -57,6 +57,7 @@ from rfsas_hw.city.deploy import (
     LocalBroker,
     make_deployment,
 )
+from rfsas_hw.city.handshake import proc_cpu_s, wait_ready
 from rfsas_hw.city.latency import LatencyMatch
 from rfsas_hw.city.owners import VehicleOwners
 from rfsas_hw.city.partition import Site, district_tiles, plan_tiles, split_units
@@ -81,8 +82,6 @@ from rfsas_hw.records import Assessment, Fix
 from rfsas_hw.twin.scenario import BuildingSpec, PoseSpec
 
 NS_PER_S = 1_000_000_000
-READY_TIMEOUT_S = 60.0
-"""How long a worker or backend may take to start, seconds."""
 STEP_TIMEOUT_S = 10.0
 """How long a worker may take to answer a step, seconds."""
 END_TIMEOUT_S = 20.0
@@ -313,15 +312,6 @@ def _backend_keys(deployment: Deployment) -> dict[str, bytes]:
     return out
 
 
-def _proc_cpu_s(pid: int) -> float:
-    """CPU time of another process from /proc (0 where it cannot be read), seconds."""
-    try:
-        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-        return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
-    except (OSError, ValueError, IndexError):
-        return 0.0
-
-
 class DistributedRfsas:
     """The distributed path of a district (see the module docstring).
 
@@ -377,6 +367,8 @@ class DistributedRfsas:
         )
         self.stats = LiveStats()
         self._procs: list[Any] = []
+        self._pids: dict[str, int] = {}
+        """Each process's id, by name."""
         self._workers: dict[str, tuple[Connection, np.ndarray, np.ndarray]] = {}
         self._backends: dict[str, Connection] = {}
         self._states = StatesFlow()
@@ -474,6 +466,7 @@ class DistributedRfsas:
         proc.start()
         child.close()
         self._procs.append(proc)
+        self._pids[proc.name] = proc.pid
         return parent
 
     def _start_workers(
@@ -520,21 +513,14 @@ class DistributedRfsas:
             self._workers[wid] = (self._spawn(ctx, worker_main, work, wid), xs, ys)
 
     def _wait_ready(self) -> None:
-        conns = {**{w: c for w, (c, _, _) in self._workers.items()}, **self._backends}
+        """Wait for every process's ``("ready",)`` (:func:`~rfsas_hw.city.handshake.wait_ready`:
+        a warm-up that compiles kernels is judged by its CPU time, not the wall clock)."""
+        pids = self._pids
+        conns = {w: (c, pids[w]) for w, (c, _, _) in self._workers.items()}
+        conns.update((b, (c, pids[b])) for b, c in self._backends.items())
         if self._gateway is not None:
-            conns["vehicles' gateway"] = self._gateway
-        deadline = time.monotonic() + READY_TIMEOUT_S
-        for name, conn in conns.items():
-            while not conn.poll(0.1):
-                self.distributor.tick()
-                if time.monotonic() > deadline:
-                    raise SimulationError(f"{name} did not start within {READY_TIMEOUT_S:g} s")
-            try:
-                msg = conn.recv()
-            except EOFError:
-                raise SimulationError(f"{name} exited before it was ready") from None
-            if msg[0] != "ready":
-                raise SimulationError(str(msg[1]) if msg[0] == "error" else f"{name}: {msg!r}")
+            conns["vehicles' gateway"] = (self._gateway, pids["vehicles"])
+        wait_ready(conns, self.distributor.tick)
 
     # -- step -------------------------------------------------------------------------
 
@@ -784,7 +770,7 @@ class DistributedRfsas:
         if self._auth_transport is not None:
             self._auth_transport.close()
         if self.broker is not None:
-            self.stats.broker_cpu_s = _proc_cpu_s(self.broker.pid)
+            self.stats.broker_cpu_s = proc_cpu_s(self.broker.pid)
             self.broker.close()
         self.stats.states_held = self._states.held
         for w in self.stats.workers.values():

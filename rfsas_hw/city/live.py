@@ -106,6 +106,7 @@ __all__ = [
     "backend_names",
     "deployment_process",
     "prestart",
+    "send_or_end",
 ]
 
 log = logging.getLogger(__name__)
@@ -194,6 +195,26 @@ def deployment_process(
     if nice:
         os.nice(nice)
     target(work, conn)
+
+
+def send_or_end(name: str, conn: Connection, msg: Any) -> None:
+    """Send ``msg`` to the district process ``name``.
+
+    Raises:
+        SimulationError: the process has ended (its end of the pipe is closed): with the
+            error it reported before it ended, when it did, else saying it ended.
+    """
+    try:
+        conn.send(msg)
+    except (BrokenPipeError, ConnectionResetError):
+        reason = f"{name} ended during the run"
+        with contextlib.suppress(EOFError, OSError):
+            while conn.poll():
+                got = conn.recv()
+                if got[0] == "error":
+                    reason = str(got[1])
+                    break
+        raise SimulationError(reason) from None
 
 
 def backend_names(count: int) -> list[str]:
@@ -547,7 +568,7 @@ class DistributedRfsas:
         self.distributor.tick(now_ns)
         has = np.flatnonzero(np.fromiter(map(phones.__contains__, vrus.ids), bool, len(vrus)))
         hear = self.config.hear_m
-        for conn, xs, ys in self._workers.values():
+        for wid, (conn, xs, ys) in self._workers.items():
             # the VRUs with a phone in the box around the worker's units grown by the
             # hearing range (and a metre for rounding), then the exact distance of those
             box = has[
@@ -559,7 +580,9 @@ class DistributedRfsas:
             d2 = (vrus.x_m[box, None] - xs[None, :]) ** 2 + (vrus.y_m[box, None] - ys[None, :]) ** 2
             idx = box[d2.min(axis=1, initial=np.inf) < hear**2]
             ids = tuple(map(vrus.ids.__getitem__, idx.tolist()))
-            conn.send(
+            send_or_end(
+                wid,
+                conn,
                 Snapshot(
                     t_s,
                     self.t0_ns,
@@ -568,7 +591,7 @@ class DistributedRfsas:
                     vrus.x_m[idx],
                     vrus.y_m[idx],
                     vrus.heading_deg[idx],
-                )
+                ),
             )
         tiles = self._tiles(cars)
         owners = list(map(self.owner.get, tiles))
@@ -577,7 +600,9 @@ class DistributedRfsas:
         for k, (b, conn) in enumerate(self._backends.items()):
             if self._states.may_send(b, now_ns):
                 sel = np.flatnonzero(codes == k)
-                conn.send(
+                send_or_end(
+                    b,
+                    conn,
                     VehicleStates(
                         now_ns,
                         tuple(map(cars.ids.__getitem__, sel.tolist())),
@@ -587,14 +612,14 @@ class DistributedRfsas:
                         cars.speed_mps[sel],
                         cars.length_m[sel],
                         cars.width_m[sel],
-                    )
+                    ),
                 )
         out = StepOut()
         self._from_backends(out)
         present = frozenset(cars.ids)
         if present != self._present:
             assert self._gateway is not None
-            self._gateway.send(tuple(present))
+            send_or_end("vehicles' gateway", self._gateway, tuple(present))
             self._present = present
         for arrival in self._arrivals():
             self._arrival(out, arrival)

@@ -571,11 +571,13 @@ class CityBackend:
 
 
 def backend_main(work: BackendWork, conn: Connection) -> None:
-    """The body of a backend process: build, answer ``("ready",)``, run until ``None``,
+    """The body of a backend process: build, answer ``("warming",)``, load the kernels,
+    answer ``("ready",)`` (:mod:`rfsas_hw.city.handshake`), run until ``None``,
     answer ``("end", counters)``; a failure is answered ``("error", message)``."""
     backend: CityBackend | None = None
     try:
         backend = CityBackend(work)
+        conn.send(("warming",))  # built: the warm-up is judged by its CPU time
         backend.warm()
         conn.send(("ready",))
         backend.run(conn)

@@ -103,9 +103,18 @@ def child_main(
     target: Callable[[Any, Connection], None], work: Any, conn: Connection, cfg: ChildLogging
 ) -> None:
     """The body of a district process: its logging to the main process
-    (:func:`install`), then ``target(work, conn)``."""
+    (:func:`install`), then ``target(work, conn)``.
+
+    A pipe to the main process found closed (``BrokenPipeError``, ``ConnectionResetError``)
+    ends the process quietly: the main process closed its end because it stopped the
+    run (at a failed start, or past its stop deadline) and counts the answer it did not
+    get (``... ended without its counters``); there is nobody left to report to.
+    """
     install(cfg)
-    target(work, conn)
+    try:
+        target(work, conn)
+    except (BrokenPipeError, ConnectionResetError) as err:
+        logging.getLogger(__name__).debug("the main process closed the pipe: %s", err)
 
 
 class _AsIfHere(logging.Handler):

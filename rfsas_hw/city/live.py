@@ -57,6 +57,7 @@ from rfsas_hw.city.deploy import (
     LocalBroker,
     make_deployment,
 )
+from rfsas_hw.city.handshake import proc_cpu_s, wait_ready
 from rfsas_hw.city.latency import LatencyMatch
 from rfsas_hw.city.owners import VehicleOwners
 from rfsas_hw.city.partition import Site, district_tiles, plan_tiles, split_units
@@ -81,8 +82,6 @@ from rfsas_hw.records import Assessment, Fix
 from rfsas_hw.twin.scenario import BuildingSpec, PoseSpec
 
 NS_PER_S = 1_000_000_000
-READY_TIMEOUT_S = 60.0
-"""How long a worker or backend may take to start, seconds."""
 STEP_TIMEOUT_S = 10.0
 """How long a worker may take to answer a step, seconds."""
 END_TIMEOUT_S = 20.0
@@ -107,6 +106,7 @@ __all__ = [
     "backend_names",
     "deployment_process",
     "prestart",
+    "send_or_end",
 ]
 
 log = logging.getLogger(__name__)
@@ -195,6 +195,26 @@ def deployment_process(
     if nice:
         os.nice(nice)
     target(work, conn)
+
+
+def send_or_end(name: str, conn: Connection, msg: Any) -> None:
+    """Send ``msg`` to the district process ``name``.
+
+    Raises:
+        SimulationError: the process has ended (its end of the pipe is closed): with the
+            error it reported before it ended, when it did, else saying it ended.
+    """
+    try:
+        conn.send(msg)
+    except (BrokenPipeError, ConnectionResetError):
+        reason = f"{name} ended during the run"
+        with contextlib.suppress(EOFError, OSError):
+            while conn.poll():
+                got = conn.recv()
+                if got[0] == "error":
+                    reason = str(got[1])
+                    break
+        raise SimulationError(reason) from None
 
 
 def backend_names(count: int) -> list[str]:
@@ -313,15 +333,6 @@ def _backend_keys(deployment: Deployment) -> dict[str, bytes]:
     return out
 
 
-def _proc_cpu_s(pid: int) -> float:
-    """CPU time of another process from /proc (0 where it cannot be read), seconds."""
-    try:
-        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-        return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
-    except (OSError, ValueError, IndexError):
-        return 0.0
-
-
 class DistributedRfsas:
     """The distributed path of a district (see the module docstring).
 
@@ -377,6 +388,8 @@ class DistributedRfsas:
         )
         self.stats = LiveStats()
         self._procs: list[Any] = []
+        self._pids: dict[str, int] = {}
+        """Each process's id, by name."""
         self._workers: dict[str, tuple[Connection, np.ndarray, np.ndarray]] = {}
         self._backends: dict[str, Connection] = {}
         self._states = StatesFlow()
@@ -474,6 +487,7 @@ class DistributedRfsas:
         proc.start()
         child.close()
         self._procs.append(proc)
+        self._pids[proc.name] = proc.pid
         return parent
 
     def _start_workers(
@@ -520,21 +534,14 @@ class DistributedRfsas:
             self._workers[wid] = (self._spawn(ctx, worker_main, work, wid), xs, ys)
 
     def _wait_ready(self) -> None:
-        conns = {**{w: c for w, (c, _, _) in self._workers.items()}, **self._backends}
+        """Wait for every process's ``("ready",)`` (:func:`~rfsas_hw.city.handshake.wait_ready`:
+        a warm-up that compiles kernels is judged by its CPU time, not the wall clock)."""
+        pids = self._pids
+        conns = {w: (c, pids[w]) for w, (c, _, _) in self._workers.items()}
+        conns.update((b, (c, pids[b])) for b, c in self._backends.items())
         if self._gateway is not None:
-            conns["vehicles' gateway"] = self._gateway
-        deadline = time.monotonic() + READY_TIMEOUT_S
-        for name, conn in conns.items():
-            while not conn.poll(0.1):
-                self.distributor.tick()
-                if time.monotonic() > deadline:
-                    raise SimulationError(f"{name} did not start within {READY_TIMEOUT_S:g} s")
-            try:
-                msg = conn.recv()
-            except EOFError:
-                raise SimulationError(f"{name} exited before it was ready") from None
-            if msg[0] != "ready":
-                raise SimulationError(str(msg[1]) if msg[0] == "error" else f"{name}: {msg!r}")
+            conns["vehicles' gateway"] = (self._gateway, pids["vehicles"])
+        wait_ready(conns, self.distributor.tick)
 
     # -- step -------------------------------------------------------------------------
 
@@ -561,7 +568,7 @@ class DistributedRfsas:
         self.distributor.tick(now_ns)
         has = np.flatnonzero(np.fromiter(map(phones.__contains__, vrus.ids), bool, len(vrus)))
         hear = self.config.hear_m
-        for conn, xs, ys in self._workers.values():
+        for wid, (conn, xs, ys) in self._workers.items():
             # the VRUs with a phone in the box around the worker's units grown by the
             # hearing range (and a metre for rounding), then the exact distance of those
             box = has[
@@ -573,7 +580,9 @@ class DistributedRfsas:
             d2 = (vrus.x_m[box, None] - xs[None, :]) ** 2 + (vrus.y_m[box, None] - ys[None, :]) ** 2
             idx = box[d2.min(axis=1, initial=np.inf) < hear**2]
             ids = tuple(map(vrus.ids.__getitem__, idx.tolist()))
-            conn.send(
+            send_or_end(
+                wid,
+                conn,
                 Snapshot(
                     t_s,
                     self.t0_ns,
@@ -582,7 +591,7 @@ class DistributedRfsas:
                     vrus.x_m[idx],
                     vrus.y_m[idx],
                     vrus.heading_deg[idx],
-                )
+                ),
             )
         tiles = self._tiles(cars)
         owners = list(map(self.owner.get, tiles))
@@ -591,7 +600,9 @@ class DistributedRfsas:
         for k, (b, conn) in enumerate(self._backends.items()):
             if self._states.may_send(b, now_ns):
                 sel = np.flatnonzero(codes == k)
-                conn.send(
+                send_or_end(
+                    b,
+                    conn,
                     VehicleStates(
                         now_ns,
                         tuple(map(cars.ids.__getitem__, sel.tolist())),
@@ -601,14 +612,14 @@ class DistributedRfsas:
                         cars.speed_mps[sel],
                         cars.length_m[sel],
                         cars.width_m[sel],
-                    )
+                    ),
                 )
         out = StepOut()
         self._from_backends(out)
         present = frozenset(cars.ids)
         if present != self._present:
             assert self._gateway is not None
-            self._gateway.send(tuple(present))
+            send_or_end("vehicles' gateway", self._gateway, tuple(present))
             self._present = present
         for arrival in self._arrivals():
             self._arrival(out, arrival)
@@ -784,7 +795,7 @@ class DistributedRfsas:
         if self._auth_transport is not None:
             self._auth_transport.close()
         if self.broker is not None:
-            self.stats.broker_cpu_s = _proc_cpu_s(self.broker.pid)
+            self.stats.broker_cpu_s = proc_cpu_s(self.broker.pid)
             self.broker.close()
         self.stats.states_held = self._states.held
         for w in self.stats.workers.values():

@@ -399,8 +399,10 @@ class TwinWorker:
                 preauth=self.nonces,
             )
         self._reported: dict[tuple[str, int], int] = {}
-        # the twin's compiled loops are loaded (compiled, the first time on a machine)
-        # now, not in the first step with phones
+
+    def warm(self) -> None:
+        """Load the twin's compiled loops (compile them, the first time in a source tree)
+        now, not in the first step with phones."""
         blockage_db(np.zeros((1, 2)), np.ones((1, 2)), np.array([[0.25, 0.75, 0.25, 0.75, 1.0]]))
         warm = LiveTrack()
         extend_tracks([warm], 0.0, np.zeros(1), np.zeros(1))
@@ -514,12 +516,15 @@ class _SharedNonces:
 
 
 def worker_main(work: TileWork, conn: Connection) -> None:
-    """The body of a twin worker process: build, answer ``("ready",)``, then step on every
+    """The body of a twin worker process: build, answer ``("warming",)``, load the kernels,
+    answer ``("ready",)`` (:mod:`rfsas_hw.city.handshake`), then step on every
     :class:`Snapshot` received until ``None``; answer ``("end", counters)``. A failure
     is answered ``("error", message)`` (the main process ends the run with it)."""
     worker: TwinWorker | None = None
     try:
         worker = TwinWorker(work)
+        conn.send(("warming",))  # built: the warm-up is judged by its CPU time
+        worker.warm()
         conn.send(("ready",))
         while True:
             msg: Any = conn.recv()

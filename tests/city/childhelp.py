@@ -23,3 +23,14 @@ def answer_nice(_work: object, conn: Connection) -> None:
 
     conn.send(os.nice(0))
     conn.close()
+
+
+def answer_after_the_main_process_left(release: Connection, conn: Connection) -> None:
+    """Wait until told (the main process has closed its end of ``conn`` by then), then
+    answer on ``conn`` as a district process answers at its end, and report the failure
+    as it does."""
+    release.recv()
+    try:
+        conn.send(("end", "counters"))
+    except Exception as err:
+        conn.send(("error", f"{type(err).__name__}: {err}"))

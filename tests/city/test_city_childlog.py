@@ -16,7 +16,7 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).parent))
 
-from childhelp import warn_and_answer
+from childhelp import answer_after_the_main_process_left, warn_and_answer
 
 from rfsas_hw.city.childlog import ChildLogging, LogRelay, child_main, install, redact_macs
 
@@ -153,3 +153,35 @@ def test_the_main_processs_records_land_in_the_run_log(grid_net: Path, tmp_path:
     assert MAC not in res.files["log"].read_text()
     # the handler is gone once the run is over
     assert not any(type(h).__name__ == "_LogRecords" for h in logging.getLogger().handlers)
+
+
+def test_a_child_answering_a_closed_pipe_ends_quietly(capfd: pytest.CaptureFixture[str]) -> None:
+    """The main process gave up on a child (a failed start, a stop deadline passed) and
+    closed its end: the child's answer finds the pipe broken. It ends with exit code 0
+    and no traceback on the console (the main process counted the missing answer)."""
+    ctx = mp.get_context("spawn")
+    relay = LogRelay(ctx)
+    parent, child = ctx.Pipe()
+    release, release_end = ctx.Pipe()
+    proc = ctx.Process(
+        target=child_main,
+        args=(answer_after_the_main_process_left, release_end, child, relay.child()),
+        name="vehicles",
+    )
+    try:
+        proc.start()
+        child.close()
+        release_end.close()
+        parent.close()  # the main process stops listening
+        release.send("go")
+        proc.join(60)
+        assert not proc.is_alive(), "the child did not end"
+        assert proc.exitcode == 0
+    finally:
+        if proc.is_alive():
+            proc.terminate()
+            proc.join(5)
+        release.close()
+        relay.close()
+    err = capfd.readouterr().err
+    assert "BrokenPipeError" not in err and "Traceback" not in err

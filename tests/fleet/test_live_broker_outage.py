@@ -4,6 +4,7 @@ and, stopped with Ctrl-C, exits 0 (the run did its work; the outage was ridden o
 
 from __future__ import annotations
 
+import contextlib
 import json
 import signal
 import subprocess
@@ -101,7 +102,10 @@ def test_live_rides_out_a_broker_outage(
         reader.join(30)
         for pipe in (proc.stdin, proc.stdout, proc.stderr):
             if pipe is not None:
-                pipe.close()
+                # stdin: a frame the feeder wrote as the sensor ended stays in the buffer,
+                # and closing tries to flush it into the closed pipe (closed all the same)
+                with contextlib.suppress(BrokenPipeError):
+                    pipe.close()
         rx.close()
     err = "".join(lines)
     assert proc.returncode == 0, err

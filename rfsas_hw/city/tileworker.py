@@ -83,7 +83,7 @@ from rfsas_hw.twin.scenario import (
     ScenarioSpec,
     SensorSpec,
 )
-from rfsas_hw.twin.stream import LiveTrack, StreamTwin, extend_tracks
+from rfsas_hw.twin.stream import StreamTwin, extend_tracks
 
 NS_PER_S = 1_000_000_000
 NONCE_WAIT_S = 10.0
@@ -401,13 +401,9 @@ class TwinWorker:
         self._reported: dict[tuple[str, int], int] = {}
 
     def warm(self) -> None:
-        """Load the twin's compiled loops (compile them, the first time in a source tree)
+        """Load the twin's compiled loop of blockage (compile it, the first time in a source tree)
         now, not in the first step with phones."""
         blockage_db(np.zeros((1, 2)), np.ones((1, 2)), np.array([[0.25, 0.75, 0.25, 0.75, 1.0]]))
-        warm = LiveTrack()
-        extend_tracks([warm], 0.0, np.zeros(1), np.zeros(1))
-        extend_tracks([warm], 1.0, np.ones(1), np.ones(1))
-        warm.position([0.5])
 
     def truth(self) -> list[tuple[str, str]]:
         """(emitter id, VRU id) of every phone whose id in this epoch was not told yet.

@@ -81,27 +81,26 @@ def _interp_tracks(
 ) -> Array:
     """Positions at times ``t`` on tracks ``knots[track]`` (knot times, east, north), (n, 2).
 
-    What ``np.interp`` gives on each track, as the offline world interpolates one
-    track, for every row in one compiled loop (:mod:`rfsas_hw.twin._interp_kernel`).
+    ``np.interp`` on each track, as the offline world interpolates one track;
+    the rows are grouped by track with one sort, so a track costs two calls.
     """
-    from rfsas_hw.twin import _interp_kernel as k
-
-    ptr = np.zeros(len(knots) + 1, np.intp)
-    np.cumsum([len(ts) for ts, _, _ in knots], out=ptr[1:])
-    if len(knots) == 1:  # one track (the usual case of a small scene): nothing to join
-        kt, kx, ky = knots[0]
-    else:
-        kt = np.concatenate([ts for ts, _, _ in knots])
-        kx = np.concatenate([xs for _, xs, _ in knots])
-        ky = np.concatenate([ys for _, _, ys in knots])
-    out: Array = k.positions(
-        np.ascontiguousarray(kt, np.float64),
-        np.ascontiguousarray(kx, np.float64),
-        np.ascontiguousarray(ky, np.float64),
-        ptr,
-        np.ascontiguousarray(track, np.intp),
-        np.ascontiguousarray(t, np.float64),
-    )
+    if len(knots) == 1:  # one track (the usual case of a small scene): nothing to group
+        ts, xs, ys = knots[0]
+        one = np.empty((len(t), 2))
+        one[:, 0] = np.interp(t, ts, xs)
+        one[:, 1] = np.interp(t, ts, ys)
+        return one
+    order = np.argsort(track, kind="stable")
+    bounds = np.searchsorted(track[order], np.arange(len(knots) + 1)).tolist()
+    t_sorted = t[order]
+    xy = np.empty((len(t), 2))
+    for u, (ts, xs, ys) in enumerate(knots):
+        lo, hi = bounds[u], bounds[u + 1]
+        if lo < hi:
+            xy[lo:hi, 0] = np.interp(t_sorted[lo:hi], ts, xs)
+            xy[lo:hi, 1] = np.interp(t_sorted[lo:hi], ts, ys)
+    out = np.empty_like(xy)
+    out[order] = xy
     return out
 
 
@@ -210,7 +209,11 @@ class LiveTrack:
             return self.track().position(t_s)
         # what Track.position computes, on the knots themselves (no copy of them)
         t = np.atleast_1d(np.asarray(t_s, dtype=np.float64))
-        return _interp_tracks([self.knots()], np.zeros(len(t), np.intp), t)
+        ts = self._t[:n]
+        out = np.empty((len(t), 2))
+        out[:, 0] = np.interp(t, ts, self._x[:n])
+        out[:, 1] = np.interp(t, ts, self._y[:n])
+        return out
 
     def velocity(self, t_s: npt.ArrayLike) -> Array:
         """Velocities at times ``t_s``, shape ``(n, 2)``, m/s."""

@@ -226,21 +226,36 @@ class BuildingOptions:
     """Buildings added as they are."""
 
 
+def _shape_point(text: str) -> tuple[float, float] | None:
+    """``x,y`` (or ``x,y,z``) of a SUMO shape as finite numbers; None if it is not one."""
+    parts = text.split(",")
+    if len(parts) not in (2, 3):
+        return None
+    try:
+        x, y = float(parts[0]), float(parts[1])
+    except ValueError:
+        return None
+    return (x, y) if math.isfinite(x) and math.isfinite(y) else None
+
+
 def _polygon_buildings(path: Path) -> list[tuple[str, list[tuple[float, float]]]]:
     """``(id, shape)`` of every building polygon of a SUMO polygon file (net coordinates)."""
     check_no_dtd(path)
     found: list[tuple[str, list[tuple[float, float]]]] = []
+    parser = xml.parsers.expat.ParserCreate()
 
     def start(tag: str, attrs: dict[str, str]) -> None:
         if tag != "poly" or attrs.get("type", "") not in BUILDING_TYPES:
             return
-        try:
-            pts = [tuple(float(v) for v in p.split(",")[:2]) for p in attrs["shape"].split()]
-        except (KeyError, ValueError) as err:
-            raise ConfigError(f"{path}: poly {attrs.get('id', '?')!r}: bad shape") from err
-        found.append((attrs.get("id", ""), [(p[0], p[1]) for p in pts]))
+        pts = [_shape_point(p) for p in attrs.get("shape", "").split()]
+        if not pts or None in pts:
+            raise ConfigError(
+                f"{path}: line {parser.CurrentLineNumber}: poly {attrs.get('id', '?')!r}: "
+                f"bad shape {attrs.get('shape', '')!r} (expected points x,y in metres, "
+                "separated by spaces)"
+            )
+        found.append((attrs.get("id", ""), [p for p in pts if p is not None]))
 
-    parser = xml.parsers.expat.ParserCreate()
     parser.StartElementHandler = start
     try:
         with path.open("rb") as fh:

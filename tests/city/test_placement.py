@@ -123,3 +123,13 @@ def test_polygon_file_buildings_are_bounding_boxes_in_the_frame(
     poly.write_text('<additional><poly id="x" type="building" shape="1,a"/></additional>')
     with pytest.raises(ConfigError, match="bad shape"):
         buildings(info, units, polygons=poly)
+
+
+@pytest.mark.parametrize("shape", ["1,2 3", "1,2,3,4 5,6", "", "nan,1 2,3", "1;2 3;4"])
+def test_a_bad_polygon_shape_names_its_line_and_poly(
+    info: NetInfo, tmp_path: Path, shape: str
+) -> None:
+    poly = tmp_path / "bad.poly.xml"
+    poly.write_text(f'<additional>\n<poly id="b7" type="building" shape="{shape}"/>\n</additional>')
+    with pytest.raises(ConfigError, match=r"bad\.poly\.xml: line 2: poly 'b7': bad shape"):
+        buildings(info, place_units(info), polygons=poly)

@@ -55,6 +55,9 @@ RASTER_M = 2.0
 """Cell of the raster city blocks are found on, metres."""
 BUILDING_LOSS_DB = 20.0
 """Extra loss through a derived building, dB (the twin's default)."""
+OFF_NET_M = 50.0
+"""How far beyond the net's boundary a unit of the user's own may stand, metres (chosen:
+a unit farther out hears next to nothing of the district, so it is taken for a typo)."""
 
 __all__ = [
     "BuildingOptions",
@@ -64,6 +67,7 @@ __all__ = [
     "buildings",
     "load_placement",
     "place_units",
+    "placed_units",
 ]
 
 
@@ -127,7 +131,28 @@ def load_placement(path: str | Path) -> PlacementConfig:
     data = read_yaml(path) or {}
     if not isinstance(data, dict):
         raise ConfigError(f"{path}: expected a mapping")
-    return from_mapping(PlacementConfig, data, str(path))
+    try:
+        return from_mapping(PlacementConfig, data, str(path))
+    except ConfigError as err:
+        if str(err).startswith(f"{path}:"):
+            raise
+        raise ConfigError(f"{path}: {err}") from err  # a range check of PlacementConfig
+
+
+def placed_units(info: NetInfo, path: str | Path | None = None) -> list[UnitSite]:
+    """The units of the placement file ``path`` on the net (None: the default placement,
+    two units at every traffic light); see :func:`place_units`.
+
+    Raises:
+        ConfigError: as :func:`load_placement` and :func:`place_units`, naming the file.
+    """
+    if path is None:
+        return place_units(info)
+    cfg = load_placement(path)
+    try:
+        return place_units(info, cfg)
+    except ConfigError as err:
+        raise ConfigError(f"{path}: {err}") from err
 
 
 def _axis_deg(shapes: Sequence[Sequence[tuple[float, float]]]) -> float:
@@ -179,7 +204,8 @@ def place_units(info: NetInfo, cfg: PlacementConfig | None = None) -> list[UnitS
 
     Raises:
         ConfigError: a junction named in ``cfg`` is not a traffic-light program of the
-            net, a unit id is invalid or used twice, or no unit results.
+            net, a unit id is invalid or used twice, a unit of the user's own stands more
+            than :data:`OFF_NET_M` beyond the net's boundary, or no unit results.
     """
     cfg = cfg or PlacementConfig()
     by_tls: dict[str, list[Junction]] = {}
@@ -197,11 +223,21 @@ def place_units(info: NetInfo, cfg: PlacementConfig | None = None) -> list[UnitS
                     f"{info.path.name} (some known: {known})"
                 )
             units.extend(_pair(info, tls, by_tls[tls], cfg))
+    x0, y0, x1, y1 = info.bounds_m
     for u in cfg.units:
         try:
             check_sender_id(u.id)
         except Exception as err:
             raise ConfigError(f"placement: units: {err}") from err
+        if not (
+            x0 - OFF_NET_M <= u.x_m <= x1 + OFF_NET_M and y0 - OFF_NET_M <= u.y_m <= y1 + OFF_NET_M
+        ):
+            raise ConfigError(
+                f"placement: units: {u.id!r} at x_m {u.x_m:g}, y_m {u.y_m:g} is off the net: "
+                f"{info.path.name} spans x {x0:.0f} to {x1:.0f} m and y {y0:.0f} to {y1:.0f} m "
+                f"(rfsas frame: metres east and north), and a unit may stand at "
+                f"most {OFF_NET_M:g} m beyond that"
+            )
         units.append(_site(info, u.id, u.x_m, u.y_m, u.boresight_deg, ""))
     ids = [u.id for u in units]
     dup = {i for i in ids if ids.count(i) > 1}

@@ -52,7 +52,7 @@ from rfsas_hw.city.demand import Demand, DemandConfig, generate
 from rfsas_hw.city.deploy import AUTHORITY_ID, BrokerAccess, make_identities
 from rfsas_hw.city.live import DistributedRfsas, LiveConfig, LiveStats, backend_names
 from rfsas_hw.city.net import NetInfo, district_net, read_net, sumo_home
-from rfsas_hw.city.placement import UnitSite, buildings, load_placement, place_units
+from rfsas_hw.city.placement import UnitSite, buildings, placed_units
 from rfsas_hw.city.scoring import Actors, CityScorer, CitySummary, ScoringConfig
 from rfsas_hw.city.sumoio import Movers, SumoDistrict
 from rfsas_hw.city.vehicles import Arrival
@@ -287,10 +287,11 @@ def prepare_district(cfg: CityRunConfig, out_dir: Path) -> District:
         raise OutputError(f"{out_dir}: cannot create: {err.strerror or err}") from err
     net = cfg.net if cfg.net is not None else district_net()
     info = read_net(net, cfg.origin)
+    # the user's files are read before the demand, which takes SUMO's tools a while
+    units = placed_units(info, cfg.placement)
+    found = buildings(info, units, cfg.polygons)
     demand = generate(net, out_dir / "demand", cfg.demand, cfg.seed)
-    placement = load_placement(cfg.placement) if cfg.placement is not None else None
-    units = place_units(info, placement)
-    return District(net, info, demand, units, buildings(info, units, cfg.polygons))
+    return District(net, info, demand, units, found)
 
 
 def write_identities(cfg: CityRunConfig, root: Path) -> list[str]:
@@ -306,8 +307,7 @@ def write_identities(cfg: CityRunConfig, root: Path) -> list[str]:
     """
     net = cfg.net if cfg.net is not None else district_net()
     info = read_net(net, cfg.origin)
-    placement = load_placement(cfg.placement) if cfg.placement is not None else None
-    units = [u.id for u in place_units(info, placement)]
+    units = [u.id for u in placed_units(info, cfg.placement)]
     backends = backend_names(cfg.live.backends)
     make_identities(root, units, backends)
     return [*units, *backends, AUTHORITY_ID]

@@ -24,8 +24,9 @@ from rfsas_hw.ncap.rfsas import DEPLOYMENTS, DEVICES, Deployment
 from rfsas_hw.ncap.runner import CONTROLLERS, Controller, RunResult, RunSpec, run_one
 from rfsas_hw.ncap.scenarios import Cell
 from rfsas_hw.parallel import DEFAULT_WORKERS, run_tasks
+from rfsas_hw.runner import signals_held
 
-__all__ = ["configs", "run_sweep", "specs_for"]
+__all__ = ["configs", "run_sweep", "run_whole", "specs_for"]
 
 
 def configs(
@@ -92,5 +93,21 @@ def run_sweep(
         as :func:`~rfsas_hw.ncap.runner.run_one` (the first failing run's error).
     """
     return run_tasks(
-        run_one, specs, workers=workers, scheduler=scheduler, name="ncap", on_result=on_result
+        run_whole, specs, workers=workers, scheduler=scheduler, name="ncap", on_result=on_result
     )
+
+
+def run_whole(spec: RunSpec) -> RunResult:
+    """:func:`~rfsas_hw.ncap.runner.run_one`, with Ctrl-C and SIGTERM held until the run
+    is done (:func:`~rfsas_hw.runner.signals_held`; in the main thread only, so on a Dask
+    worker it holds nothing). A run takes a fraction of a second, but the first in a fresh
+    install compiles the numeric kernels for seconds, and an interrupt inside numba's
+    compiler comes out as its own RuntimeError instead of a KeyboardInterrupt.
+
+    Raises:
+        as :func:`~rfsas_hw.ncap.runner.run_one`; KeyboardInterrupt once the run is done
+            when Ctrl-C (or SIGTERM, as the CLI's :class:`~rfsas_hw.runner.Terminated`)
+            came during it.
+    """
+    with signals_held():
+        return run_one(spec)

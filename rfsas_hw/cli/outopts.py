@@ -123,7 +123,9 @@ def check_outputs(command: click.Command, params: dict[str, Any], force: bool) -
     seen: list[tuple[str, Path]] = []
     for p in output_params(command):
         assert isinstance(p.type, OutputPath) and p.name is not None
-        what = max(getattr(p, "opts", [p.name]), key=len)
+        # the name --help shows, not an old one kept as a hidden alias (--output)
+        hidden = getattr(p, "hidden_aliases", ())
+        what = max([o for o in getattr(p, "opts", [p.name]) if o not in hidden], key=len)
         for path in _values(params.get(p.name)):
             for other_what, other in seen:
                 if path.resolve() == other.resolve():

@@ -60,3 +60,12 @@ def test_a_directory_still_to_be_made_is_judged_by_the_one_above(tmp_path: Path)
     assert check_writable_dir(target) == target
     assert not (tmp_path / "new").exists()  # the check makes nothing
     assert list(tmp_path.iterdir()) == []  # and leaves no probe file behind
+
+
+def test_the_refusal_names_the_option_as_help_shows_it(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    (tmp_path / "afile").write_text("x\n")
+    bad = str(tmp_path / "afile" / "r.jsonl")
+    code, _, err = run(["sumo", "run", "--seeds", "1", "--out", bad], capsys)
+    assert code == BAD_INPUT and f"error: --out {bad}:" in err, err

@@ -244,7 +244,16 @@ def place_units(info: NetInfo, cfg: PlacementConfig | None = None) -> list[UnitS
     if dup:
         raise ConfigError(f"placement: unit id(s) used twice: {', '.join(sorted(dup))}")
     if not units:
-        raise ConfigError(f"placement: no units ({info.path.name} has no traffic lights?)")
+        if cfg.replace:
+            why = "replace is true and units lists none"
+        elif not by_tls:
+            why = (
+                f"{info.path.name} has no traffic light to place them at; list units of "
+                "your own under units: in a placement file"
+            )
+        else:
+            why = "junctions lists none"
+        raise ConfigError(f"placement: no units: {why}")
     return sorted(units, key=lambda u: u.id)
 
 

@@ -81,7 +81,8 @@ def test_yaml_chooses_junctions_and_adds_units(info: NetInfo, tmp_path: Path) ->
         ("per_junction: 3\n", "per_junction"),
         ("setback: 2\n", "unknown key 'setback'"),
         ("units:\n  - {id: 'bad id', x_m: 0, y_m: 0, boresight_deg: 0}\n", "units"),
-        ("replace: true\n", "no units"),
+        ("replace: true\n", "no units: replace is true and units lists none"),
+        ("junctions: []\n", "no units: junctions lists none"),
     ],
 )
 def test_bad_placement_yaml_names_the_problem(
@@ -175,3 +176,11 @@ def test_the_users_files_are_judged_before_the_demand_is_made(
     with pytest.raises(ConfigError, match="bad shape"):
         prepare_district(cfg, tmp_path / "out")
     assert not (tmp_path / "out" / "demand").exists()
+
+
+def test_a_net_without_traffic_lights_asks_for_units_of_ones_own(info: NetInfo) -> None:
+    from dataclasses import replace
+
+    plain = replace(info, junctions=tuple(replace(j, tls=()) for j in info.junctions))
+    with pytest.raises(ConfigError, match="has no traffic light to place them at; list units"):
+        place_units(plain)

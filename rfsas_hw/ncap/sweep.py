@@ -35,20 +35,31 @@ def configs(
     """Every configuration of the chosen controllers, deployments and devices (``none`` and
     ``los`` once each: they use no RF-SAS).
 
+    A name given twice counts once.
+
     Raises:
-        ConfigError: an unknown controller, deployment or device (names the known ones).
+        ConfigError: an unknown controller, deployment or device (names the known ones);
+            no controller, or an RF-SAS controller with no deployment or no device.
     """
-    deps, devs = list(deployments), list(devices)
+    ctls, deps, devs = (list(dict.fromkeys(x)) for x in (controllers, deployments, devices))
     for name, given, known in (
-        ("controller", controllers, CONTROLLERS),
+        ("controller", ctls, CONTROLLERS),
         ("deployment", deps, DEPLOYMENTS),
         ("device", devs, DEVICES),
     ):
         for g in given:
             if g not in known:
                 raise ConfigError(f"unknown {name} {g!r} (known: {', '.join(known)})")
+    if not ctls:
+        raise ConfigError(f"controllers: none chosen (known: {', '.join(CONTROLLERS)})")
+    rf = [c for c in ctls if c not in ("none", "los")]
+    for name, given, known in (("deployments", deps, DEPLOYMENTS), ("devices", devs, DEVICES)):
+        if rf and not given:
+            raise ConfigError(
+                f"{name}: none chosen, and {', '.join(rf)} needs one (known: {', '.join(known)})"
+            )
     out: list[tuple[Controller, Deployment, str]] = []
-    for c in controllers:
+    for c in ctls:
         ctl = cast(Controller, c)
         if ctl in ("none", "los"):
             out.append((ctl, "car+rsu", DEVICES[0]))

@@ -18,6 +18,23 @@ def test_configurations_expand_rfsas_over_deployments_and_devices() -> None:
     ]
     with pytest.raises(ConfigError, match="unknown device 'phone-x'"):
         configs(["rfsas"], ["car"], ["phone-x"])
+    # a name given twice runs once
+    assert configs(["los", "los"], ["car", "car"], []) == [("los", "car+rsu", "phone-active")]
+
+
+@pytest.mark.parametrize(
+    ("controllers", "deployments", "devices", "match"),
+    [
+        ([], ["car"], ["phone-active"], "controllers: none chosen"),
+        (["los", "rfsas"], [], ["phone-active"], "deployments: none chosen, and rfsas needs"),
+        (["rfsas+los"], ["car"], [], "devices: none chosen, and rfsas\\+los needs"),
+    ],
+)
+def test_a_selection_of_no_configuration_is_an_error_not_an_empty_sweep(
+    controllers: list[str], deployments: list[str], devices: list[str], match: str
+) -> None:
+    with pytest.raises(ConfigError, match=match):
+        configs(controllers, deployments, devices)
 
 
 @pytest.mark.slow

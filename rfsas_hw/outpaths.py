@@ -84,7 +84,8 @@ def check_output(
     always fine.
 
     Raises:
-        ConfigError: ``path`` is an input, is a directory, or exists without ``force``.
+        ConfigError: ``path`` is an input, is a directory, exists without ``force``,
+            or cannot be created where it is (:func:`check_writable_dir`).
     """
     p = Path(path)
     if str(path) == STDIO:
@@ -95,16 +96,44 @@ def check_output(
         if _same_file(p, Path(source)):
             raise ConfigError(f"{what} {p} is also an input ({source}); refusing to write over it")
     try:
-        mode = p.stat().st_mode
+        mode: int | None = p.stat().st_mode
     except FileNotFoundError:
-        return p
+        mode = None
     except OSError as err:
         raise ConfigError(f"{what} {p}: {err.strerror or err}") from err
-    if stat.S_ISDIR(mode):
+    if mode is not None and stat.S_ISDIR(mode):
         raise ConfigError(f"{what} {p} is a directory")
-    if stat.S_ISREG(mode) and not force:
+    if mode is not None and stat.S_ISREG(mode) and not force:
         raise ConfigError(f"{what} {p} exists; use --force to replace it")
+    if mode is None or stat.S_ISREG(mode):
+        check_writable_dir(p.parent, what=f"{what} {p}")
     return p
+
+
+def check_writable_dir(directory: str | Path, *, what: str = "output") -> Path:
+    """Check, before any work, that files can be made in ``directory`` and return it.
+
+    A directory that does not exist yet is judged by the nearest one above it
+    that does (where the command would create the missing ones). The check
+    creates an unnamed temporary file there, so it sees what a write would: a
+    directory without permission, a read-only file system, a file in the way.
+
+    Raises:
+        ConfigError: naming ``what`` and the directory: it, or the one above it that
+            exists, is not a directory, or no file can be created in it.
+    """
+    d = Path(directory)
+    base = d.absolute()
+    while not base.exists() and base.parent != base:
+        base = base.parent
+    if not base.is_dir():
+        raise ConfigError(f"{what}: {base} is not a directory")
+    try:
+        with tempfile.TemporaryFile(dir=base):
+            pass
+    except OSError as err:
+        raise ConfigError(f"{what}: cannot create files in {base}: {err.strerror or err}") from err
+    return d
 
 
 class AtomicFile:

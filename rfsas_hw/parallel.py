@@ -25,6 +25,7 @@ import uuid
 from collections.abc import Callable, Generator, Iterable, Iterator, Sequence
 from typing import Any, TypeVar
 
+from rfsas_hw.errors import ConfigError
 from rfsas_hw.optional import require
 
 T = TypeVar("T")
@@ -63,6 +64,8 @@ def completed(
 
     Raises:
         MissingDependencyError: Dask distributed is needed and not installed.
+        ConfigError: ``scheduler`` is malformed or does not answer (after Dask's connect
+            timeout, 30 s by default).
         ValueError: ``workers`` is negative.
         whatever ``fn`` raises (the first failing task's error; the others are cancelled).
     """
@@ -103,7 +106,7 @@ def _completed(
             silence_logs=logging.CRITICAL,
         )
     try:
-        with distributed.Client(cluster if cluster is not None else scheduler) as client:
+        with _client(distributed, cluster, scheduler) as client:
             # a fresh token per call: a scheduler shared with earlier sweeps never hands
             # back a result it still holds under the same key
             token = uuid.uuid4().hex[:12]
@@ -118,6 +121,20 @@ def _completed(
     finally:
         if cluster is not None:
             cluster.close()
+
+
+def _client(distributed: Any, cluster: Any, scheduler: str | None) -> Any:
+    """A client of the local ``cluster``, or of the running ``scheduler``.
+
+    Raises:
+        ConfigError: the scheduler's address is malformed or nothing answers there.
+    """
+    if cluster is not None:
+        return distributed.Client(cluster)
+    try:
+        return distributed.Client(scheduler)
+    except (OSError, ValueError) as err:  # TimeoutError is an OSError
+        raise ConfigError(f"Dask scheduler {scheduler!r}: cannot connect: {err}") from err
 
 
 def in_order(pairs: Iterable[tuple[int, R]]) -> Iterator[tuple[int, R]]:

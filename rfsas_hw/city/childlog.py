@@ -23,6 +23,7 @@ from __future__ import annotations
 import logging
 import queue
 import re
+import signal
 from collections.abc import Callable
 from dataclasses import dataclass
 from logging.handlers import QueueHandler, QueueListener
@@ -102,14 +103,18 @@ def install(cfg: ChildLogging) -> None:
 def child_main(
     target: Callable[[Any, Connection], None], work: Any, conn: Connection, cfg: ChildLogging
 ) -> None:
-    """The body of a district process: its logging to the main process
-    (:func:`install`), then ``target(work, conn)``.
+    """The body of a district process: Ctrl-C (SIGINT) ignored, its logging to the main
+    process (:func:`install`), then ``target(work, conn)``.
 
     A pipe to the main process found closed (``BrokenPipeError``, ``ConnectionResetError``)
     ends the process quietly: the main process closed its end because it stopped the
     run (at a failed start, or past its stop deadline) and counts the answer it did not
     get (``... ended without its counters``); there is nobody left to report to.
     """
+    # Ctrl-C at a terminal reaches the whole process group: the main process stops the
+    # run and then its processes over their pipes, which a KeyboardInterrupt here would
+    # cut short (a traceback from every process, and their counters lost)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     install(cfg)
     try:
         target(work, conn)

@@ -238,7 +238,7 @@ def generate(net: str | Path, out_dir: str | Path, cfg: DemandConfig, seed: int)
 
     Raises:
         ConfigError: the net is missing or ``out_dir`` cannot be created.
-        SimulationError: ``randomTrips.py`` failed.
+        SimulationError: ``randomTrips.py`` failed, or made no trip of a class asked for.
         MissingDependencyError: eclipse-sumo is not installed.
     """
     netp = Path(net)
@@ -307,8 +307,16 @@ def generate(net: str | Path, out_dir: str | Path, cfg: DemandConfig, seed: int)
         ]
         for run in runs:
             run.result()
-    for name, _count, _args, tag in plans:
+    for name, count, _args, tag in plans:
         path = out / f"{name}.rou.xml"
+        if ET.parse(path).find(tag) is None:
+            shortest = cfg.vehicle_min_distance_m if name == "vehicles" else cfg.vru_min_distance_m
+            raise SimulationError(
+                f"{netp}: none of the {count} {name.rstrip('s')} trips asked for could be made: a "
+                f"trip's "
+                f"ends lie at least {shortest:g} m apart and must be joined by a route "
+                "(a net smaller than that, or without a route for the class, has none)"
+            )
         if name == "vehicles":
             vehicles = tuple(_retype(path, tag, {False: "car", True: "car"}, {}))
             route_files.append(path)

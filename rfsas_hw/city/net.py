@@ -296,7 +296,13 @@ def read_net(path: str | Path, origin: SiteOrigin | None = None) -> NetInfo:
         net = sumolib.net.readNet(str(p), withInternal=True, withPedestrianConnections=True)
     except Exception as err:  # sumolib raises plain exceptions of many kinds on bad XML
         raise ConfigError(f"{p}: not a SUMO net: {err}") from err
-    x0, y0, x1, y1 = (float(v) for v in net.getBoundary())
+    try:
+        x0, y0, x1, y1 = (float(v) for v in net.getBoundary())
+    except (KeyError, ValueError) as err:  # no <location convBoundary=…>: not a net file
+        raise ConfigError(
+            f"{p}: not a SUMO net: it has no <location> with a convBoundary (is it a "
+            "polygon, route or other additional file?)"
+        ) from err
     if not (x1 > x0 and y1 > y0):
         raise ConfigError(f"{p}: the net has an empty boundary")
     centre = ((x0 + x1) / 2, (y0 + y1) / 2)

@@ -55,6 +55,9 @@ RASTER_M = 2.0
 """Cell of the raster city blocks are found on, metres."""
 BUILDING_LOSS_DB = 20.0
 """Extra loss through a derived building, dB (the twin's default)."""
+OFF_NET_M = 50.0
+"""How far beyond the net's boundary a unit of the user's own may stand, metres (chosen:
+a unit farther out hears next to nothing of the district, so it is taken for a typo)."""
 
 __all__ = [
     "BuildingOptions",
@@ -64,6 +67,7 @@ __all__ = [
     "buildings",
     "load_placement",
     "place_units",
+    "placed_units",
 ]
 
 
@@ -127,7 +131,28 @@ def load_placement(path: str | Path) -> PlacementConfig:
     data = read_yaml(path) or {}
     if not isinstance(data, dict):
         raise ConfigError(f"{path}: expected a mapping")
-    return from_mapping(PlacementConfig, data, str(path))
+    try:
+        return from_mapping(PlacementConfig, data, str(path))
+    except ConfigError as err:
+        if str(err).startswith(f"{path}:"):
+            raise
+        raise ConfigError(f"{path}: {err}") from err  # a range check of PlacementConfig
+
+
+def placed_units(info: NetInfo, path: str | Path | None = None) -> list[UnitSite]:
+    """The units of the placement file ``path`` on the net (None: the default placement,
+    two units at every traffic light); see :func:`place_units`.
+
+    Raises:
+        ConfigError: as :func:`load_placement` and :func:`place_units`, naming the file.
+    """
+    if path is None:
+        return place_units(info)
+    cfg = load_placement(path)
+    try:
+        return place_units(info, cfg)
+    except ConfigError as err:
+        raise ConfigError(f"{path}: {err}") from err
 
 
 def _axis_deg(shapes: Sequence[Sequence[tuple[float, float]]]) -> float:
@@ -179,7 +204,8 @@ def place_units(info: NetInfo, cfg: PlacementConfig | None = None) -> list[UnitS
 
     Raises:
         ConfigError: a junction named in ``cfg`` is not a traffic-light program of the
-            net, a unit id is invalid or used twice, or no unit results.
+            net, a unit id is invalid or used twice, a unit of the user's own stands more
+            than :data:`OFF_NET_M` beyond the net's boundary, or no unit results.
     """
     cfg = cfg or PlacementConfig()
     by_tls: dict[str, list[Junction]] = {}
@@ -197,18 +223,37 @@ def place_units(info: NetInfo, cfg: PlacementConfig | None = None) -> list[UnitS
                     f"{info.path.name} (some known: {known})"
                 )
             units.extend(_pair(info, tls, by_tls[tls], cfg))
+    x0, y0, x1, y1 = info.bounds_m
     for u in cfg.units:
         try:
             check_sender_id(u.id)
         except Exception as err:
             raise ConfigError(f"placement: units: {err}") from err
+        if not (
+            x0 - OFF_NET_M <= u.x_m <= x1 + OFF_NET_M and y0 - OFF_NET_M <= u.y_m <= y1 + OFF_NET_M
+        ):
+            raise ConfigError(
+                f"placement: units: {u.id!r} at x_m {u.x_m:g}, y_m {u.y_m:g} is off the net: "
+                f"{info.path.name} spans x {x0:.0f} to {x1:.0f} m and y {y0:.0f} to {y1:.0f} m "
+                f"(rfsas frame: metres east and north), and a unit may stand at "
+                f"most {OFF_NET_M:g} m beyond that"
+            )
         units.append(_site(info, u.id, u.x_m, u.y_m, u.boresight_deg, ""))
     ids = [u.id for u in units]
     dup = {i for i in ids if ids.count(i) > 1}
     if dup:
         raise ConfigError(f"placement: unit id(s) used twice: {', '.join(sorted(dup))}")
     if not units:
-        raise ConfigError(f"placement: no units ({info.path.name} has no traffic lights?)")
+        if cfg.replace:
+            why = "replace is true and units lists none"
+        elif not by_tls:
+            why = (
+                f"{info.path.name} has no traffic light to place them at; list units of "
+                "your own under units: in a placement file"
+            )
+        else:
+            why = "junctions lists none"
+        raise ConfigError(f"placement: no units: {why}")
     return sorted(units, key=lambda u: u.id)
 
 
@@ -226,21 +271,36 @@ class BuildingOptions:
     """Buildings added as they are."""
 
 
+def _shape_point(text: str) -> tuple[float, float] | None:
+    """``x,y`` (or ``x,y,z``) of a SUMO shape as finite numbers; None if it is not one."""
+    parts = text.split(",")
+    if len(parts) not in (2, 3):
+        return None
+    try:
+        x, y = float(parts[0]), float(parts[1])
+    except ValueError:
+        return None
+    return (x, y) if math.isfinite(x) and math.isfinite(y) else None
+
+
 def _polygon_buildings(path: Path) -> list[tuple[str, list[tuple[float, float]]]]:
     """``(id, shape)`` of every building polygon of a SUMO polygon file (net coordinates)."""
     check_no_dtd(path)
     found: list[tuple[str, list[tuple[float, float]]]] = []
+    parser = xml.parsers.expat.ParserCreate()
 
     def start(tag: str, attrs: dict[str, str]) -> None:
         if tag != "poly" or attrs.get("type", "") not in BUILDING_TYPES:
             return
-        try:
-            pts = [tuple(float(v) for v in p.split(",")[:2]) for p in attrs["shape"].split()]
-        except (KeyError, ValueError) as err:
-            raise ConfigError(f"{path}: poly {attrs.get('id', '?')!r}: bad shape") from err
-        found.append((attrs.get("id", ""), [(p[0], p[1]) for p in pts]))
+        pts = [_shape_point(p) for p in attrs.get("shape", "").split()]
+        if not pts or None in pts:
+            raise ConfigError(
+                f"{path}: line {parser.CurrentLineNumber}: poly {attrs.get('id', '?')!r}: "
+                f"bad shape {attrs.get('shape', '')!r} (expected points x,y in metres, "
+                "separated by spaces)"
+            )
+        found.append((attrs.get("id", ""), [p for p in pts if p is not None]))
 
-    parser = xml.parsers.expat.ParserCreate()
     parser.StartElementHandler = start
     try:
         with path.open("rb") as fh:

@@ -37,7 +37,7 @@ import tempfile
 import threading
 import time
 from collections import Counter
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import IO, TYPE_CHECKING, Any, Literal
@@ -52,13 +52,13 @@ from rfsas_hw.city.demand import Demand, DemandConfig, generate
 from rfsas_hw.city.deploy import AUTHORITY_ID, BrokerAccess, make_identities
 from rfsas_hw.city.live import DistributedRfsas, LiveConfig, LiveStats, backend_names
 from rfsas_hw.city.net import NetInfo, district_net, read_net, sumo_home
-from rfsas_hw.city.placement import UnitSite, buildings, load_placement, place_units
+from rfsas_hw.city.placement import UnitSite, buildings, placed_units
 from rfsas_hw.city.scoring import Actors, CityScorer, CitySummary, ScoringConfig
 from rfsas_hw.city.sumoio import Movers, SumoDistrict
 from rfsas_hw.city.vehicles import Arrival
 from rfsas_hw.errors import ConfigError, OutputError, SimulationError
 from rfsas_hw.geo import SiteOrigin
-from rfsas_hw.outpaths import write_text_atomic
+from rfsas_hw.outpaths import check_output, write_text_atomic
 from rfsas_hw.twin.scenario import BuildingSpec
 
 if TYPE_CHECKING:
@@ -287,10 +287,11 @@ def prepare_district(cfg: CityRunConfig, out_dir: Path) -> District:
         raise OutputError(f"{out_dir}: cannot create: {err.strerror or err}") from err
     net = cfg.net if cfg.net is not None else district_net()
     info = read_net(net, cfg.origin)
+    # the user's files are read before the demand, which takes SUMO's tools a while
+    units = placed_units(info, cfg.placement)
+    found = buildings(info, units, cfg.polygons)
     demand = generate(net, out_dir / "demand", cfg.demand, cfg.seed)
-    placement = load_placement(cfg.placement) if cfg.placement is not None else None
-    units = place_units(info, placement)
-    return District(net, info, demand, units, buildings(info, units, cfg.polygons))
+    return District(net, info, demand, units, found)
 
 
 def write_identities(cfg: CityRunConfig, root: Path) -> list[str]:
@@ -306,11 +307,39 @@ def write_identities(cfg: CityRunConfig, root: Path) -> list[str]:
     """
     net = cfg.net if cfg.net is not None else district_net()
     info = read_net(net, cfg.origin)
-    placement = load_placement(cfg.placement) if cfg.placement is not None else None
-    units = [u.id for u in place_units(info, placement)]
+    units = [u.id for u in placed_units(info, cfg.placement)]
     backends = backend_names(cfg.live.backends)
     make_identities(root, units, backends)
     return [*units, *backends, AUTHORITY_ID]
+
+
+def output_files(out_dir: Path, mode: Mode, *, png: bool = True) -> dict[str, Path]:
+    """The files a run with RF-SAS ``mode`` writes in ``out_dir``: ``log``
+    (``<mode>.log.jsonl``), ``summary`` (``<mode>.summary.json``), ``geojson``
+    (``<mode>.map.geojson``) and, with ``png``, ``png`` (``<mode>.map.png``)."""
+    files = {
+        "log": out_dir / f"{mode}.log.jsonl",
+        "summary": out_dir / f"{mode}.summary.json",
+        "geojson": out_dir / f"{mode}.map.geojson",
+    }
+    if png:
+        files["png"] = out_dir / f"{mode}.map.png"
+    return files
+
+
+def check_run_outputs(
+    out_dir: Path, modes: Sequence[Mode], *, png: bool = True, force: bool = False
+) -> None:
+    """Check, before any work, that the runs of ``modes`` may write their files in
+    ``out_dir`` (:func:`~rfsas_hw.outpaths.check_output`): an earlier run's are replaced
+    only with ``force``.
+
+    Raises:
+        ConfigError: a file exists without ``force``, or cannot be created there.
+    """
+    for mode in modes:
+        for path in output_files(out_dir, mode, png=png).values():
+            check_output(path, force=force)
 
 
 def run_city(
@@ -356,13 +385,7 @@ def run_city(
     if district is None:
         district = prepare_district(cfg, out_dir)
     net, info, demand, units = district.net, district.info, district.demand, district.units
-    files = {
-        "log": out_dir / f"{mode}.log.jsonl",
-        "summary": out_dir / f"{mode}.summary.json",
-        "geojson": out_dir / f"{mode}.map.geojson",
-    }
-    if png:
-        files["png"] = out_dir / f"{mode}.map.png"
+    files = output_files(out_dir, mode, png=png)
     log = _Log(files["log"])
     records = _LogRecords(log)
     root = logging.getLogger()

@@ -75,7 +75,13 @@ CTE_US = 160
     show_default=True,
     help="Array radius, wavelengths.",
 )
-@click.option("--packets", type=click.IntRange(1, 100_000), default=300, show_default=True)
+@click.option(
+    "--packets",
+    type=click.IntRange(1, 100_000),
+    default=300,
+    show_default=True,
+    help="IQ reports to emit, one per packet, each at a random true angle.",
+)
 @click.option("--snr", type=float, default=25.0, show_default=True, help="SNR per sample, dB.")
 @click.option(
     "--cfo",

@@ -53,7 +53,13 @@ def broker() -> None:
     show_default=True,
     help="User mosquitto drops to when started as root (it must read the broker files).",
 )
-@click.option("--days", type=click.IntRange(1, 3650), default=365, show_default=True)
+@click.option(
+    "--days",
+    type=click.IntRange(1, 3650),
+    default=365,
+    show_default=True,
+    help="Validity of the certificates issued now, days (a new CA gets at least 3650).",
+)
 def config(
     keys_dir: Path,
     out: Path,

@@ -5,7 +5,7 @@ from __future__ import annotations
 import math
 from dataclasses import replace
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, cast
 
 import click
 from rich.console import Console
@@ -18,7 +18,7 @@ from rfsas_hw.cli.outopts import OutputPath
 if TYPE_CHECKING:
     from rfsas_hw.city.dashboard import CityDashboard
     from rfsas_hw.city.deploy import BrokerAccess
-    from rfsas_hw.city.run import CityRunConfig, CityRunResult, District
+    from rfsas_hw.city.run import CityRunConfig, CityRunResult, District, Mode
 
 
 @click.group()
@@ -250,6 +250,7 @@ def keys(
     help="Token other hosts must give the dashboard [default: random when not on loopback].",
 )
 @click.option("--no-png", is_flag=True, help="Write the map as GeoJSON only.")
+@click.option("--force", is_flag=True, help="Replace the files of an earlier run in --out.")
 def run(
     net: Path | None,
     origin: str | None,
@@ -277,6 +278,7 @@ def run(
     web: str | None,
     web_token: str | None,
     no_png: bool,
+    force: bool,
 ) -> None:
     """Run a district: demand from SUMO's randomTrips, units at the traffic lights, and,
     with RF-SAS on, mosquitto with mutual TLS on loopback, a nonce authority, twin
@@ -285,8 +287,9 @@ def run(
     from rfsas_hw.city.demand import DemandConfig
     from rfsas_hw.city.deploy import BrokerAccess
     from rfsas_hw.city.live import LiveConfig, prestart
-    from rfsas_hw.city.run import CityRunConfig, prepare_district
+    from rfsas_hw.city.run import CityRunConfig, check_run_outputs, prepare_district
 
+    check_run_outputs(out_dir, _modes(modes), png=not no_png, force=force)
     if broker_certs is not None and broker is None:
         raise click.UsageError("--broker-certs goes with --broker")
     access = None if broker is None else BrokerAccess.from_url(broker, broker_certs)
@@ -359,7 +362,7 @@ def _runs(
     from rfsas_hw.city.run import run_city
 
     results: dict[str, CityRunResult] = {}
-    for mode in ("off", "on") if modes == "both" else (modes,):
+    for mode in _modes(modes):
         columns = (
             TextColumn(f"RF-SAS {mode}"),
             BarColumn(),
@@ -389,6 +392,11 @@ def _runs(
                 dashboard=dashboard,
             )
     return results
+
+
+def _modes(rfsas: str) -> tuple[Mode, ...]:
+    """The runs ``--rfsas`` asks for, in the order they run."""
+    return ("off", "on") if rfsas == "both" else (cast("Mode", rfsas),)
 
 
 def _table(results: dict[str, CityRunResult]) -> Table:

@@ -30,7 +30,7 @@ from typing import Any, Literal
 import click
 
 from rfsas_hw.errors import ConfigError, OutputError
-from rfsas_hw.outpaths import STDIO, check_output
+from rfsas_hw.outpaths import STDIO, check_output, check_writable_dir
 
 OutputKind = Literal["file", "new_file", "dir", "new_dir", "file_or_new_dir", "update"]
 
@@ -116,13 +116,16 @@ def check_outputs(command: click.Command, params: dict[str, Any], force: bool) -
 
     Raises:
         ConfigError: an output is an input or another output, an existing file
-            without ``force``, or a directory output that cannot be one.
+            without ``force``, a directory output that cannot be one, or an output
+            where no file can be created.
     """
     inputs = _inputs(command, params)
     seen: list[tuple[str, Path]] = []
     for p in output_params(command):
         assert isinstance(p.type, OutputPath) and p.name is not None
-        what = max(getattr(p, "opts", [p.name]), key=len)
+        # the name --help shows, not an old one kept as a hidden alias (--output)
+        hidden = getattr(p, "hidden_aliases", ())
+        what = max([o for o in getattr(p, "opts", [p.name]) if o not in hidden], key=len)
         for path in _values(params.get(p.name)):
             for other_what, other in seen:
                 if path.resolve() == other.resolve():
@@ -157,6 +160,7 @@ def _check_dir(path: Path, inputs: list[Path], kind: str, what: str) -> None:
         raise ConfigError(f"{what} {path} exists and is not a directory")
     if kind == "new_dir" and path.exists():
         raise ConfigError(f"{what} {path} exists; the directory must be new")
+    check_writable_dir(path, what=f"{what} {path}")
 
 
 def _named(outputs: list[str]) -> str:

@@ -27,6 +27,8 @@ from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from typing import Literal
 
+from rfsas_hw.errors import ConfigError
+
 KMH = 1 / 3.6
 """m/s per km/h."""
 VUT_LENGTH_M = 4.5
@@ -233,10 +235,25 @@ def cells(names: Iterable[str], speeds_kmh: Sequence[float] | None = None) -> li
 
     Raises:
         KeyError: an unknown scenario.
+        ConfigError: no scenario, an empty ``speeds_kmh``, or a speed that none of the
+            named scenarios tests (the message lists the speeds they test).
     """
+    chosen = [scenario(name) for name in names]
+    if not chosen:
+        raise ConfigError("scenarios: none chosen")
+    if speeds_kmh is not None:
+        tested = sorted({float(v) for s in chosen for v in s.vut_speeds_kmh})
+        untested = [v for v in speeds_kmh if v not in tested]
+        if untested or not speeds_kmh:
+            which = ", ".join(s.name for s in chosen)
+            asked = ", ".join(f"{v:g}" for v in untested)
+            raise ConfigError(
+                (f"speeds: {asked} km/h: not a VUT speed of {which}" if asked else "speeds: none")
+                + f" ({which} tested at {', '.join(f'{v:g}' for v in tested)} km/h)"
+            )
     out = []
-    for name in names:
-        s = scenario(name)
+    for s in chosen:
+        name = s.name
         speeds = [v for v in s.vut_speeds_kmh if speeds_kmh is None or v in speeds_kmh]
         for v in speeds:
             for f in s.impacts:

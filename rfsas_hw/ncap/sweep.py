@@ -24,8 +24,9 @@ from rfsas_hw.ncap.rfsas import DEPLOYMENTS, DEVICES, Deployment
 from rfsas_hw.ncap.runner import CONTROLLERS, Controller, RunResult, RunSpec, run_one
 from rfsas_hw.ncap.scenarios import Cell
 from rfsas_hw.parallel import DEFAULT_WORKERS, run_tasks
+from rfsas_hw.runner import signals_held
 
-__all__ = ["configs", "run_sweep", "specs_for"]
+__all__ = ["configs", "run_sweep", "run_whole", "specs_for"]
 
 
 def configs(
@@ -34,20 +35,31 @@ def configs(
     """Every configuration of the chosen controllers, deployments and devices (``none`` and
     ``los`` once each: they use no RF-SAS).
 
+    A name given twice counts once.
+
     Raises:
-        ConfigError: an unknown controller, deployment or device (names the known ones).
+        ConfigError: an unknown controller, deployment or device (names the known ones);
+            no controller, or an RF-SAS controller with no deployment or no device.
     """
-    deps, devs = list(deployments), list(devices)
+    ctls, deps, devs = (list(dict.fromkeys(x)) for x in (controllers, deployments, devices))
     for name, given, known in (
-        ("controller", controllers, CONTROLLERS),
+        ("controller", ctls, CONTROLLERS),
         ("deployment", deps, DEPLOYMENTS),
         ("device", devs, DEVICES),
     ):
         for g in given:
             if g not in known:
                 raise ConfigError(f"unknown {name} {g!r} (known: {', '.join(known)})")
+    if not ctls:
+        raise ConfigError(f"controllers: none chosen (known: {', '.join(CONTROLLERS)})")
+    rf = [c for c in ctls if c not in ("none", "los")]
+    for name, given, known in (("deployments", deps, DEPLOYMENTS), ("devices", devs, DEVICES)):
+        if rf and not given:
+            raise ConfigError(
+                f"{name}: none chosen, and {', '.join(rf)} needs one (known: {', '.join(known)})"
+            )
     out: list[tuple[Controller, Deployment, str]] = []
-    for c in controllers:
+    for c in ctls:
         ctl = cast(Controller, c)
         if ctl in ("none", "los"):
             out.append((ctl, "car+rsu", DEVICES[0]))
@@ -92,5 +104,21 @@ def run_sweep(
         as :func:`~rfsas_hw.ncap.runner.run_one` (the first failing run's error).
     """
     return run_tasks(
-        run_one, specs, workers=workers, scheduler=scheduler, name="ncap", on_result=on_result
+        run_whole, specs, workers=workers, scheduler=scheduler, name="ncap", on_result=on_result
     )
+
+
+def run_whole(spec: RunSpec) -> RunResult:
+    """:func:`~rfsas_hw.ncap.runner.run_one`, with Ctrl-C and SIGTERM held until the run
+    is done (:func:`~rfsas_hw.runner.signals_held`; in the main thread only, so on a Dask
+    worker it holds nothing). A run takes a fraction of a second, but the first in a fresh
+    install compiles the numeric kernels for seconds, and an interrupt inside numba's
+    compiler comes out as its own RuntimeError instead of a KeyboardInterrupt.
+
+    Raises:
+        as :func:`~rfsas_hw.ncap.runner.run_one`; KeyboardInterrupt once the run is done
+            when Ctrl-C (or SIGTERM, as the CLI's :class:`~rfsas_hw.runner.Terminated`)
+            came during it.
+    """
+    with signals_held():
+        return run_one(spec)

@@ -34,3 +34,11 @@ def answer_after_the_main_process_left(release: Connection, conn: Connection) ->
         conn.send(("end", "counters"))
     except Exception as err:
         conn.send(("error", f"{type(err).__name__}: {err}"))
+
+
+def stop_when_told(_work: object, conn: Connection) -> None:
+    """Say ``ready``, wait for ``stop``, then answer ``stopped`` (a district process's end)."""
+    conn.send("ready")
+    assert conn.recv() == "stop"
+    conn.send("stopped")
+    conn.close()

@@ -16,7 +16,7 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).parent))
 
-from childhelp import answer_after_the_main_process_left, warn_and_answer
+from childhelp import answer_after_the_main_process_left, stop_when_told, warn_and_answer
 
 from rfsas_hw.city.childlog import ChildLogging, LogRelay, child_main, install, redact_macs
 
@@ -185,3 +185,34 @@ def test_a_child_answering_a_closed_pipe_ends_quietly(capfd: pytest.CaptureFixtu
         relay.close()
     err = capfd.readouterr().err
     assert "BrokenPipeError" not in err and "Traceback" not in err
+
+
+def test_ctrl_c_at_the_terminal_leaves_a_child_to_be_stopped_by_the_main_process(
+    capfd: pytest.CaptureFixture[str],
+) -> None:
+    """Ctrl-C reaches every process of the group; a district process must not die of it
+    (with a traceback each) but end when the main process stops it over its pipe."""
+    import os
+    import signal
+
+    ctx = mp.get_context("spawn")
+    relay = LogRelay(ctx)
+    parent, child = ctx.Pipe()
+    proc = ctx.Process(target=child_main, args=(stop_when_told, None, child, relay.child()))
+    try:
+        proc.start()
+        child.close()
+        assert parent.poll(60) and parent.recv() == "ready"
+        os.kill(proc.pid, signal.SIGINT)  # as the terminal does, while it waits on its pipe
+        parent.send("stop")
+        assert parent.poll(60), "the child did not answer"
+        assert parent.recv() == "stopped"
+        proc.join(60)
+        assert proc.exitcode == 0
+    finally:
+        if proc.is_alive():
+            proc.terminate()
+            proc.join(5)
+        parent.close()
+        relay.close()
+    assert "KeyboardInterrupt" not in capfd.readouterr().err

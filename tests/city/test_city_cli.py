@@ -39,3 +39,22 @@ def test_bad_options_are_refused(grid_net: Path, tmp_path: Path) -> None:
     assert res.exit_code == 2 and "--net" in res.output
     res = runner.invoke(city, ["run", "--out", str(tmp_path), "--deployment-nice", "20"])
     assert res.exit_code == 2 and "--deployment-nice" in res.output
+
+
+def test_an_earlier_runs_files_are_replaced_only_with_force(grid_net: Path, tmp_path: Path) -> None:
+    from rfsas_hw.errors import ConfigError
+
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "on.map.geojson").write_text("keep\n")
+    args = ["run", "--net", str(grid_net), "--out", str(out), "--duration", "5", "--no-png"]
+    res = CliRunner().invoke(city, args)
+    assert isinstance(res.exception, ConfigError)
+    assert "on.map.geojson exists; use --force" in str(res.exception)
+    assert sorted(p.name for p in out.iterdir()) == ["on.map.geojson"]  # nothing ran
+    assert (out / "on.map.geojson").read_text() == "keep\n"
+    # the off run alone does not touch the on run's files
+    res = CliRunner().invoke(city, [*args, "--rfsas", "off", "--vehicles", "0", "--bicycles", "0",
+                                    "--pedestrians", "3"])  # fmt: skip
+    assert res.exit_code == 0, res.output
+    assert (out / "on.map.geojson").read_text() == "keep\n"

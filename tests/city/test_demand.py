@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import subprocess
 import xml.etree.ElementTree as ET
+from collections.abc import Callable
+from dataclasses import replace
 from pathlib import Path
 
 import pytest
@@ -13,7 +15,7 @@ pytest.importorskip("sumolib", reason="needs the city extra: pip install 'rfsas-
 
 from rfsas_hw.city.demand import DemandConfig, generate, read_vru_table
 from rfsas_hw.city.net import sumo_binary, sumo_env
-from rfsas_hw.errors import ConfigError
+from rfsas_hw.errors import ConfigError, SimulationError
 
 SMALL = DemandConfig(vehicles=20, pedestrians=30, bicycles=10, end_s=60.0)
 
@@ -99,3 +101,15 @@ def test_reckless_pedestrians_cross_against_the_light(grid_net: Path, tmp_path: 
         waits[share] = sum(walks) / len(walks)
     assert waits[0.0] > 5.0
     assert waits[1.0] < waits[0.0] / 5
+
+
+def test_a_net_too_small_for_any_car_trip_is_an_error_not_a_district_without_cars(
+    grid_factory: Callable[[int, float], Path], tmp_path: Path
+) -> None:
+    # 100 m between junctions, 60 m stubs: no two edges 300 m apart (the car trips' minimum)
+    small = grid_factory(2, 100.0)
+    cfg = DemandConfig(vehicles=3, pedestrians=4, bicycles=0, end_s=20.0)
+    with pytest.raises(SimulationError, match=r"grid2\.net\.xml: none of the 3 vehicle trips"):
+        generate(small, tmp_path / "demand", cfg, seed=1)
+    walkers = generate(small, tmp_path / "walkers", replace(cfg, vehicles=0), seed=1)
+    assert len(walkers.vrus) == 4

@@ -50,6 +50,10 @@ def test_missing_and_non_net_files_fail_with_the_file_named(tmp_path: Path) -> N
     bad.write_text('<?xml version="1.0"?>\n<!DOCTYPE net [<!ENTITY a "x">]>\n<net/>\n')
     with pytest.raises(ConfigError, match="document type"):
         read_net(bad)
+    poly = tmp_path / "buildings.poly.xml"  # well-formed SUMO XML, but not a net
+    poly.write_text('<additional><poly id="b" type="building" shape="0,0 9,0 9,9"/></additional>')
+    with pytest.raises(ConfigError, match=r"buildings\.poly\.xml: not a SUMO net"):
+        read_net(poly)
 
 
 def test_the_environment_points_proj_at_the_wheel() -> None:

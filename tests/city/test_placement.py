@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import re
 from collections.abc import Callable
 from pathlib import Path
 
@@ -17,6 +18,7 @@ from rfsas_hw.city.placement import (
     buildings,
     load_placement,
     place_units,
+    placed_units,
 )
 from rfsas_hw.errors import ConfigError
 from rfsas_hw.link.topics import quadkey
@@ -79,7 +81,8 @@ def test_yaml_chooses_junctions_and_adds_units(info: NetInfo, tmp_path: Path) ->
         ("per_junction: 3\n", "per_junction"),
         ("setback: 2\n", "unknown key 'setback'"),
         ("units:\n  - {id: 'bad id', x_m: 0, y_m: 0, boresight_deg: 0}\n", "units"),
-        ("replace: true\n", "no units"),
+        ("replace: true\n", "no units: replace is true and units lists none"),
+        ("junctions: []\n", "no units: junctions lists none"),
     ],
 )
 def test_bad_placement_yaml_names_the_problem(
@@ -123,3 +126,61 @@ def test_polygon_file_buildings_are_bounding_boxes_in_the_frame(
     poly.write_text('<additional><poly id="x" type="building" shape="1,a"/></additional>')
     with pytest.raises(ConfigError, match="bad shape"):
         buildings(info, units, polygons=poly)
+
+
+@pytest.mark.parametrize("shape", ["1,2 3", "1,2,3,4 5,6", "", "nan,1 2,3", "1;2 3;4"])
+def test_a_bad_polygon_shape_names_its_line_and_poly(
+    info: NetInfo, tmp_path: Path, shape: str
+) -> None:
+    poly = tmp_path / "bad.poly.xml"
+    poly.write_text(f'<additional>\n<poly id="b7" type="building" shape="{shape}"/>\n</additional>')
+    with pytest.raises(ConfigError, match=r"bad\.poly\.xml: line 2: poly 'b7': bad shape"):
+        buildings(info, place_units(info), polygons=poly)
+
+
+@pytest.mark.parametrize(
+    ("text", "match"),
+    [
+        ("units:\n  - {id: far, x_m: 5000, y_m: 0, boresight_deg: 0}\n", "'far' at x_m 5000"),
+        ("units:\n  - {id: lost, x_m: .nan, y_m: 0, boresight_deg: 0}\n", "x_m: expected a number"),
+        ("per_junction: 3\n", "per_junction must be 1 or 2"),
+        ("junctions: [nowhere]\n", "'nowhere' is not a traffic-light program"),
+    ],
+)
+def test_a_placement_files_errors_name_the_file(
+    info: NetInfo, tmp_path: Path, text: str, match: str
+) -> None:
+    f = tmp_path / "my-units.yaml"
+    f.write_text(text)
+    with pytest.raises(ConfigError, match=rf"^{re.escape(str(f))}: .*{re.escape(match)}"):
+        placed_units(info, f)
+
+
+def test_a_unit_of_ones_own_may_stand_just_beyond_the_nets_edge(
+    info: NetInfo, tmp_path: Path
+) -> None:
+    x1 = info.bounds_m[2]
+    f = tmp_path / "edge.yaml"
+    f.write_text(f"units:\n  - {{id: edge, x_m: {x1 + 40.0}, y_m: 0, boresight_deg: 270}}\n")
+    assert "edge" in [u.id for u in placed_units(info, f)]
+
+
+def test_the_users_files_are_judged_before_the_demand_is_made(
+    grid_net: Path, tmp_path: Path
+) -> None:
+    from rfsas_hw.city.run import CityRunConfig, prepare_district
+
+    poly = tmp_path / "bad.poly.xml"
+    poly.write_text('<additional><poly id="b" type="building" shape="1,2 3"/></additional>')
+    cfg = CityRunConfig(net=grid_net, polygons=poly)
+    with pytest.raises(ConfigError, match="bad shape"):
+        prepare_district(cfg, tmp_path / "out")
+    assert not (tmp_path / "out" / "demand").exists()
+
+
+def test_a_net_without_traffic_lights_asks_for_units_of_ones_own(info: NetInfo) -> None:
+    from dataclasses import replace
+
+    plain = replace(info, junctions=tuple(replace(j, tls=()) for j in info.junctions))
+    with pytest.raises(ConfigError, match="has no traffic light to place them at; list units"):
+        place_units(plain)

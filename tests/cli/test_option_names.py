@@ -68,3 +68,13 @@ def test_aliases_are_hidden_only_from_help() -> None:
     record = option.get_help_record(click.Context(click.Command("x")))
     assert record is not None and "--output" not in record[0]
     assert option.opts == ["-o", "--out", "--output"]  # still parsed
+
+
+def test_every_option_says_what_it_is(commands: list[tuple[str, click.Command]]) -> None:
+    silent = [
+        (name, param.opts[-1])
+        for name, command in commands
+        for param in command.params
+        if isinstance(param, click.Option) and not param.hidden and not param.help
+    ]
+    assert silent == []

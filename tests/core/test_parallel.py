@@ -6,6 +6,7 @@ import math
 
 import pytest
 
+from rfsas_hw.errors import ConfigError
 from rfsas_hw.parallel import completed, default_workers, in_order, run_tasks
 
 
@@ -41,3 +42,20 @@ def test_dask_gives_results_in_item_order_and_the_first_error() -> None:
     with pytest.raises(ValueError, match="math domain error"):
         run_tasks(math.sqrt, [4.0, -1.0, 9.0], workers=1)
     assert run_tasks(math.sqrt, [], workers=2) == []
+
+
+@pytest.mark.parametrize(
+    ("address", "why"),
+    [("no-port-here", "missing port number"), ("tcp://127.0.0.1:1", "Timed out")],
+    ids=["malformed", "nobody listens"],
+)
+def test_a_scheduler_that_cannot_be_reached_is_named_in_one_error(address: str, why: str) -> None:
+    pytest.importorskip("distributed", reason="needs the ncap extra: pip install 'rfsas-hw[ncap]'")
+    import dask
+
+    # port 1 refuses at once; Dask retries until its connect timeout, kept short here
+    with (
+        dask.config.set({"distributed.comm.timeouts.connect": "1s"}),
+        pytest.raises(ConfigError, match=f"Dask scheduler '{address}': cannot connect: .*{why}"),
+    ):
+        run_tasks(abs, [1, 2], scheduler=address)

@@ -102,7 +102,9 @@ def test_bad_choices_name_the_option(tmp_path: Path) -> None:
     assert "--scenarios: unknown scenario 'CPXX'" in _error(["ncap", "--scenarios", "CPXX", *out])
     assert "--speeds" in _error(["ncap", "--speeds", "fast", *out])
     assert "unknown device 'pager'" in _error(["ncap", "--devices", "pager", *out])
-    assert "no cell" in _error(["ncap", "--scenarios", "CBLA", "--speeds", "10", *out])
+    cbla = _error(["ncap", "--scenarios", "CBLA", "--speeds", "10", *out])
+    assert "speeds: 10 km/h: not a VUT speed of CBLA (CBLA tested at 20, 30, 40" in cbla
+    assert "scenarios: none chosen" in _error(["ncap", "--scenarios", ",", *out])
 
 
 def test_an_interrupted_sweep_writes_and_scores_the_runs_done(

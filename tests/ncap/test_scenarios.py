@@ -7,6 +7,7 @@ import math
 
 import pytest
 
+from rfsas_hw.errors import ConfigError
 from rfsas_hw.ncap.scenarios import (
     KMH,
     SCENARIOS,
@@ -25,10 +26,28 @@ def test_the_matrix_has_the_protocols_cells() -> None:
     assert len(per["CPNA"]) == 12 and {c.impact for c in per["CPNA"]} == {0.25, 0.75}
     assert len(per["CPNCO"]) == 18
     assert {c.vut_speed_kmh for c in per["CBLA"]} == {20, 30, 40, 50, 60}
-    assert cells(["CBLA"], [10, 20]) == [Cell("CBLA", 20.0, 0.5)]
+    # a speed one of the chosen scenarios does not test is left out for that one only
+    assert [c.key for c in cells(["CBLA", "CBNA"], [10, 20])] == ["CBLA-50@20", "CBNA-50@10",
+                                                                 "CBNA-50@20"]  # fmt: skip
     assert scenario("CPNCO").target.kind == "pedestrian" and scenario("CBNAO").obstructed
     with pytest.raises(KeyError, match="known: CPNA"):
         scenario("CPXX")
+
+
+@pytest.mark.parametrize(
+    ("names", "speeds", "match"),
+    [
+        (["CBLA"], [10, 20], r"speeds: 10 km/h: not a VUT speed of CBLA \(CBLA tested at 20, 30"),
+        (["CPNCO"], [5, 70], r"speeds: 5, 70 km/h: not a VUT speed of CPNCO \(.*at 10, 20, 30"),
+        (["CPNCO"], [], r"speeds: none \(CPNCO tested at 10"),
+        ([], None, "scenarios: none chosen"),
+    ],
+)
+def test_a_selection_with_nothing_to_run_says_what_is_tested(
+    names: list[str], speeds: list[float] | None, match: str
+) -> None:
+    with pytest.raises(ConfigError, match=match):
+        cells(names, speeds)
 
 
 def test_obstructed_scenarios_park_two_vehicles_upstream_of_the_path() -> None:

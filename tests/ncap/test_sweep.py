@@ -18,6 +18,23 @@ def test_configurations_expand_rfsas_over_deployments_and_devices() -> None:
     ]
     with pytest.raises(ConfigError, match="unknown device 'phone-x'"):
         configs(["rfsas"], ["car"], ["phone-x"])
+    # a name given twice runs once
+    assert configs(["los", "los"], ["car", "car"], []) == [("los", "car+rsu", "phone-active")]
+
+
+@pytest.mark.parametrize(
+    ("controllers", "deployments", "devices", "match"),
+    [
+        ([], ["car"], ["phone-active"], "controllers: none chosen"),
+        (["los", "rfsas"], [], ["phone-active"], "deployments: none chosen, and rfsas needs"),
+        (["rfsas+los"], ["car"], [], "devices: none chosen, and rfsas\\+los needs"),
+    ],
+)
+def test_a_selection_of_no_configuration_is_an_error_not_an_empty_sweep(
+    controllers: list[str], deployments: list[str], devices: list[str], match: str
+) -> None:
+    with pytest.raises(ConfigError, match=match):
+        configs(controllers, deployments, devices)
 
 
 @pytest.mark.slow
@@ -41,3 +58,32 @@ def test_one_and_two_workers_give_the_same_results() -> None:
     here = run_sweep(specs[:2], workers=0)
     times = {"wall_s": 0, "cpu_s": 0}
     assert [r.as_dict() | times for r in here] == [r.as_dict() | times for r in one[:2]]
+
+
+def test_ctrl_c_during_a_run_here_ends_the_sweep_once_that_run_is_done(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    import signal
+
+    import rfsas_hw.ncap.sweep as sweep
+
+    calls: list[str] = []
+
+    def run(spec: object) -> str:
+        calls.append("start")
+        if len(calls) == 3:  # the second run: Ctrl-C in its middle (a kernel compiling)
+            signal.raise_signal(signal.SIGINT)
+        calls.append("end")
+        return f"result {len(calls) // 2}"
+
+    monkeypatch.setattr(sweep, "run_one", run)
+    before = signal.signal(signal.SIGINT, signal.default_int_handler)
+    got: list[tuple[int, object]] = []
+    specs = specs_for([Cell("CPNA", 20.0, 0.5)], configs(["los"], [], []), [0, 1, 2])
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            run_sweep(specs, workers=0, on_result=lambda i, r: got.append((i, r)))
+    finally:
+        signal.signal(signal.SIGINT, before)
+    assert calls == ["start", "end", "start", "end"]  # the second run was not cut
+    assert got == [(0, "result 1")]  # and the third never started

@@ -53,6 +53,7 @@ from rfsas_hw.bridges.config import (
     UnitSpec,
     backend_config,
 )
+from rfsas_hw.closing import ClosingContext
 from rfsas_hw.df.calfile import load_calibration
 from rfsas_hw.df.calibration import Calibration
 from rfsas_hw.errors import ConfigError, SimulationError
@@ -242,7 +243,7 @@ def fitted_calibration(sensor: SensorSpec, *, seed: int = 0) -> Calibration:
     return _FITTED[key]
 
 
-class Bridge:
+class Bridge(ClosingContext):
     """RF-SAS for a simulator (see the module docstring).
 
     Args:
@@ -571,9 +572,3 @@ class Bridge:
             self._write_truth({"record": "stats", **self.stats.as_dict()})
             self._truth.close()
             self._truth = None
-
-    def __enter__(self) -> Bridge:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()

@@ -35,6 +35,7 @@ from multiprocessing.queues import Queue as MpQueue
 from typing import Any
 
 import numpy as np
+from benchtime import timed
 from cryptography.hazmat.primitives import hashes
 from cryptography.hazmat.primitives.asymmetric import ec
 
@@ -47,15 +48,6 @@ from rfsas_hw.records import BearingBatch, Pose
 NS = 1_000_000_000
 SENSOR_KEY = 0x5EED_CAFE
 BUDGET_MS = 100.0
-
-
-def timed(fn: Callable[[], object], repeat: int = 3) -> float:
-    best = float("inf")
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        fn()
-        best = min(best, time.perf_counter() - t0)
-    return best
 
 
 def table(title: str, rows: list[tuple[str, int, float]], unit: str) -> None:

@@ -25,9 +25,9 @@ Ratios are from this one run; the machine may be shared and noisy.
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
 
 import numpy as np
+from benchtime import timed
 from scipy.optimize import least_squares
 
 from rfsas_hw.angles import compass_to_math_rad, math_rad_to_compass, wrap_rad_pi
@@ -40,16 +40,6 @@ from rfsas_hw.backend import (
 )
 
 GOAL_EXACT_US = 100.0
-
-
-def timed(fn: Callable[[], object], repeat: int = 1) -> float:
-    """Best wall time of ``repeat`` runs, seconds."""
-    best = float("inf")
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        fn()
-        best = min(best, time.perf_counter() - t0)
-    return best
 
 
 def random_cases(n: int, seed: int = 1) -> list[dict[str, object]]:
@@ -123,7 +113,7 @@ def bench_triangulation() -> list[tuple[str, str, str]]:
     S = np.broadcast_to(stations, (B, 3, 2))
     t_batch = timed(lambda: triangulate_batch(S, az, sig), 2)
     m = 1000
-    t_single = timed(lambda: [triangulate(stations, az[i], sig) for i in range(m)])
+    t_single = timed(lambda: [triangulate(stations, az[i], sig) for i in range(m)], 1)
     phi = compass_to_math_rad(az[:200])
     w = 1.0 / np.deg2rad(1.0)
 
@@ -131,7 +121,7 @@ def bench_triangulation() -> list[tuple[str, str, str]]:
         pred = np.arctan2(p[1] - stations[:, 1], p[0] - stations[:, 0])
         return np.asarray(wrap_rad_pi(phi[k] - pred) * w)
 
-    t_scipy = timed(lambda: [least_squares(resid, np.zeros(2), args=(k,)) for k in range(200)])
+    t_scipy = timed(lambda: [least_squares(resid, np.zeros(2), args=(k,)) for k in range(200)], 1)
     batch_rate = B / t_batch
     single_rate = m / t_single
     scipy_rate = 200 / t_scipy

@@ -64,6 +64,7 @@ from cryptography.hazmat.primitives.asymmetric.utils import encode_dss_signature
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from bench_latency import SENSORS, calibrations, frame_for, vehicle
+from udpflood import send_paced
 
 from rfsas_hw.backend.service import BackendService
 from rfsas_hw.fleet.advisory import AdvisoryReceiver, AdvisorySink
@@ -482,21 +483,7 @@ def _forger(port: int, rate: int, seconds: float, version: int, q: MpQueue[int])
     else:  # the outsider has no nonce: a random key, so a wrong tag
         good = seal(signer, msg, rng.randbytes(32))
         payloads = [good[:-72] + rng.randbytes(72) for _ in range(512)]
-    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-    total = int(rate * seconds)
-    sent = 0
-    t0 = time.perf_counter()
-    while sent < total:
-        due = min(total, int((time.perf_counter() - t0) * rate))
-        if due <= sent:
-            time.sleep(0.0005)
-            continue
-        for _ in range(due - sent):
-            with contextlib.suppress(OSError):
-                sock.sendto(payloads[sent % 512], ("127.0.0.1", port))
-            sent += 1
-    q.put(round(sent / (time.perf_counter() - t0)))
-    sock.close()
+    q.put(send_paced(payloads, port, rate, seconds))
 
 
 def flood(version: int, rate: int, seconds: float, rcvbuf: int = 1 << 20) -> dict[str, Any]:

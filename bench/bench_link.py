@@ -21,7 +21,6 @@ Ratios are from this one run on a possibly shared machine.
 
 from __future__ import annotations
 
-import contextlib
 import hashlib
 import hmac
 import multiprocessing as mp
@@ -35,8 +34,10 @@ from multiprocessing.queues import Queue as MpQueue
 from typing import Any
 
 import numpy as np
+from benchtime import timed
 from cryptography.hazmat.primitives import hashes
 from cryptography.hazmat.primitives.asymmetric import ec
+from udpflood import send_paced
 
 from rfsas_hw.link import Publisher, Receiver, ReceiverConfig, Signer, TrustedKeys, open_transport
 from rfsas_hw.link.latency import LinkState
@@ -47,15 +48,6 @@ from rfsas_hw.records import BearingBatch, Pose
 NS = 1_000_000_000
 SENSOR_KEY = 0x5EED_CAFE
 BUDGET_MS = 100.0
-
-
-def timed(fn: Callable[[], object], repeat: int = 3) -> float:
-    best = float("inf")
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        fn()
-        best = min(best, time.perf_counter() - t0)
-    return best
 
 
 def table(title: str, rows: list[tuple[str, int, float]], unit: str) -> None:
@@ -234,22 +226,7 @@ def _flood(port: int, rate: int, seconds: float, kind: str, out: MpQueue[int]) -
         payloads += [
             b"RF\x01\x01\x00\x05rsu-1" + rng.randbytes(rng.randrange(0, 600)) for _ in range(256)
         ]
-    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-    total = int(rate * seconds)
-    sent = 0
-    t0 = time.perf_counter()
-    while sent < total:
-        due = min(total, int((time.perf_counter() - t0) * rate))
-        if due <= sent:
-            time.sleep(0.0005)
-            continue
-        for _ in range(due - sent):
-            with contextlib.suppress(OSError):  # a full socket buffer is the point of a flood
-                sock.sendto(payloads[sent % len(payloads)], ("127.0.0.1", port))
-            sent += 1
-    elapsed = time.perf_counter() - t0
-    sock.close()
-    out.put(round(sent / elapsed))
+    out.put(send_paced(payloads, port, rate, seconds))
 
 
 def flood(kind: str, rate: int, seconds: float, hz: float = 50.0) -> dict[str, Any]:

@@ -16,25 +16,15 @@ from __future__ import annotations
 
 import bisect
 import sys
-import time
-from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
+from benchtime import timed
 
 from rfsas_hw.df import estimate, load_calibration, ratio
 
 ROOT = Path(__file__).resolve().parent.parent
 GOAL_PER_S = 10_000_000
-
-
-def timed(fn: Callable[[], object], repeat: int = 3) -> float:
-    best = float("inf")
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        fn()
-        best = min(best, time.perf_counter() - t0)
-    return best
 
 
 def main() -> None:

@@ -33,6 +33,7 @@ from rfsas_hw.backend.service import (
     load_backend_config,
 )
 from rfsas_hw.backend.vehicle import VehicleFeed, VehicleState, load_vehicle
+from rfsas_hw.closing import ClosingContext
 from rfsas_hw.errors import ConfigError
 from rfsas_hw.fleet.certname import check_certificate_names
 from rfsas_hw.geo import SiteOrigin
@@ -154,7 +155,7 @@ class BackendAppConfig:
     """ROS 2 outputs (bag, Foxglove, DDS, odometry as vehicle state)."""
 
 
-class BackendApp:
+class BackendApp(ClosingContext):
     """The backend assembled from a :class:`BackendAppConfig`: every socket is open and
     every output started when the constructor returns; :meth:`close` ends them all.
 
@@ -410,9 +411,3 @@ class BackendApp:
         """Stop the dashboard and ROS 2 outputs, close the sinks (the JSON lines file
         gets its stats line), the vehicle feed and the receiver. Idempotent."""
         self._closing.close()
-
-    def __enter__(self) -> BackendApp:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()

@@ -27,6 +27,7 @@ from typing import Any
 
 import rfsas_hw.sources
 from rfsas_hw.apps.ros2 import Ros2Options, sensor_scene
+from rfsas_hw.closing import ClosingContext
 from rfsas_hw.df import load_calibration
 from rfsas_hw.df.fovguard import FovGuard
 from rfsas_hw.errors import ConfigError
@@ -256,7 +257,7 @@ def open_nonce_inbox(
     return inbox
 
 
-class SensorApp:
+class SensorApp(ClosingContext):
     """The sensor assembled from a :class:`SensorAppConfig`: the source is open and
     every output started when the constructor returns. :meth:`run` runs it once and
     closes the source and the outputs; :meth:`close` does so without running.
@@ -408,9 +409,3 @@ class SensorApp:
             self.source.close()
         finally:
             self.listeners.close()
-
-    def __enter__(self) -> SensorApp:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()

@@ -20,15 +20,14 @@ import logging
 import math
 import secrets
 import time
-from collections import Counter
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
 from rfsas_hw.errors import LinkError
 from rfsas_hw.link.cue import Cue, CueKind, Phy, band_of, sign_cue
-from rfsas_hw.link.sendcount import send_counters, send_problem
+from rfsas_hw.link.cue_sender import CueSender, CueSendStats
 from rfsas_hw.link.signing import Signer
 from rfsas_hw.link.transport import Transport
 from rfsas_hw.privacy.epochs import DEFAULT_EPOCH_S, NS_PER_S
@@ -38,22 +37,13 @@ log = logging.getLogger(__name__)
 
 
 @dataclass(slots=True)
-class CuerStats:
-    """Cues the backend sent, and emitters at risk it did not cue, by reason."""
-
-    cues: int = 0
-    skipped: Counter[str] = field(default_factory=Counter)
-    """``rate``, ``no_fix`` (no trusted fix), ``no_channel`` (never heard on Wi-Fi),
+class CuerStats(CueSendStats):
+    """Cues the backend sent, and emitters at risk it did not cue, by reason:
+    ``rate``, ``no_fix`` (no trusted fix), ``no_channel`` (never heard on Wi-Fi),
     ``invalid`` (a fix the cue cannot carry), ``send_error``."""
 
-    def as_dict(self) -> dict[str, int]:
-        """Flat counters."""
-        out = {"cues": self.cues}
-        out.update({f"skipped.{k}": v for k, v in sorted(self.skipped.items())})
-        return out
 
-
-class BackendCuer:
+class BackendCuer(CueSender):
     """Sends fix cues for emitters at risk (see the module docstring).
 
     Args:
@@ -174,24 +164,6 @@ class BackendCuer:
         self.seq = (self.seq + 1) % (1 << 32)
         self._sent[emitter] = now
         self.stats.cues += 1
-
-    def counters(self) -> dict[str, int]:
-        """Cues ``sent``, ``failed``, ``refused`` by the broker, emitters at risk not cued
-        as ``dropped.REASON`` (:func:`~rfsas_hw.link.sendcount.send_counters`)."""
-        st = self.stats
-        dropped = {k: v for k, v in st.skipped.items() if k != "send_error"}
-        return send_counters(st.cues, st.skipped["send_error"], self.transport.refused(), dropped)
-
-    def problem(self) -> str | None:
-        """Why no cue got through, or None (:func:`~rfsas_hw.link.sendcount.send_problem`)."""
-        st = self.stats
-        return send_problem("cues", st.cues, st.skipped["send_error"], self.transport.refused())
-
-    def close(self) -> None:
-        """Close the transport; idempotent."""
-        if not self._closed:
-            self._closed = True
-            self.transport.close()
 
 
 def _wifi(channel: int) -> bool:

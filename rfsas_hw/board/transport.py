@@ -21,9 +21,10 @@ import socket
 import threading
 import time
 import tty
+from abc import ABC, abstractmethod
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Protocol
+from typing import ClassVar, Protocol, Self
 
 from rfsas_hw.board.emulator import BoardEmulator
 from rfsas_hw.board.faults import FaultInjector, Faults
@@ -205,7 +206,41 @@ class RunnerStats:
     disconnects: int = 0
 
 
-class EmulatorRunner:
+class EndpointServer(ABC):
+    """Serves an emulated unit on an endpoint, in the caller's thread (:meth:`run`) or a
+    background one (:meth:`start`), until :meth:`stop`.
+
+    A subclass sets :attr:`endpoint`, calls ``super().__init__()`` and names its thread
+    in :attr:`thread_name`.
+    """
+
+    thread_name: ClassVar[str] = "emulator"
+    """Name of the background thread."""
+    endpoint: PtyEndpoint | TcpEndpoint
+
+    def __init__(self) -> None:
+        self.stop_event = threading.Event()
+        self._thread: threading.Thread | None = None
+
+    @abstractmethod
+    def run(self, duration_s: float | None = None) -> None:
+        """Serve until :meth:`stop` (or for ``duration_s`` seconds)."""
+
+    def start(self) -> Self:
+        """Run in a background thread (for tests and embedding)."""
+        self._thread = threading.Thread(target=self.run, name=self.thread_name, daemon=True)
+        self._thread.start()
+        return self
+
+    def stop(self) -> None:
+        """Stop the loop, wait for the thread, close the endpoint."""
+        self.stop_event.set()
+        if self._thread is not None:
+            self._thread.join(timeout=5)
+        self.endpoint.close()
+
+
+class EmulatorRunner(EndpointServer):
     """Runs a board emulator on an endpoint until stopped.
 
     Args:
@@ -216,6 +251,8 @@ class EmulatorRunner:
         faults: what to break.
         tick_s: loop period, seconds.
     """
+
+    thread_name = "board-emulator"
 
     def __init__(
         self,
@@ -233,8 +270,7 @@ class EmulatorRunner:
         self.injector = FaultInjector(self.faults)
         self.tick_s = tick_s
         self.stats = RunnerStats()
-        self.stop_event = threading.Event()
-        self._thread: threading.Thread | None = None
+        super().__init__()
 
     def run(self, duration_s: float | None = None) -> None:
         """Serve until :meth:`stop` (or for ``duration_s`` seconds)."""
@@ -297,16 +333,3 @@ class EmulatorRunner:
         self.stop_event.wait(down_s)
         self.endpoint.open()
         self.emulator.reboot()
-
-    def start(self) -> EmulatorRunner:
-        """Run in a background thread (for tests and embedding)."""
-        self._thread = threading.Thread(target=self.run, name="board-emulator", daemon=True)
-        self._thread.start()
-        return self
-
-    def stop(self) -> None:
-        """Stop the loop, wait for the thread, close the endpoint."""
-        self.stop_event.set()
-        if self._thread is not None:
-            self._thread.join(timeout=5)
-        self.endpoint.close()

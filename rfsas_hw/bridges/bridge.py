@@ -53,6 +53,8 @@ from rfsas_hw.bridges.config import (
     UnitSpec,
     backend_config,
 )
+from rfsas_hw.bridges.coords import SimFrame
+from rfsas_hw.closing import ClosingContext
 from rfsas_hw.df.calfile import load_calibration
 from rfsas_hw.df.calibration import Calibration
 from rfsas_hw.errors import ConfigError, SimulationError
@@ -111,6 +113,38 @@ class Entity:
     """Box length along the heading, metres."""
     width_m: float = 0.5
     """Box width, metres."""
+
+    @classmethod
+    def from_sim(
+        cls,
+        frame: SimFrame,
+        eid: str,
+        kind: EntityKind,
+        position: tuple[float, float],
+        heading: float,
+        *,
+        speed_mps: float,
+        length_m: float,
+        width_m: float,
+        reference: Literal["centre", "front-bumper"] | None = None,
+        origin: tuple[float, float] = (0.0, 0.0),
+    ) -> Entity:
+        """An entity from the simulator's position and heading in its ``frame``
+        (:meth:`~rfsas_hw.bridges.coords.SimFrame.to_rfsas`: ``reference`` and
+        ``origin`` as there; the length moves a front-bumper position to the centre)."""
+        e, n, h = frame.to_rfsas(
+            position[0], position[1], heading, length_m=length_m, reference=reference, origin=origin
+        )
+        return cls(
+            id=eid,
+            kind=kind,
+            x_m=float(e),
+            y_m=float(n),
+            heading_deg=float(h),
+            speed_mps=float(speed_mps),
+            length_m=float(length_m),
+            width_m=float(width_m),
+        )
 
 
 @dataclass
@@ -242,7 +276,7 @@ def fitted_calibration(sensor: SensorSpec, *, seed: int = 0) -> Calibration:
     return _FITTED[key]
 
 
-class Bridge:
+class Bridge(ClosingContext):
     """RF-SAS for a simulator (see the module docstring).
 
     Args:
@@ -571,9 +605,3 @@ class Bridge:
             self._write_truth({"record": "stats", **self.stats.as_dict()})
             self._truth.close()
             self._truth = None
-
-    def __enter__(self) -> Bridge:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()

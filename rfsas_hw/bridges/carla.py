@@ -104,17 +104,17 @@ def actor_entity(
     tf = actor.get_transform()
     bb = actor.bounding_box
     centre = tf.transform(bb.location)
-    e, n, h = FRAME.to_rfsas(centre.x, centre.y, tf.rotation.yaw, origin=origin)
     v = actor.get_velocity()
-    return Entity(
-        id=eid if eid is not None else f"{_kind(actor)}-{actor.id}",
-        kind=_kind(actor),
-        x_m=float(e),
-        y_m=float(n),
-        heading_deg=float(h),
-        speed_mps=float(math.hypot(v.x, v.y)),
+    return Entity.from_sim(
+        FRAME,
+        eid if eid is not None else f"{_kind(actor)}-{actor.id}",
+        _kind(actor),
+        (centre.x, centre.y),
+        tf.rotation.yaw,
+        speed_mps=math.hypot(v.x, v.y),
         length_m=max(2.0 * float(bb.extent.x), 0.1),
         width_m=max(2.0 * float(bb.extent.y), 0.1),
+        origin=origin,
     )
 
 

@@ -244,16 +244,15 @@ class HighwayAdapter:
         return known[1]
 
     def _entity(self, eid: str, kind: EntityKind, v: Any) -> Entity:
-        e, n, h = FRAME.to_rfsas(v.position[0], v.position[1], v.heading)
-        return Entity(
-            id=eid,
-            kind=kind,
-            x_m=float(e),
-            y_m=float(n),
-            heading_deg=float(h),
-            speed_mps=float(v.speed),
-            length_m=float(v.LENGTH),
-            width_m=float(v.WIDTH),
+        return Entity.from_sim(
+            FRAME,
+            eid,
+            kind,
+            (v.position[0], v.position[1]),
+            v.heading,
+            speed_mps=v.speed,
+            length_m=v.LENGTH,
+            width_m=v.WIDTH,
         )
 
     def read(self, env: Any) -> Snapshot:

@@ -279,16 +279,15 @@ def _classes() -> dict[str, type]:
 
 def _entity(eid: str, kind: EntityKind, obj: Any) -> Entity:
     x, y = obj.position
-    e, n, h = FRAME.to_rfsas(float(x), float(y), float(obj.heading_theta))
-    return Entity(
-        id=eid,
-        kind=kind,
-        x_m=float(e),
-        y_m=float(n),
-        heading_deg=float(h),
-        speed_mps=float(obj.speed),
-        length_m=float(obj.LENGTH),
-        width_m=float(obj.WIDTH),
+    return Entity.from_sim(
+        FRAME,
+        eid,
+        kind,
+        (float(x), float(y)),
+        float(obj.heading_theta),
+        speed_mps=obj.speed,
+        length_m=obj.LENGTH,
+        width_m=obj.WIDTH,
     )
 
 

@@ -179,20 +179,17 @@ class SumoAdapter:
 
     def _vehicle(self, vid: str, kind: EntityKind) -> Entity:
         v = self.sumo.vehicle
-        x, y = v.getPosition(vid)
-        length = float(v.getLength(vid))
-        e, n, h = self.frame.to_rfsas(
-            x, y, v.getAngle(vid), length_m=length, reference="front-bumper", origin=self.origin
-        )
-        return Entity(
-            id=vid,
-            kind=kind,
-            x_m=float(e),
-            y_m=float(n),
-            heading_deg=float(h),
-            speed_mps=float(v.getSpeed(vid)),
-            length_m=length,
-            width_m=float(v.getWidth(vid)),
+        return Entity.from_sim(
+            self.frame,
+            vid,
+            kind,
+            v.getPosition(vid),
+            v.getAngle(vid),
+            speed_mps=v.getSpeed(vid),
+            length_m=v.getLength(vid),
+            width_m=v.getWidth(vid),
+            reference="front-bumper",
+            origin=self.origin,
         )
 
     def vehicle_class(self, entity_id: str) -> str | None:
@@ -214,20 +211,18 @@ class SumoAdapter:
             others.append(self._vehicle(vid, _kind_of_vehicle(self._vclass[vid])))
         p = sumo.person
         for pid in p.getIDList():
-            x, y = p.getPosition(pid)
-            e, n, h = self.frame.to_rfsas(
-                x, y, p.getAngle(pid), reference="centre", origin=self.origin
-            )
             others.append(
-                Entity(
-                    id=f"person:{pid}",
-                    kind="pedestrian",
-                    x_m=float(e),
-                    y_m=float(n),
-                    heading_deg=float(h),
-                    speed_mps=float(p.getSpeed(pid)),
-                    length_m=float(p.getLength(pid)),
-                    width_m=float(p.getWidth(pid)),
+                Entity.from_sim(
+                    self.frame,
+                    f"person:{pid}",
+                    "pedestrian",
+                    p.getPosition(pid),
+                    p.getAngle(pid),
+                    speed_mps=p.getSpeed(pid),
+                    length_m=p.getLength(pid),
+                    width_m=p.getWidth(pid),
+                    reference="centre",
+                    origin=self.origin,
                 )
             )
         return ego, others

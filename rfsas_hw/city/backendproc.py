@@ -37,7 +37,6 @@ state in later steps would measure the track's age, not the path).
 
 from __future__ import annotations
 
-import logging
 import math
 import time
 from collections import deque
@@ -55,6 +54,7 @@ from rfsas_hw.backend.tracking import Tracker, predict_tracks
 from rfsas_hw.backend.triangulation import triangulate_batch
 from rfsas_hw.backend.vehicle import VehicleState
 from rfsas_hw.city.clock import SimClock, cpu_s
+from rfsas_hw.city.handshake import answer_failure
 from rfsas_hw.city.slots import SLOT_S
 from rfsas_hw.fleet.advisory import AdvisorySink
 from rfsas_hw.fleet.advisory_limits import AdvisoryLimits
@@ -75,8 +75,6 @@ __all__ = [
     "backend_main",
     "warm_kernels",
 ]
-
-log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -586,12 +584,6 @@ def backend_main(work: BackendWork, conn: Connection) -> None:
         counters.cpu_s = cpu_s()
         conn.send(("end", counters))
     except Exception as err:  # reported to the main process, which ends the run
-        log.debug("backend %s failed", work.backend_id, exc_info=True)
-        if backend is not None:
-            try:
-                backend.close()
-            except Exception:  # already failing: the first error is the one to report
-                log.debug("closing backend %s failed too", work.backend_id, exc_info=True)
-        conn.send(("error", f"backend {work.backend_id}: {type(err).__name__}: {err}"))
+        answer_failure(conn, f"backend {work.backend_id}", err, backend)
     finally:
         conn.close()

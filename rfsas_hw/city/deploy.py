@@ -34,6 +34,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from urllib.parse import parse_qs, urlsplit
 
+from rfsas_hw.closing import ClosingContext
 from rfsas_hw.errors import ConfigError, KeyStoreError, LinkError, MissingDependencyError
 from rfsas_hw.fleet.broker import BrokerFiles, client_url, write_broker_config
 from rfsas_hw.fleet.pki import CertPair
@@ -258,7 +259,7 @@ def find_mosquitto() -> str:
     return found
 
 
-class LocalBroker:
+class LocalBroker(ClosingContext):
     """mosquitto on the loopback listener of ``files``, logging to ``log``.
 
     Raises (from the constructor):
@@ -303,9 +304,3 @@ class LocalBroker:
             except subprocess.TimeoutExpired:
                 self.proc.kill()
                 self.proc.wait(5)
-
-    def __enter__(self) -> LocalBroker:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()

@@ -13,17 +13,24 @@ to load, then ``("ready",)``. The two phases are judged differently:
   (stuck, not slow).
 
 A warm-up does not eat into the start time of the processes waited for after it.
+
+A process that fails, then or later, answers ``("error", message)``
+(:func:`answer_failure`) and ends; the main process ends the run with the message.
 """
 
 from __future__ import annotations
 
+import logging
 import os
 import time
 from collections.abc import Callable, Mapping
 from multiprocessing.connection import Connection
 from pathlib import Path
+from typing import Protocol
 
 from rfsas_hw.errors import SimulationError
+
+log = logging.getLogger(__name__)
 
 START_TIMEOUT_S = 60.0
 """How long a process may take to be built and answer, wall seconds."""
@@ -32,7 +39,36 @@ WARM_CPU_S = 600.0
 POLL_S = 0.1
 """How often the waiting side looks at the pipe and calls its ``idle``, seconds."""
 
-__all__ = ["POLL_S", "START_TIMEOUT_S", "WARM_CPU_S", "proc_cpu_s", "wait_ready"]
+__all__ = [
+    "POLL_S",
+    "START_TIMEOUT_S",
+    "WARM_CPU_S",
+    "answer_failure",
+    "proc_cpu_s",
+    "wait_ready",
+]
+
+
+class _Closes(Protocol):
+    def close(self) -> object: ...
+
+
+def answer_failure(conn: Connection, name: str, err: Exception, built: _Closes | None) -> None:
+    """Answer a process's failure on its pipe: ``("error", "NAME: Type: text")``.
+
+    Call it while handling ``err``. ``built`` (what the process had built, or None)
+    is closed first; a failure to close it is only logged at debug level, since the
+    first error is the one to report. Never raises on its own account (the send
+    may raise as any send on ``conn``).
+    """
+    log.debug("%s failed", name, exc_info=True)
+    text = f"{name}: {type(err).__name__}: {err}"
+    if built is not None:
+        try:
+            built.close()
+        except Exception:  # already failing: the first error is the one to report
+            log.debug("closing %s failed too", name, exc_info=True)
+    conn.send(("error", text))
 
 
 def proc_cpu_s(pid: int) -> float:

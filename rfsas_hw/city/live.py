@@ -70,6 +70,7 @@ from rfsas_hw.city.tileworker import (
     worker_main,
 )
 from rfsas_hw.city.vehicles import Arrival, GatewayStats, GatewayWork, arrivals_of, gateway_main
+from rfsas_hw.closing import ClosingContext
 from rfsas_hw.errors import SimulationError
 from rfsas_hw.fleet.broker import BrokerFiles
 from rfsas_hw.fleet.tiles import TilePlan
@@ -333,7 +334,7 @@ def _backend_keys(deployment: Deployment) -> dict[str, bytes]:
     return out
 
 
-class DistributedRfsas:
+class DistributedRfsas(ClosingContext):
     """The distributed path of a district (see the module docstring).
 
     Args:
@@ -812,12 +813,6 @@ class DistributedRfsas:
             self.stats.advisories_sent += bc.advisories_sent
             self.stats.problems += bc.problems
         return self.stats
-
-    def __enter__(self) -> DistributedRfsas:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
 
 
 def _junction_groups(units: Sequence[Site]) -> tuple[tuple[str, ...], ...]:

@@ -46,7 +46,6 @@ joined by the broker, which is the deployment's own transport.
 from __future__ import annotations
 
 import datetime as dt
-import logging
 import math
 import threading
 import time
@@ -60,6 +59,7 @@ import numpy as np
 from rfsas_hw.bridges.bridge import device_mac
 from rfsas_hw.bridges.config import BridgeConfig, UnitSpec
 from rfsas_hw.city.clock import SimClock, cpu_s
+from rfsas_hw.city.handshake import answer_failure
 from rfsas_hw.city.slots import SLOT_S, SlotSender
 from rfsas_hw.df.calibration import Calibration
 from rfsas_hw.df.fovchannels import ChannelConsistency
@@ -94,8 +94,6 @@ frames do not depend on it; each generator's call has a fixed cost (a few dozen 
 calls), so generating 4 s at a time costs a quarter of generating 1 s at a time."""
 
 __all__ = ["Snapshot", "TileWork", "TwinWorker", "unit_sensor", "utc_text", "worker_main"]
-
-log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -537,13 +535,6 @@ def worker_main(work: TileWork, conn: Connection) -> None:
         counters.cpu_s = cpu_s()
         conn.send(("end", counters))
     except Exception as err:  # reported to the main process, which ends the run
-        log.debug("worker %s failed", work.worker_id, exc_info=True)
-        text = f"{type(err).__name__}: {err}"
-        if worker is not None:
-            try:
-                worker.close()
-            except Exception:  # already failing: the first error is the one to report
-                log.debug("closing worker %s failed too", work.worker_id, exc_info=True)
-        conn.send(("error", f"twin worker {work.worker_id}: {text}"))
+        answer_failure(conn, f"twin worker {work.worker_id}", err, worker)
     finally:
         conn.close()

@@ -26,7 +26,6 @@ each, which pickles in a fraction of the time the decoded messages took.
 from __future__ import annotations
 
 import contextlib
-import logging
 import select
 import threading
 import time
@@ -40,6 +39,7 @@ from cryptography.hazmat.primitives import serialization
 from cryptography.hazmat.primitives.asymmetric import ec
 
 from rfsas_hw.city.clock import SimClock, cpu_s
+from rfsas_hw.city.handshake import answer_failure
 from rfsas_hw.fleet.advisory import (
     AdvisoryMessage,
     AdvisoryReceiver,
@@ -67,8 +67,6 @@ __all__ = [
     "gateway_main",
     "most_severe",
 ]
-
-log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True, slots=True)
@@ -296,12 +294,6 @@ def gateway_main(work: GatewayWork, conn: Connection) -> None:
         gateway = None
         conn.send(("end", totals, cpu_s()))
     except Exception as err:  # reported to the main process, which ends the run
-        log.debug("the vehicles' gateway failed", exc_info=True)
-        if gateway is not None:
-            try:
-                gateway.close()
-            except Exception:  # already failing: the first error is the one to report
-                log.debug("closing the gateway failed too", exc_info=True)
-        conn.send(("error", f"vehicles' gateway: {type(err).__name__}: {err}"))
+        answer_failure(conn, "vehicles' gateway", err, gateway)
     finally:
         conn.close()

@@ -23,9 +23,9 @@ import heapq
 import pickle
 import tempfile
 from collections.abc import Iterable, Iterator
-from types import TracebackType
-from typing import IO, Any, Self
+from typing import IO, Any
 
+from rfsas_hw.closing import ClosingContext
 from rfsas_hw.errors import OutputError
 
 __all__ = ["SPILL_BYTES", "ExternalSort", "Spool"]
@@ -54,7 +54,7 @@ def _temporary() -> IO[bytes]:
         raise _failed(err) from err
 
 
-class Spool:
+class Spool(ClosingContext):
     """Bytes written now and read back once, in memory up to ``max_bytes``.
 
     Args:
@@ -112,17 +112,6 @@ class Spool:
             self._file.close()
             self._file = None
 
-    def __enter__(self) -> Self:
-        return self
-
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
-        self.close()
-
 
 def _read_run(f: IO[bytes]) -> Iterator[tuple[SortKey, int, bytes]]:
     f.seek(0)
@@ -134,7 +123,7 @@ def _read_run(f: IO[bytes]) -> Iterator[tuple[SortKey, int, bytes]]:
         yield item
 
 
-class ExternalSort:
+class ExternalSort(ClosingContext):
     """Sort ``(key, bytes)`` items with at most about ``max_bytes`` of them in memory.
 
     Items with equal keys come out in the order they were added (the sort is
@@ -216,14 +205,3 @@ class ExternalSort:
         for f in self._files:
             f.close()
         self._files = []
-
-    def __enter__(self) -> Self:
-        return self
-
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
-        self.close()

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import datetime as dt
 import ipaddress
-import os
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -21,6 +20,7 @@ from cryptography.hazmat.primitives.asymmetric import ec
 from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
 
 from rfsas_hw.errors import KeyStoreError
+from rfsas_hw.link.keys import write_new
 
 CA_NAME = "rfsas broker CA"
 
@@ -35,15 +35,7 @@ class CertPair:
 
 def _write(path: Path, data: bytes, mode: int) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
-    try:
-        fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, mode)
-    except FileExistsError as err:
-        raise KeyStoreError(f"{path}: already exists; refusing to overwrite") from err
-    except OSError as err:
-        raise KeyStoreError(f"{path}: cannot create: {err.strerror or err}") from err
-    with os.fdopen(fd, "wb") as fh:
-        os.fchmod(fh.fileno(), mode)
-        fh.write(data)
+    write_new(path, data, mode)
 
 
 def _key_pem(key: ec.EllipticCurvePrivateKey) -> bytes:

@@ -13,17 +13,16 @@ import logging
 import math
 import secrets
 import time
-from collections import Counter
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
 from rfsas_hw.angles import wrap_deg_360
 from rfsas_hw.errors import LinkError
 from rfsas_hw.link.cue import Cue, CueKind, Phy, band_of, sign_cue
+from rfsas_hw.link.cue_sender import CueSender, CueSendStats
 from rfsas_hw.link.preauth import NonceSource, derive_key
-from rfsas_hw.link.sendcount import send_counters, send_problem
 from rfsas_hw.link.signing import Signer
 from rfsas_hw.link.transport import Transport
 from rfsas_hw.privacy.epochs import DEFAULT_EPOCH_S, NS_PER_S
@@ -34,22 +33,13 @@ log = logging.getLogger(__name__)
 
 
 @dataclass(slots=True)
-class CuePublisherStats:
-    """Cues sent, and bearings not turned into cues by reason."""
-
-    cues: int = 0
-    skipped: Counter[str] = field(default_factory=Counter)
-    """``rate`` (an emitter cued less than ``every_s`` ago), ``invalid``,
-    ``not_wifi`` (a channel number outside the Wi-Fi bands), ``send_error``."""
-
-    def as_dict(self) -> dict[str, int]:
-        """Flat counters."""
-        out = {"cues": self.cues}
-        out.update({f"skipped.{k}": v for k, v in sorted(self.skipped.items())})
-        return out
+class CuePublisherStats(CueSendStats):
+    """Cues sent, and bearings not turned into cues by reason: ``rate`` (an emitter
+    cued less than ``every_s`` ago), ``invalid``, ``not_wifi`` (a channel number
+    outside the Wi-Fi bands), ``send_error``."""
 
 
-class CuePublisher:
+class CuePublisher(CueSender):
     """Signs cues for a sensor's bearings and sends them (a ``BearingListener``).
 
     Args:
@@ -166,21 +156,3 @@ class CuePublisher:
         return (
             f"send cues {url()}" if callable(url) else f"send cues {type(self.transport).__name__}"
         )
-
-    def counters(self) -> dict[str, int]:
-        """Cues ``sent``, ``failed``, ``refused`` by the broker, ``dropped.REASON``
-        (:func:`~rfsas_hw.link.sendcount.send_counters`)."""
-        st = self.stats
-        dropped = {k: v for k, v in st.skipped.items() if k != "send_error"}
-        return send_counters(st.cues, st.skipped["send_error"], self.transport.refused(), dropped)
-
-    def problem(self) -> str | None:
-        """Why no cue got through, or None (:func:`~rfsas_hw.link.sendcount.send_problem`)."""
-        st = self.stats
-        return send_problem("cues", st.cues, st.skipped["send_error"], self.transport.refused())
-
-    def close(self) -> None:
-        """Close the transport; idempotent."""
-        if not self._closed:
-            self._closed = True
-            self.transport.close()

@@ -167,7 +167,13 @@ def _kx_bytes(key: x25519.X25519PublicKey) -> bytes:
     return key.public_bytes(serialization.Encoding.Raw, serialization.PublicFormat.Raw)
 
 
-def _write_new(path: Path, data: bytes, mode: int) -> None:
+def write_new(path: Path, data: bytes, mode: int) -> None:
+    """Write ``data`` to a file that must not exist yet, with permissions ``mode``
+    exactly (whatever the umask): a key never lands in a file someone else made.
+
+    Raises:
+        KeyStoreError: the file exists, or cannot be created.
+    """
     try:
         fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, mode)
     except FileExistsError as err:
@@ -442,15 +448,15 @@ class KeyStore:
         sign = ec.generate_private_key(ec.SECP256R1()) if signing else None
         kx = x25519.X25519PrivateKey.generate()
         if sign is not None:
-            _write_new(p / SIGN_FILE, _pem(sign), 0o600)
-        _write_new(p / KX_FILE, _pem(kx), 0o600)
+            write_new(p / SIGN_FILE, _pem(sign), 0o600)
+        write_new(p / KX_FILE, _pem(kx), 0o600)
         card = KeyCard(
             ident,
             cast(Role, role),
             None if sign is None else sign.public_key(),
             kx.public_key(),
         )
-        _write_new(p / CARD_FILE, card.to_yaml().encode(), 0o644)
+        write_new(p / CARD_FILE, card.to_yaml().encode(), 0o644)
         return cls(p, card)
 
     @classmethod

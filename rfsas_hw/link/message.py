@@ -298,6 +298,24 @@ def peek_prefix(datagram: bytes, max_datagram: int = MAX_DATAGRAM) -> tuple[int,
     Raises:
         MessageFormatError: with ``reason`` naming the failed check.
     """
+    size, version, kind, flags, sender_len = _unpack_prefix(datagram, max_datagram)
+    _check_version(version)
+    _check_flags(flags)
+    end = _PREFIX.size + sender_len
+    if size < end:
+        raise MessageFormatError("truncated", f"{size} bytes, sender id needs {end}")
+    sender = bytes(datagram[_PREFIX.size : end])
+    _check_sender(sender)
+    return version, kind, sender.decode("ascii")
+
+
+def _unpack_prefix(datagram: bytes, max_datagram: int) -> tuple[int, int, int, int, int]:
+    """(size, version, type, flags, sender id length) of a datagram whose size and
+    magic pass.
+
+    Raises:
+        MessageFormatError: ``oversized``, ``truncated`` or ``bad_magic``.
+    """
     size = len(datagram)
     if size > max_datagram:
         raise MessageFormatError("oversized", f"{size} bytes > {max_datagram}")
@@ -306,19 +324,24 @@ def peek_prefix(datagram: bytes, max_datagram: int = MAX_DATAGRAM) -> tuple[int,
     magic, version, kind, flags, sender_len = _PREFIX.unpack_from(datagram)
     if magic != MAGIC:
         raise MessageFormatError("bad_magic", f"starts with {bytes(datagram[:2])!r}")
+    return size, version, kind, flags, sender_len
+
+
+def _check_version(version: int) -> None:
     if version not in VERSIONS:
         raise MessageFormatError(
             "bad_version", f"version {version}, this reader speaks {', '.join(map(str, VERSIONS))}"
         )
+
+
+def _check_flags(flags: int) -> None:
     if flags != 0:
         raise MessageFormatError("malformed", f"reserved flags {flags:#04x} set")
-    end = _PREFIX.size + sender_len
-    if size < end:
-        raise MessageFormatError("truncated", f"{size} bytes, sender id needs {end}")
-    sender = bytes(datagram[_PREFIX.size : end])
+
+
+def _check_sender(sender: bytes) -> None:
     if not _SENDER_RE.fullmatch(sender):
         raise MessageFormatError("malformed", f"sender id {sender!r} is not [A-Za-z0-9._-]{{1,32}}")
-    return version, kind, sender.decode("ascii")
 
 
 def _bad_rows(rows: Sequence[Row]) -> str | None:
@@ -350,36 +373,22 @@ def peek(datagram: bytes, max_datagram: int = MAX_DATAGRAM) -> Peeked:
     Raises:
         MessageFormatError: with ``reason`` naming the failed check.
     """
-    size = len(datagram)
-    if size > max_datagram:
-        raise MessageFormatError("oversized", f"{size} bytes > {max_datagram}")
-    if size < _PREFIX.size:
-        raise MessageFormatError("truncated", f"{size} bytes, header needs {_PREFIX.size}")
-    magic, version, kind, flags, sender_len = _PREFIX.unpack_from(datagram)
-    if magic != MAGIC:
-        raise MessageFormatError("bad_magic", f"starts with {bytes(datagram[:2])!r}")
+    size, version, kind, flags, sender_len = _unpack_prefix(datagram, max_datagram)
     if kind == TYPE_NONCE and version == VERSION:
         return Peeked(TYPE_NONCE, "", 0)
-    if version not in VERSIONS:
-        raise MessageFormatError(
-            "bad_version", f"version {version}, this reader speaks {', '.join(map(str, VERSIONS))}"
-        )
+    _check_version(version)
     if kind == TYPE_NONCE:
         return Peeked(TYPE_NONCE, "", 0)
     if kind != TYPE_SAFETY:
         raise MessageFormatError("bad_type", f"message type {kind}")
-    if flags != 0:
-        raise MessageFormatError("malformed", f"reserved flags {flags:#04x} set")
+    _check_flags(flags)
     fixed_at = _PREFIX.size + sender_len
     if size < fixed_at + _FIXED.size:
         raise MessageFormatError("truncated", f"{size} bytes, header needs {fixed_at + 33}")
     raw = bytes(datagram[_PREFIX.size : fixed_at])
     sender = _SENDER_IDS.get(raw)
     if sender is None:
-        if not _SENDER_RE.fullmatch(raw):
-            raise MessageFormatError(
-                "malformed", f"sender id {raw!r} is not [A-Za-z0-9._-]{{1,32}}"
-            )
+        _check_sender(raw)
         if len(_SENDER_IDS) >= _SENDER_IDS_KEPT:
             _SENDER_IDS.clear()
         sender = _SENDER_IDS[raw] = raw.decode("ascii")

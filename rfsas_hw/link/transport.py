@@ -26,10 +26,10 @@ import time
 from abc import ABC, abstractmethod
 from collections.abc import Sequence
 from dataclasses import dataclass
-from types import TracebackType
-from typing import Any, Literal, Self
+from typing import Any, Literal
 from urllib.parse import parse_qs, urlsplit
 
+from rfsas_hw.closing import ClosingContext
 from rfsas_hw.errors import LinkError
 
 RECV_BUFFER = 65_536
@@ -104,7 +104,7 @@ def parse_url(url: str) -> UdpEndpoint:
     return UdpEndpoint(parts.hostname, port, iface, ttl, rcvbuf)
 
 
-class Transport(ABC):
+class Transport(ClosingContext, ABC):
     """Moves whole datagrams. ``send`` for publishers, ``recv`` for receivers."""
 
     @abstractmethod
@@ -157,17 +157,6 @@ class Transport(ABC):
         """Every descriptor whose readability means :meth:`recv_from` may have
         something (for ``select``); by default :meth:`fileno`."""
         return [self.fileno()]
-
-    def __enter__(self) -> Self:
-        return self
-
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
-        self.close()
 
 
 class UdpTransport(Transport):

@@ -14,12 +14,12 @@ from abc import ABC, abstractmethod
 from collections import Counter
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
-from types import TracebackType
 from typing import Any, ClassVar, Generic, Literal, TypeVar
 
 import numpy as np
 import numpy.typing as npt
 
+from rfsas_hw.closing import ClosingContext
 from rfsas_hw.errors import RfsasError
 from rfsas_hw.records import BearingBatch, ObservationBatch
 
@@ -72,7 +72,7 @@ class SourceStats:
         }
 
 
-class Source(ABC, Generic[BatchT]):
+class Source(ClosingContext, ABC, Generic[BatchT]):
     """A stream of batches from a capture, a device or a model.
 
     Most sources yield :class:`ObservationBatch` (raw MAC + RSSI per antenna);
@@ -195,17 +195,6 @@ class Source(ABC, Generic[BatchT]):
             return
         self._closed = True
         self._close()
-
-    def __enter__(self) -> Source[BatchT]:
-        return self
-
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
-        self.close()
 
     def __del__(self) -> None:
         if not getattr(self, "_closed", True):

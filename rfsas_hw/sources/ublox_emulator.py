@@ -11,11 +11,10 @@ made-up example values given by the user; the emulator keeps nothing.
 from __future__ import annotations
 
 import random
-import threading
 import time
 from dataclasses import dataclass
 
-from rfsas_hw.board.transport import PtyEndpoint, TcpEndpoint
+from rfsas_hw.board.transport import EndpointServer, PtyEndpoint, TcpEndpoint
 from rfsas_hw.errors import ConfigError
 from rfsas_hw.sources.ublox import FIELD_COUNTS
 
@@ -132,7 +131,7 @@ class UbloxEmulator:
         return ("\r\n".join(out) + "\r\n").encode("ascii")
 
 
-class UbloxServer:
+class UbloxServer(EndpointServer):
     """Serves an emulator on a pty or TCP port from a thread (or the caller's loop).
 
     Args:
@@ -140,6 +139,8 @@ class UbloxServer:
         endpoint: where the host connects.
         rate_hz: events per tag per second.
     """
+
+    thread_name = "ublox-emulator"
 
     def __init__(
         self, emulator: UbloxEmulator, endpoint: PtyEndpoint | TcpEndpoint, rate_hz: float = 10.0
@@ -150,8 +151,7 @@ class UbloxServer:
         self.endpoint = endpoint
         self.period_s = 1.0 / rate_hz
         self.bytes_sent = 0
-        self.stop_event = threading.Event()
-        self._thread: threading.Thread | None = None
+        super().__init__()
 
     def run(self, duration_s: float | None = None) -> None:
         """Write the start-up line, then one tick per period until stopped."""
@@ -170,16 +170,3 @@ class UbloxServer:
             next_t += self.period_s
             if next_t < now - 1.0:  # fell far behind: do not burst to catch up
                 next_t = now + self.period_s
-
-    def start(self) -> UbloxServer:
-        """Run in a background thread."""
-        self._thread = threading.Thread(target=self.run, name="ublox-emulator", daemon=True)
-        self._thread.start()
-        return self
-
-    def stop(self) -> None:
-        """Stop and close the endpoint."""
-        self.stop_event.set()
-        if self._thread is not None:
-            self._thread.join(timeout=5)
-        self.endpoint.close()

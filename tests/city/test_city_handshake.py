@@ -13,7 +13,7 @@ from multiprocessing.connection import Connection
 
 import pytest
 
-from rfsas_hw.city.handshake import POLL_S, wait_ready
+from rfsas_hw.city.handshake import POLL_S, answer_failure, wait_ready
 from rfsas_hw.errors import SimulationError
 
 
@@ -119,3 +119,27 @@ def test_silence_exit_and_errors_before_ready(pipes: list[tuple[Connection, Conn
     odd_end.send(("step", 1.0))
     with pytest.raises(SimulationError, match=r"twin-1: \('step', 1.0\)"):
         wait_ready({"twin-1": (odd, 1)})
+
+
+class _BrokenOnClose:
+    def __init__(self) -> None:
+        self.closed = 0
+
+    def close(self) -> None:
+        self.closed += 1
+        raise OSError("broker gone")
+
+
+def test_a_failure_is_answered_with_the_first_error_after_closing_what_was_built(
+    pipes: list[tuple[Connection, Connection]],
+) -> None:
+    ours, theirs = _pipe(pipes)
+    built = _BrokenOnClose()
+    try:
+        raise KeyError("veh-7")
+    except KeyError as err:
+        answer_failure(theirs, "backend be-1", err, built)
+    assert built.closed == 1
+    with pytest.raises(SimulationError) as failed:
+        wait_ready({"backend be-1": (ours, 0)}, cpu_s=lambda pid: 0.0)
+    assert str(failed.value) == "backend be-1: KeyError: 'veh-7'"

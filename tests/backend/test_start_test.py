@@ -16,6 +16,7 @@ from rfsas_hw.backend.service import BackendConfig, BackendService, load_backend
 from rfsas_hw.backend.start_test import StartTestConfig, StartWindow
 from rfsas_hw.backend.stop_go import StopGoConfig
 from rfsas_hw.backend.tracking import TrackerConfig
+from rfsas_hw.bridges.config import BACKEND_PROFILES
 from rfsas_hw.errors import BackendError, ConfigError
 from rfsas_hw.records import BearingBatch, Pose
 
@@ -158,3 +159,10 @@ def test_settings_are_checked_and_read_from_a_file(tmp_path: Path) -> None:
     window.add(S, 0.0, np.array([0.1, 0.0]), 1e-3, np.zeros(2), np.eye(2), 0.5, "a")
     with pytest.raises(BackendError, match="before the newest"):
         window.add(0, 0.0, np.array([0.1, 0.0]), 1e-3, np.zeros(2), np.eye(2), 0.5, "a")
+
+
+def test_only_the_matrix_profile_runs_it() -> None:
+    users = {n for n, p in BACKEND_PROFILES.items() if p.bearings.start_test is not None}
+    assert users == {"urban-intersection-bearings"}
+    profile = BACKEND_PROFILES["urban-intersection-bearings"]
+    assert profile.tracker.stop_go is not None  # the test runs on the standing model

@@ -51,6 +51,14 @@ since the last step is applied, oldest first, each at its own capture time
 (:meth:`BearingTracker.take` keeps one step's bearings): for units whose readings
 of one burst have independent errors (measured for the Euro NCAP matrix's,
 docs/ncap-log.md, section J) the track then sees a start sooner.
+
+With ``start_test`` set, a track with a standing model (``tracker.stop_go``)
+also runs a change test on its last bearings while it believes the target
+stands (:mod:`rfsas_hw.backend.start_test`): when the readings show that the
+target has left its standing position, the moving model restarts from the
+test's fit over the window (position and velocity with the fit's covariance)
+and takes the probability ``moving_prob``; the standing model restarts at the
+same position.
 """
 
 from __future__ import annotations
@@ -66,7 +74,8 @@ from scipy.special import log_ndtr
 
 from rfsas_hw.angles import wrap_deg_180
 from rfsas_hw.backend.association import Associator, StationBearing
-from rfsas_hw.backend.stop_go import Modes, combine, predict_modes, reweigh
+from rfsas_hw.backend.start_test import StartTestConfig, StartWindow
+from rfsas_hw.backend.stop_go import MOVING, STANDING, Modes, combine, predict_modes, reweigh
 from rfsas_hw.backend.tracking import NS_PER_S, Tracker
 from rfsas_hw.df.fovrule import EDGE_SIGMAS
 from rfsas_hw.errors import BackendError
@@ -124,6 +133,10 @@ class BearingUpdateConfig:
             ``all``: every bearing it reported since the last step, each at its own
             time (a burst's frames as independent measurements: only for units whose
             errors within a burst are uncorrelated).
+        start_test: a change test on the tracks that believe their target stands,
+            which restarts the velocity when it fires (module docstring,
+            :mod:`rfsas_hw.backend.start_test`; None: no test). Only tracks with a
+            standing model (``tracker.stop_go``) run it.
 
     Raises:
         BackendError: a non-positive gate, iteration count or loss count, a
@@ -140,6 +153,7 @@ class BearingUpdateConfig:
     fov_deg: tuple[float, float] | None = None
     edge_sigmas: float = EDGE_SIGMAS
     readings: Readings = "newest"
+    start_test: StartTestConfig | None = None
 
     def __post_init__(self) -> None:
         if not self.gate_sigmas > 0:
@@ -183,6 +197,11 @@ class BearingUpdate:
     """False when the bearing was outside the gate (or the target sat on the sensor)."""
     innovation_sd_rad: float = math.nan
     """The innovation's predicted one-sigma, radians (NaN: the target sat on the sensor)."""
+    gradient: Array | None = None
+    """The predicted reading's gradient on the state at the prediction, rad per unit
+    (None: the target sat on the sensor)."""
+    reading_var_rad2: float = math.nan
+    """The reading's own variance at the prediction, rad² (censoring included)."""
 
     @property
     def log_likelihood(self) -> float:
@@ -303,7 +322,7 @@ def bearing_update(
     nu0 = _wrap(z - h0)
     ratio = nu0 / math.sqrt(S0)
     if abs(ratio) > config.gate_sigmas:
-        return BearingUpdate(x0, P, ratio, False, math.sqrt(S0))
+        return BearingUpdate(x0, P, ratio, False, math.sqrt(S0), H0, R0)
     x, H, PH, S, R, K = x0, H0, PH0, S0, R0, PH0 / S0
     for i in range(config.iterations):
         if i:
@@ -320,7 +339,7 @@ def bearing_update(
         x = x0 + K * nu
     A = np.eye(4) - np.outer(K, H)
     P_new = A @ P @ A.T + R * np.outer(K, K)
-    return BearingUpdate(x, 0.5 * (P_new + P_new.T), ratio, True, math.sqrt(S0))
+    return BearingUpdate(x, 0.5 * (P_new + P_new.T), ratio, True, math.sqrt(S0), H0, R0)
 
 
 @dataclass(slots=True)
@@ -343,6 +362,8 @@ class BearingTrackerStats:
     """Bearings with a non-finite azimuth or a sigma that is not positive, not applied."""
     lost: int = 0
     """Tracks dropped after ``lost_after`` gated bearings in a row."""
+    starts: int = 0
+    """Standing tracks whose velocity the start test restarted."""
 
     def as_dict(self) -> dict[str, int]:
         """The counters, flat."""
@@ -355,6 +376,7 @@ class BearingTrackerStats:
             "fix_off_boresight": self.fix_off_boresight,
             "invalid": self.invalid,
             "lost": self.lost,
+            "starts": self.starts,
         }
 
 
@@ -377,6 +399,8 @@ class BearingTracker:
     """Per emitter, gated bearings in a row."""
     _pending: dict[int, list[StationBearing]] = field(default_factory=dict)
     """Per emitter, the bearings taken since the last step (``readings: all`` only)."""
+    _windows: dict[int, StartWindow] = field(default_factory=dict)
+    """Per emitter, the start test's readings (``start_test`` only)."""
 
     def take(self, batch: BearingBatch, pose: Pose) -> None:
         """Keep the bearings one sensor measured from ``pose`` until the next :meth:`step`
@@ -417,6 +441,7 @@ class BearingTracker:
         for emitter in [e for e in self._used if e not in self.tracker.tracks]:
             del self._used[emitter]
             self._missed.pop(emitter, None)
+            self._windows.pop(emitter, None)
         pending, self._pending = self._pending, {}
         for emitter in list(self.tracker.tracks):
             if self.config.readings == "all":
@@ -509,8 +534,13 @@ class BearingTracker:
                     del self.tracker.tracks[emitter]
                     del self._used[emitter]
                     del self._missed[emitter]
+                    self._windows.pop(emitter, None)
                     self.stats.lost += 1
                     return
+                if modes is None or not self._watch(emitter, b, xs, Ps, None, c):
+                    continue
+                self._missed[emitter] = 0
+                applied.append(b.sensor)
                 continue
             self._missed[emitter] = 0
             self.stats.applied += 1
@@ -536,7 +566,73 @@ class BearingTracker:
                     modes.config,
                 )
                 track.state, track.cov = combine(track.modes.states, track.modes.covs, probs)
+                self._watch(emitter, b, xs, Ps, each[STANDING], c)
             applied.append(b.sensor)
         if applied:
             track.updates += 1
             track.sensors = tuple(sorted(set(applied)))
+
+    def _watch(
+        self,
+        emitter: int,
+        b: StationBearing,
+        xs: Array,
+        Ps: Array,
+        standing: BearingUpdate | None,
+        predicted_probs: Array,
+    ) -> bool:
+        """The start test on bearing ``b`` of a track with a standing model, given the
+        models' predictions at its time (``xs``, ``Ps``) and the standing model's
+        update by it (None: the bearing was gated; it is then computed here) and the
+        models' predicted probabilities. When
+        the test fires the track restarts moving at ``b``'s time; returns whether it
+        did."""
+        cfg = self.config.start_test
+        track = self.tracker.tracks[emitter]
+        if cfg is None or track.modes is None:
+            return False
+        if standing is None:
+            free = replace(self.config, gate_sigmas=math.inf)
+            standing = bearing_update(
+                xs[STANDING],
+                Ps[STANDING],
+                (b.x_m, b.y_m),
+                b.azimuth_deg,
+                b.sigma_deg,
+                free,
+                b.heading_deg,
+            )
+        if standing.gradient is None:  # the target sat on the sensor
+            return False
+        window = self._windows.setdefault(emitter, StartWindow(cfg))
+        window.add(
+            b.t_ns,
+            standing.innovation_sigmas * standing.innovation_sd_rad,
+            standing.gradient,
+            standing.reading_var_rad2,
+            xs[STANDING],
+            Ps[STANDING],
+            float(predicted_probs[STANDING]),
+            b.sensor,
+        )
+        fit = window.test()
+        if fit is None:
+            return False
+        window.clear()
+        modes = track.modes
+        sigma2 = modes.config.standing_sigma_mps**2
+        still = np.zeros(4)
+        still[:2] = fit.state[:2]
+        still_cov = np.zeros((4, 4))
+        still_cov[:2, :2] = fit.cov[:2, :2]
+        still_cov[2, 2] = still_cov[3, 3] = sigma2
+        states = np.empty((2, 4))
+        covs = np.empty((2, 4, 4))
+        states[MOVING], covs[MOVING] = fit.state, fit.cov
+        states[STANDING], covs[STANDING] = still, still_cov
+        probs = np.array([cfg.moving_prob, 1.0 - cfg.moving_prob])
+        track.modes = Modes(states, covs, probs, modes.config)
+        track.state, track.cov = combine(states, covs, probs)
+        track.t_ns = b.t_ns
+        self.stats.starts += 1
+        return True

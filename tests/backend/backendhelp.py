@@ -25,3 +25,19 @@ def bearing_towards(
         np.array([11], np.int16),
         np.array([emitter], np.uint64),
     )
+
+
+def one_bearing(
+    sensor_id: str, t_ns: int, azimuth_deg: float, sigma_deg: float, emitter: int
+) -> BearingBatch:
+    """One bearing as measured: ``azimuth_deg`` (compass degrees) with ``sigma_deg``,
+    SNR 20 dB, channel 6."""
+    return BearingBatch(
+        sensor_id=sensor_id,
+        t_ns=np.array([t_ns], np.int64),
+        azimuth_deg=np.array([azimuth_deg]),
+        sigma_deg=np.array([sigma_deg]),
+        snr_db=np.array([20.0]),
+        channel=np.array([6], np.int16),
+        emitter=np.array([emitter], np.uint64),
+    )

@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from backendhelp import one_bearing
 
 from rfsas_hw.backend.association import AssociationConfig
 from rfsas_hw.backend.bearing_tracking import BearingUpdateConfig, bearing_update
@@ -23,15 +24,7 @@ RSU = (4.0, 7.0)
 
 
 def _batch(sensor: str, t_ns: int, azimuth_deg: float, sigma_deg: float) -> BearingBatch:
-    return BearingBatch(
-        sensor_id=sensor,
-        t_ns=np.array([t_ns], np.int64),
-        azimuth_deg=np.array([azimuth_deg]),
-        sigma_deg=np.array([sigma_deg]),
-        snr_db=np.array([20.0]),
-        channel=np.array([6], np.int16),
-        emitter=np.array([EMITTER], np.uint64),
-    )
+    return one_bearing(sensor, t_ns, azimuth_deg, sigma_deg, EMITTER)
 
 
 def _azimuth_deg(frm: np.ndarray, to: np.ndarray) -> float:

@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from backendhelp import one_bearing
 
 from rfsas_hw.backend.association import AssociationConfig
 from rfsas_hw.backend.bearing_tracking import BearingUpdateConfig
@@ -29,15 +30,7 @@ STOP_GO: StopGoConfig = _MATRIX
 
 
 def _batch(sensor: str, t_ns: int, azimuth_deg: float) -> BearingBatch:
-    return BearingBatch(
-        sensor_id=sensor,
-        t_ns=np.array([t_ns], np.int64),
-        azimuth_deg=np.array([azimuth_deg]),
-        sigma_deg=np.array([SIGMA_DEG]),
-        snr_db=np.array([20.0]),
-        channel=np.array([6], np.int16),
-        emitter=np.array([EMITTER], np.uint64),
-    )
+    return one_bearing(sensor, t_ns, azimuth_deg, SIGMA_DEG, EMITTER)
 
 
 def _run(

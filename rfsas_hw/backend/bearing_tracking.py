@@ -537,7 +537,7 @@ class BearingTracker:
                     self._windows.pop(emitter, None)
                     self.stats.lost += 1
                     return
-                if modes is None or not self._watch(emitter, b, xs, Ps, None, c):
+                if modes is None or not self._watch(emitter, b, xs, Ps, None, c, free):
                     continue
                 self._missed[emitter] = 0
                 applied.append(b.sensor)
@@ -566,7 +566,7 @@ class BearingTracker:
                     modes.config,
                 )
                 track.state, track.cov = combine(track.modes.states, track.modes.covs, probs)
-                self._watch(emitter, b, xs, Ps, each[STANDING], c)
+                self._watch(emitter, b, xs, Ps, each[STANDING], c, free)
             applied.append(b.sensor)
         if applied:
             track.updates += 1
@@ -580,26 +580,26 @@ class BearingTracker:
         Ps: Array,
         standing: BearingUpdate | None,
         predicted_probs: Array,
+        ungated: BearingUpdateConfig,
     ) -> bool:
         """The start test on bearing ``b`` of a track with a standing model, given the
-        models' predictions at its time (``xs``, ``Ps``) and the standing model's
-        update by it (None: the bearing was gated; it is then computed here) and the
-        models' predicted probabilities. When
-        the test fires the track restarts moving at ``b``'s time; returns whether it
-        did."""
+        models' predictions at its time (``xs``, ``Ps``), the standing model's update by
+        it (None: the bearing was gated; it is then computed here with ``ungated``, the
+        update's settings without the gate) and the models' predicted probabilities.
+        When the test fires the track restarts moving at ``b``'s time; returns whether
+        it did."""
         cfg = self.config.start_test
         track = self.tracker.tracks[emitter]
         if cfg is None or track.modes is None:
             return False
         if standing is None:
-            free = replace(self.config, gate_sigmas=math.inf)
             standing = bearing_update(
                 xs[STANDING],
                 Ps[STANDING],
                 (b.x_m, b.y_m),
                 b.azimuth_deg,
                 b.sigma_deg,
-                free,
+                ungated,
                 b.heading_deg,
             )
         if standing.gradient is None:  # the target sat on the sensor

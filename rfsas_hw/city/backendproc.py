@@ -73,6 +73,8 @@ __all__ = [
     "StatesByTime",
     "VehicleStates",
     "backend_main",
+    "fresh_first",
+    "tick_phase_s",
     "warm_kernels",
 ]
 
@@ -109,8 +111,12 @@ class BackendWork:
     """The ticks and the quick steps fall this long after their grid on the clock (whole
     multiples of the step, 0.1 s, and of the slot): just after a slot's end, when its
     bearings have arrived (:class:`Cadence`), seconds."""
-    repeat_s: float = 0.5
-    """Unchanged advice about an emitter goes to a vehicle again after this long, seconds."""
+    repeat_s: float = 1.0
+    """Unchanged (or milder) advice about an emitter goes to a vehicle again after this
+    long, seconds."""
+    brake_repeat_s: float = 0.5
+    """After a BRAKE about an emitter, its advice goes to the vehicle again after this
+    long, seconds (``AdvisoryLimits.brake_interval_s``)."""
     ride_along_s: float = 0.25
     """Unchanged advice sent at least this long ago goes with any advisory to the same
     vehicle, so that its repeats travel together (``AdvisoryLimits.ride_along_s``),
@@ -238,6 +244,23 @@ class BackendCounters:
     """Wall time spent judging vehicles, seconds."""
     cpu_s: float = 0.0
     problems: list[str] = field(default_factory=list)
+
+
+def tick_phase_s(
+    index: int, count: int, step_s: float, slot_s: float = SLOT_S, after_s: float = 0.005
+) -> float:
+    """The tick phase (:attr:`BackendWork.tick_phase_s`) of backend ``index`` of
+    ``count``: the backends' ticks spread over the slots of a ``step_s`` step (every
+    one judges all its vehicles at its tick, and two at once would queue for the same
+    cores), each ``after_s`` after the end of a slot of ``slot_s``, seconds.
+
+    Raises:
+        ValueError: ``index`` not in ``[0, count)``, or a step shorter than a slot.
+    """
+    if not 0 <= index < count or step_s < slot_s:
+        raise ValueError(f"need 0 <= index < count and step_s >= slot_s, got {index}, {count}")
+    slots = max(1, round(step_s / slot_s))
+    return index * slots // count * slot_s + after_s
 
 
 def warm_kernels(settings: BackendConfig) -> None:
@@ -403,7 +426,9 @@ class CityBackend:
                 epoch_s=self.work.epoch_s,
                 clock=self.clock,
                 limits=AdvisoryLimits(
-                    min_interval_s=self.work.repeat_s, ride_along_s=self.work.ride_along_s
+                    min_interval_s=self.work.repeat_s,
+                    ride_along_s=self.work.ride_along_s,
+                    brake_interval_s=self.work.brake_repeat_s,
                 ),
                 monotonic=lambda: self.clock() / NS_PER_S,
                 tile_topics=False,
@@ -457,22 +482,27 @@ class CityBackend:
             self.counters.pairs_out_of_reach += int(close.sum() - judged.sum())
             self.counters.out_of_reach += int((close.any(axis=1) & ~judged.any(axis=1)).sum())
         near = states.near(emitters, judged, now_ns)
-        requests = [(vehicle, mine) for _, vehicle, mine in near]
-        for (i, _, _), assessed in zip(near, service.assess_many(requests, now_ns), strict=True):
-            if not assessed:
-                continue
-            vid = states.ids[i]
-            self.counters.vehicles_judged += 1
-            sink = self._sink(vid)
-            first, sent = sink.seq, sink.stats.messages
-            sink.on_results([], assessed)
-            n = sink.stats.messages - sent
-            if n == 0 or not fresh_ns:
-                continue
-            fresh = [fresh_ns[e] for e in (int(a.emitter, 16) for a in assessed) if e in fresh_ns]
-            if fresh:
-                # the advisory that carries a fix made in this step: its latency counts
-                out.append((vid, first, (first + n - 1) % (1 << 32), max(fresh)))
+        for batch in fresh_first(near, fresh_ns):
+            requests = [(vehicle, mine) for _, vehicle, mine in batch]
+            for (i, _, _), assessed in zip(
+                batch, service.assess_many(requests, now_ns), strict=True
+            ):
+                if not assessed:
+                    continue
+                vid = states.ids[i]
+                self.counters.vehicles_judged += 1
+                sink = self._sink(vid)
+                first, sent = sink.seq, sink.stats.messages
+                sink.on_results([], assessed)
+                n = sink.stats.messages - sent
+                if n == 0 or not fresh_ns:
+                    continue
+                fresh = [
+                    fresh_ns[e] for e in (int(a.emitter, 16) for a in assessed) if e in fresh_ns
+                ]
+                if fresh:
+                    # the advisory that carries a fix made in this step: its latency counts
+                    out.append((vid, first, (first + n - 1) % (1 << 32), max(fresh)))
         self._forget(set(states.ids))
         self.counters.judge_s += time.perf_counter() - t0
         return out
@@ -566,6 +596,21 @@ class CityBackend:
         self.transport.close()
         self.app.close()
         return self.counters
+
+
+def fresh_first(
+    near: list[tuple[int, VehicleState, list[int]]], fresh_ns: dict[int, int]
+) -> list[list[tuple[int, VehicleState, list[int]]]]:
+    """The vehicles to judge (:meth:`VehicleStates.near`) in the order their advice goes:
+    first those near an emitter fixed in this step (keys of ``fresh_ns``), whose advice
+    carries news, then the others, whose advice is mostly a repeat; each vehicle once."""
+    if not fresh_ns:
+        return [near]
+    first: list[tuple[int, VehicleState, list[int]]] = []
+    rest: list[tuple[int, VehicleState, list[int]]] = []
+    for entry in near:
+        (first if any(e in fresh_ns for e in entry[2]) else rest).append(entry)
+    return [batch for batch in (first, rest) if batch]
 
 
 def backend_main(work: BackendWork, conn: Connection) -> None:

@@ -46,7 +46,13 @@ from cryptography.hazmat.primitives import serialization
 from rfsas_hw.backend.service import BackendConfig
 from rfsas_hw.bridges.bridge import fitted_calibration
 from rfsas_hw.bridges.config import BridgeConfig, UnitSpec
-from rfsas_hw.city.backendproc import BackendCounters, BackendWork, VehicleStates, backend_main
+from rfsas_hw.city.backendproc import (
+    BackendCounters,
+    BackendWork,
+    VehicleStates,
+    backend_main,
+    tick_phase_s,
+)
 from rfsas_hw.city.childlog import LogRelay, child_main
 from rfsas_hw.city.clock import SimClock
 from rfsas_hw.city.deploy import (
@@ -129,9 +135,14 @@ class LiveConfig:
     """A backend judges an emitter against the vehicles this close to it, metres."""
     hold_s: float = 1.0
     """A BRAKE holds a vehicle stopped until no BRAKE came for this long, seconds."""
-    repeat_s: float = 0.5
+    repeat_s: float = 1.0
     """A vehicle is told an emitter's unchanged (or milder) advice again after this
-    long; new emitters and more severe advice go at once, seconds."""
+    long; new emitters and more severe advice go at once, seconds. A vehicle does not
+    act on CAUTION or CLEAR by time, so their repeats only keep it informed."""
+    brake_repeat_s: float = 0.5
+    """After a BRAKE, the vehicle is told that emitter's advice again (the BRAKE, or
+    what is milder) after this long, seconds: below :attr:`hold_s`, so a vehicle
+    held stopped hears the next BRAKE before its hold ends."""
     lead_s: float = 0.2
     """The simulation runs this far ahead of the deployment's clock, seconds: a step's
     frames are computed before they are heard, so each leaves the worker when its
@@ -158,6 +169,11 @@ class LiveConfig:
             raise ValueError("backends and workers must be at least 1")
         if not self.epoch_s > 0 or not self.hear_m > 0 or not self.near_m > 0:
             raise ValueError("epoch_s, hear_m and near_m must be positive")
+        if not 0.0 < self.brake_repeat_s < self.hold_s or self.repeat_s < self.brake_repeat_s:
+            raise ValueError(
+                "need 0 < brake_repeat_s < hold_s and brake_repeat_s <= repeat_s, got "
+                f"{self.brake_repeat_s:g}, {self.hold_s:g}, {self.repeat_s:g}"
+            )
         if not 0.0 <= self.lead_s <= 1.0:
             raise ValueError("lead_s must be in [0, 1] seconds")
         if not 0 <= self.nice <= 19:
@@ -457,7 +473,7 @@ class DistributedRfsas(ClosingContext):
 
     def _start_backends(self, ctx: Any, backend_ids: list[str], settings: BackendConfig) -> None:
         origin = f"{self.origin.lat_deg:.7f},{self.origin.lon_deg:.7f}"
-        for b in backend_ids:
+        for k, b in enumerate(backend_ids):
             group = self.plan.group_of(b)
             work = BackendWork(
                 backend_id=b,
@@ -471,6 +487,8 @@ class DistributedRfsas(ClosingContext):
                 epoch_s=self.config.epoch_s,
                 near_m=self.config.near_m,
                 repeat_s=self.config.repeat_s,
+                brake_repeat_s=self.config.brake_repeat_s,
+                tick_phase_s=tick_phase_s(k, len(backend_ids), settings.step_s),
                 clock=self.clock,
                 dashboard=self.config.dashboard,
             )

@@ -10,7 +10,11 @@ broker keeps, per vehicle (one advisory sink):
   is more severe than the last one sent for it (``clear`` → ``caution`` →
   ``brake`` go out at once), or ``min_interval_s`` after the last one sent for
   it (0.09 s by default: one per step of the default 0.1 s, about 10 Hz, however
-  often the backend steps);
+  often the backend steps); with ``brake_interval_s`` set, advice after a
+  ``brake`` (an unchanged ``brake``, or milder advice) goes out that long after it
+  instead: a vehicle that holds a BRAKE only for a while after the last one it
+  heard needs those sooner than the repeats of milder advice, which it does not
+  act on by time;
 - with ``ride_along_s`` > 0, when a step sends anything to the vehicle, its
   unchanged assessments sent at least ``ride_along_s`` ago go with them, early,
   instead of each in a message of its own later: a vehicle near several
@@ -49,6 +53,7 @@ class Advice(Protocol):
 
 A = TypeVar("A", bound=Advice)
 _CLEAR = ADVISORY_RANK["clear"]
+_BRAKE = ADVISORY_RANK["brake"]
 
 
 @dataclass(frozen=True, slots=True)
@@ -68,16 +73,30 @@ class AdvisoryLimits:
     """Emitters remembered; the longest unsent go first."""
     ride_along_s: float = 0.0
     """When a step sends anything, unchanged assessments sent at least this long ago go
-    with it (0: off), seconds; at most ``min_interval_s``."""
+    with it (0: off), seconds; at most ``min_interval_s`` and ``brake_interval_s``."""
+    brake_interval_s: float | None = None
+    """Least time after a ``brake`` went out for an emitter before its unchanged or
+    milder advice goes again, seconds (None: ``min_interval_s``, as after any advice)."""
 
     def __post_init__(self) -> None:
         if self.min_interval_s < 0 or self.max_per_s < 1 or self.memory < 1:
             raise ValueError("min_interval_s must be >= 0, max_per_s and memory >= 1")
-        if not 0.0 <= self.ride_along_s <= self.min_interval_s:
+        if self.brake_interval_s is not None and self.brake_interval_s < 0:
+            raise ValueError(f"brake_interval_s must be >= 0, got {self.brake_interval_s:g}")
+        shortest = min(self.min_interval_s, self.interval_s(_BRAKE))
+        if not 0.0 <= self.ride_along_s <= shortest:
             raise ValueError(
-                f"ride_along_s must be in [0, min_interval_s = {self.min_interval_s:g}], "
+                f"ride_along_s must be in [0, {shortest:g}] (the shortest repeat interval), "
                 f"got {self.ride_along_s:g}"
             )
+
+    def interval_s(self, severity: int) -> float:
+        """Least time after advice of rank ``severity``
+        (:data:`~rfsas_hw.backend.risk.ADVISORY_RANK`) went out for an emitter before
+        its unchanged or milder advice goes again, seconds."""
+        if severity == _BRAKE and self.brake_interval_s is not None:
+            return self.brake_interval_s
+        return self.min_interval_s
 
 
 class AdvisoryLimiter:
@@ -105,7 +124,8 @@ class AdvisoryLimiter:
         for item in items:
             severity = ADVISORY_RANK.get(item.advisory, 0)
             last = self._last.get(item.emitter)
-            if last is None or severity > last[1] or now_s - last[0] >= lim.min_interval_s:
+            # unchanged or milder advice repeats at the interval of the advice last sent
+            if last is None or severity > last[1] or now_s - last[0] >= lim.interval_s(last[1]):
                 due.append((severity, item))
             elif lim.ride_along_s > 0 and now_s - last[0] >= lim.ride_along_s:
                 riders.append((severity, item))

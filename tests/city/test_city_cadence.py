@@ -180,6 +180,15 @@ def test_the_simulation_runs_ahead_of_the_clock_by_a_bounded_lead() -> None:
         LiveConfig(lead_s=2.0)
 
 
+def test_a_held_vehicle_hears_its_next_brake_before_its_hold_ends() -> None:
+    cfg = LiveConfig()
+    assert cfg.brake_repeat_s < cfg.hold_s and cfg.brake_repeat_s <= cfg.repeat_s
+    with pytest.raises(ValueError, match="brake_repeat_s"):
+        LiveConfig(hold_s=0.5, brake_repeat_s=0.5)
+    with pytest.raises(ValueError, match="brake_repeat_s"):
+        LiveConfig(repeat_s=0.3, brake_repeat_s=0.4)
+
+
 def test_a_backend_that_does_not_take_its_states_gets_none_until_it_has() -> None:
     flow = StatesFlow(t0_ns=0, backlog_s=0.5)
     for k in range(1, 7):  # be-1 takes nothing: 0.1 … 0.6 s are given

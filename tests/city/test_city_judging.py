@@ -14,7 +14,7 @@ from cryptography.hazmat.primitives.asymmetric import ec
 
 from rfsas_hw.backend.service import BackendService
 from rfsas_hw.backend.vehicle import VehicleState
-from rfsas_hw.city.backendproc import Reach, VehicleStates
+from rfsas_hw.city.backendproc import Reach, VehicleStates, fresh_first, tick_phase_s
 from rfsas_hw.fleet.advisory import AdvisorySink, decode_advisory
 from rfsas_hw.fleet.advisory_limits import AdvisoryLimiter, AdvisoryLimits
 from rfsas_hw.geo import SiteOrigin
@@ -143,3 +143,27 @@ def test_a_vehicle_told_to_brake_still_gets_its_clear_once_out_of_reach() -> Non
     # told: from now on the pair is out of reach
     _, judged = standing.within(ids, states[:, 0], states[:, 1], 60.0, rule())
     assert not judged.any()
+
+
+def test_the_vehicles_near_a_new_fix_are_judged_and_advised_first() -> None:
+    car = VehicleState(x_m=0.0, y_m=0.0, heading_deg=0.0, speed_mps=10.0)
+    near = [(0, car, [1, 2]), (1, car, [3]), (2, car, [2, 4]), (3, car, [5])]
+    first, rest = fresh_first(near, {4: 10, 1: 20})
+    assert [i for i, _, _ in first] == [0, 2]  # near emitter 1 or 4, in their order
+    assert [i for i, _, _ in rest] == [1, 3]
+    assert fresh_first(near, {}) == [near]  # no fix in this step: one batch
+    assert fresh_first(near, {9: 1}) == [near]  # none near a new fix
+    assert fresh_first([], {1: 1}) == []
+
+
+def test_the_backends_ticks_are_spread_over_the_slots_of_a_step() -> None:
+    phases = [tick_phase_s(k, 2, 0.1) for k in range(2)]
+    assert phases == pytest.approx([0.005, 0.045])  # 2 slots of 20 ms apart
+    five = [tick_phase_s(k, 5, 0.1) for k in range(5)]
+    assert five == pytest.approx([0.005, 0.025, 0.045, 0.065, 0.085])
+    # every phase just after a slot's end, within the step
+    for phase in phases + five + [tick_phase_s(k, 7, 0.1) for k in range(7)]:
+        assert 0 < phase < 0.1
+        assert math.isclose((phase - 0.005) / 0.02, round((phase - 0.005) / 0.02), abs_tol=1e-9)
+    with pytest.raises(ValueError, match="index"):
+        tick_phase_s(2, 2, 0.1)

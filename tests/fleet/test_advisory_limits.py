@@ -91,6 +91,28 @@ def test_one_emitter_at_most_once_an_interval_unless_it_gets_worse() -> None:
     assert out.stats.limited == 18
 
 
+def test_advice_after_a_brake_repeats_at_the_brake_interval() -> None:
+    """An unchanged BRAKE repeats every ``brake_interval_s`` (a vehicle holds a BRAKE only
+    for a while after the last one it heard), and so does the milder advice after it;
+    CAUTION repeats at ``min_interval_s`` as before."""
+    clock = [0.0]
+    out, link = sink(clock, min_interval_s=1.0, brake_interval_s=0.5)
+    times: dict[str, list[float]] = {"1": [], "2": []}
+    for step in range(21):  # 2 s at 10 Hz: emitter 1 a BRAKE, emitter 2 a CAUTION
+        clock[0] = step * 0.1
+        advice = "clear" if step >= 15 else "brake"  # emitter 1 clears at 1.5 s
+        before = len(sent_to_vehicle(link))
+        out.on_results([], [assessment(1, advice, 0.6), assessment(2, "caution")])
+        for emitter in sent_to_vehicle(link)[before:]:
+            times[emitter.lstrip("0")].append(round(clock[0], 1))
+    assert times["1"] == [0.0, 0.5, 1.0, 1.5]  # BRAKE at 0, 0.5, 1.0; CLEAR at 1.5
+    assert times["2"] == [0.0, 1.0, 2.0]
+    with pytest.raises(ValueError, match="brake_interval_s"):
+        AdvisoryLimits(brake_interval_s=-1.0)
+    with pytest.raises(ValueError, match="ride_along_s"):
+        AdvisoryLimits(min_interval_s=1.0, brake_interval_s=0.3, ride_along_s=0.4)
+
+
 def test_a_crowd_of_new_emitters_is_bounded_most_severe_first() -> None:
     clock = [0.0]
     out, link = sink(clock, max_per_s=100.0)

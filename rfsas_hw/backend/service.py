@@ -330,6 +330,9 @@ class BackendService:
         """Latest pose of every sensor heard, by sensor id."""
         self.fixes: dict[int, Fix] = {}
         """Latest fix of every emitter, by emitter id."""
+        self.stepped: dict[int, Fix] = {}
+        """The fixes the last :meth:`step` made that it still holds (in :attr:`fixes`),
+        by emitter id."""
         self.assessments: dict[int, Assessment] = {}
         """Latest assessment of every live emitter, by emitter id."""
         self.link_stats: Callable[[], dict[str, int]] | None = None
@@ -406,6 +409,10 @@ class BackendService:
         keep = now - int(self.config.tracker.drop_after_s * NS_PER_S)
         for emitter in [e for e, f in self.fixes.items() if f.t_ns < keep]:
             del self.fixes[emitter]
+        held_now = self.fixes
+        self.stepped = {
+            e: f for e, f in ((int(f.emitter, 16), f) for f in fixes) if held_now.get(e) is f
+        }
         held = list(self.fixes.items())
         assessments = (
             self._assess(now, [self._vehicle_at(now)], held, [range(len(held))])[0]
@@ -550,18 +557,13 @@ class BackendService:
         # plain floats once for all rows (the same values float() gives one by one)
         state_rows = states.tolist()
         cov_rows = covs[:, :2, :2].reshape(-1, 4).tolist()
-        th = self.config.encounter.thresholds
         # an untracked emitter's assessment does not depend on the vehicle (only on
         # whether there is one): built once per row and shared (it is immutable)
         unlocated: dict[tuple[int, bool], Assessment] = {}
         counts = self.stats.assessments
         out = []
         for vehicle, chosen in zip(vehicles, rows, strict=True):
-            unjudged = Advisory.CLEAR.value
-            if vehicle is None:
-                unjudged = "none"
-            elif th.caution_on_bad_fix or (alarm and th.caution_on_link_alarm):
-                unjudged = Advisory.CAUTION.value
+            unjudged = "none" if vehicle is None else self.unlocated_advice(alarm)
             mine = []
             for i in chosen:
                 fix = fixes[i][1]
@@ -594,6 +596,18 @@ class BackendService:
             out.append(mine)
         return out
 
+    def unlocated_advice(self, alarm: bool | None = None) -> str:
+        """The advice every vehicle gets about an emitter heard but not tracked (its
+        latest fix not trustworthy), the same for every vehicle: ``caution`` with
+        ``caution_on_bad_fix``, or with ``caution_on_link_alarm`` during a link latency
+        alarm (``alarm``; None: asked of :attr:`link_alarm` now), else ``clear``."""
+        if alarm is None:
+            alarm = bool(self.link_alarm()) if self.link_alarm is not None else False
+        th = self.config.encounter.thresholds
+        if th.caution_on_bad_fix or (alarm and th.caution_on_link_alarm):
+            return Advisory.CAUTION.value
+        return Advisory.CLEAR.value
+
     def _predict(
         self, now: int, fixes: list[tuple[int, Fix]]
     ) -> tuple[list[Track | None], np.ndarray, np.ndarray]:
@@ -618,13 +632,21 @@ class BackendService:
                 states[i, 0], states[i, 1] = fix.x_m, fix.y_m
         return tracks, states, covs
 
-    def predicted(self, now_ns: int) -> tuple[np.ndarray, np.ndarray]:
-        """Every live emitter (one with a fix held, as :attr:`fixes`) at ``now_ns`` (UTC
-        ns): their ids (uint64, in the order of :attr:`fixes`) and ``[x_m, y_m, vx_mps,
-        vy_mps]`` per emitter (rfsas frame; its track predicted to ``now_ns``, or where
-        it is not tracked its fix's position, NaN when not located, and NaN velocity):
-        the positions and velocities :meth:`step` would give its assessments."""
-        held = list(self.fixes.items())
+    def predicted(
+        self, now_ns: int, emitters: Iterable[int] | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Every live emitter (one with a fix held, as :attr:`fixes`; of ``emitters``
+        only, when given) at ``now_ns`` (UTC ns): their ids (uint64, in the order of
+        :attr:`fixes`, or of ``emitters`` skipping those not held) and ``[x_m, y_m,
+        vx_mps, vy_mps]`` per emitter (rfsas frame; its track predicted to ``now_ns``,
+        or where it is not tracked its fix's position, NaN when not located, and NaN
+        velocity): the positions and velocities :meth:`step` would give its
+        assessments."""
+        if emitters is None:
+            held = list(self.fixes.items())
+        else:
+            fixes = self.fixes
+            held = [(e, fixes[e]) for e in emitters if e in fixes]
         ids = np.fromiter((e for e, _ in held), np.uint64, len(held))
         if not held:
             return ids, np.empty((0, 4))

@@ -44,6 +44,7 @@ from typing import IO, Any, Literal
 
 import numpy as np
 
+from rfsas_hw.backend.risk import ADVISORY_RANK
 from rfsas_hw.backend.service import BackendService, ResultSink
 from rfsas_hw.backend.vehicle import VehicleState
 from rfsas_hw.bridges.config import (
@@ -80,7 +81,6 @@ from rfsas_hw.twin.turntable import turntable_calibration
 NS_PER_S = 1_000_000_000
 EGO_MOVER = "ego"
 """Mover id of the ego vehicle inside the twin."""
-_SEVERITY = {"brake": 3, "caution": 2, "clear": 1, "none": 0}
 
 __all__ = [
     "Bridge",
@@ -171,7 +171,7 @@ class StepResult:
         """The assessment that set the advisory."""
         best = None
         for a in self.assessments:
-            if best is None or _SEVERITY[a.advisory] > _SEVERITY[best.advisory]:
+            if best is None or ADVISORY_RANK[a.advisory] > ADVISORY_RANK[best.advisory]:
                 best = a
         return best
 

@@ -49,6 +49,7 @@ import numpy as np
 
 from rfsas_hw.apps.backend import BackendApp, BackendAppConfig, SettingsOverrides
 from rfsas_hw.backend.encounter import assess_encounters
+from rfsas_hw.backend.risk import ADVISORY_RANK
 from rfsas_hw.backend.service import BackendConfig
 from rfsas_hw.backend.tracking import Tracker, predict_tracks
 from rfsas_hw.backend.triangulation import triangulate_batch
@@ -57,14 +58,13 @@ from rfsas_hw.city.clock import SimClock, cpu_s
 from rfsas_hw.city.handshake import answer_failure
 from rfsas_hw.city.slots import SLOT_S
 from rfsas_hw.fleet.advisory import AdvisorySink
-from rfsas_hw.fleet.advisory_limits import AdvisoryLimits
+from rfsas_hw.fleet.advisory_limits import AdvisoryLimiter, AdvisoryLimits
 from rfsas_hw.geo import SiteOrigin
 from rfsas_hw.link.mqtt import open_mqtt
 from rfsas_hw.link.topics import TopicRouter
 from rfsas_hw.records import emitter_hex
 
 NS_PER_S = 1_000_000_000
-_SEVERITY = {"brake": 3, "caution": 2, "clear": 1, "none": 0}
 
 __all__ = [
     "BackendWork",
@@ -74,6 +74,7 @@ __all__ = [
     "VehicleStates",
     "backend_main",
     "fresh_first",
+    "nothing_due",
     "tick_phase_s",
     "warm_kernels",
 ]
@@ -235,6 +236,9 @@ class BackendCounters:
     advisories_failed: int = 0
     vehicles_judged: int = 0
     """Vehicle-steps with at least one emitter near."""
+    vehicles_unchanged: int = 0
+    """Vehicle-steps not judged: every emitter near them untracked and told them within
+    its repeat interval, so nothing would have gone out."""
     out_of_reach: int = 0
     """Vehicle-steps with an emitter within ``near_m`` but none within reach, not judged
     (:attr:`BackendWork.reach_margin_m`)."""
@@ -403,11 +407,12 @@ class CityBackend:
         self.vehicles = StatesByTime()
         """The vehicles' states, each used from its own time on."""
         self.counters = BackendCounters()
-        self._seen: dict[int, Any] = {}
+        self._new_fixes: list[Any] = []
+        """The trustworthy fixes the service's steps made since :meth:`new_fixes`."""
         self._shown: dict[int, Any] = {}
         """The fixes as they were at the last dashboard report."""
-        self._stepped: dict[int, Any] = {}
-        """The fixes as they were after the previous step (to find this step's new ones)."""
+        self._new_fixes: list[Any] = []
+        """The trustworthy fixes the service's steps made since :meth:`new_fixes`."""
 
     def warm(self) -> None:
         """Load (or compile, the first time on a machine) the numeric kernels before the
@@ -437,17 +442,16 @@ class CityBackend:
         return sink
 
     def new_fixes(self) -> list[tuple[int, str, float, float, float]]:
-        """The trustworthy fixes made since the last call: (UTC ns, emitter id, x, y,
-        one-sigma metres from the covariance's larger eigenvalue)."""
+        """The trustworthy fixes made since the last call (by the service's steps in
+        :meth:`judge`): (UTC ns, emitter id, x, y, one-sigma metres from the
+        covariance's larger eigenvalue)."""
         out = []
-        for key, fix in self.app.service.fixes.items():
-            if self._seen.get(key) is fix or not fix.ok:
-                continue
+        made, self._new_fixes = self._new_fixes, []
+        for fix in made:
             tr = (fix.cov_xx_m2 + fix.cov_yy_m2) / 2
             det = fix.cov_xx_m2 * fix.cov_yy_m2 - fix.cov_xy_m2**2
             sigma = math.sqrt(max(tr + math.sqrt(max(tr * tr - det, 0.0)), 0.0))
             out.append((fix.t_ns, fix.emitter, fix.x_m, fix.y_m, sigma))
-        self._seen = dict(self.app.service.fixes)
         return out
 
     def judge(self, now_ns: int, fresh_only: bool = False) -> list[tuple[str, int, int, int]]:
@@ -458,10 +462,8 @@ class CityBackend:
         service = self.app.service
         # the service's own vehicle is none: its assessments only feed the dashboard
         service.step(now_ns, assess=self.work.dashboard)
-        fresh_ns = {
-            e: f.t_ns for e, f in service.fixes.items() if f.ok and self._stepped.get(e) is not f
-        }
-        self._stepped = dict(service.fixes)
+        fresh_ns = {e: f.t_ns for e, f in service.stepped.items() if f.ok}
+        self._new_fixes += [f for f in service.stepped.values() if f.ok]
         states = self.vehicles.at(now_ns)
         if states is None or not len(states.ids) or not service.fixes:
             self._forget(set() if states is None else set(states.ids))
@@ -469,10 +471,8 @@ class CityBackend:
         if fresh_only and not fresh_ns:
             return []
         t0 = time.perf_counter()
-        emitters, predicted = service.predicted(now_ns)
+        emitters, predicted = service.predicted(now_ns, fresh_ns if fresh_only else None)
         chosen = np.isfinite(predicted[:, 0]) & np.isfinite(predicted[:, 1])
-        if fresh_only:
-            chosen &= np.isin(emitters, np.fromiter(fresh_ns, np.uint64, len(fresh_ns)))
         emitters, predicted = emitters[chosen], predicted[chosen]
         out: list[tuple[str, int, int, int]] = []
         close, judged = states.within(
@@ -482,29 +482,56 @@ class CityBackend:
             self.counters.pairs_out_of_reach += int(close.sum() - judged.sum())
             self.counters.out_of_reach += int((close.any(axis=1) & ~judged.any(axis=1)).sum())
         near = states.near(emitters, judged, now_ns)
-        for batch in fresh_first(near, fresh_ns):
-            requests = [(vehicle, mine) for _, vehicle, mine in batch]
-            for (i, _, _), assessed in zip(
-                batch, service.assess_many(requests, now_ns), strict=True
+        # a vehicle near only untracked emitters, each told to it within its repeat
+        # interval, would be sent nothing: not judged (the same advice goes out)
+        tracked = set(emitters[np.isfinite(predicted[:, 2])].tolist())
+        unlocated = ADVISORY_RANK[service.unlocated_advice()]
+        kept = []
+        for entry in near:
+            sink = self.sinks.get(states.ids[entry[0]])
+            if sink is None or not nothing_due(
+                sink.limiter, sink.monotonic(), entry[2], tracked, unlocated
             ):
-                if not assessed:
-                    continue
-                vid = states.ids[i]
-                self.counters.vehicles_judged += 1
-                sink = self._sink(vid)
-                first, sent = sink.seq, sink.stats.messages
-                sink.on_results([], assessed)
-                n = sink.stats.messages - sent
-                if n == 0 or not fresh_ns:
-                    continue
-                fresh = [
-                    fresh_ns[e] for e in (int(a.emitter, 16) for a in assessed) if e in fresh_ns
-                ]
-                if fresh:
-                    # the advisory that carries a fix made in this step: its latency counts
-                    out.append((vid, first, (first + n - 1) % (1 << 32), max(fresh)))
+                kept.append(entry)
+        self.counters.vehicles_unchanged += len(near) - len(kept)
+        for batch in fresh_first(kept, fresh_ns):
+            with self.transport.together() as held:  # a batch's advisories in one write
+                out += self._advise(states, batch, now_ns, fresh_ns)
+            # the sinks counted a message sent when it was held
+            self.counters.advisories_failed += held.lost
+            self.counters.advisories_sent -= held.lost
         self._forget(set(states.ids))
         self.counters.judge_s += time.perf_counter() - t0
+        return out
+
+    def _advise(
+        self,
+        states: VehicleStates,
+        batch: list[tuple[int, VehicleState, list[int]]],
+        now_ns: int,
+        fresh_ns: dict[int, int],
+    ) -> list[tuple[str, int, int, int]]:
+        """Judge the vehicles of ``batch`` (:meth:`VehicleStates.near`) at ``now_ns`` and
+        publish their advice; per advisory that carried a fix made in this step (its
+        emitter a key of ``fresh_ns``, with that fix's time), as :meth:`judge` gives it."""
+        out: list[tuple[str, int, int, int]] = []
+        requests = [(vehicle, mine) for _, vehicle, mine in batch]
+        service = self.app.service
+        for (i, _, _), assessed in zip(batch, service.assess_many(requests, now_ns), strict=True):
+            if not assessed:
+                continue
+            vid = states.ids[i]
+            self.counters.vehicles_judged += 1
+            sink = self._sink(vid)
+            first, sent = sink.seq, sink.stats.messages
+            sink.on_results([], assessed)
+            n = sink.stats.messages - sent
+            if n == 0 or not fresh_ns:
+                continue
+            fresh = [fresh_ns[e] for e in (int(a.emitter, 16) for a in assessed) if e in fresh_ns]
+            if fresh:
+                # the advisory that carries a fix made in this step: its latency counts
+                out.append((vid, first, (first + n - 1) % (1 << 32), max(fresh)))
         return out
 
     def _reach(self, predicted: np.ndarray) -> Reach | None:
@@ -596,6 +623,17 @@ class CityBackend:
         self.transport.close()
         self.app.close()
         return self.counters
+
+
+def nothing_due(
+    limiter: AdvisoryLimiter, now_s: float, emitters: list[int], tracked: set[int], unlocated: int
+) -> bool:
+    """Whether judging a vehicle against ``emitters`` (ids) at ``now_s`` (its limiter's
+    monotonic seconds) could send it nothing: every one is untracked (not in
+    ``tracked``), so its advice is the rank ``unlocated`` for every vehicle at any time,
+    and none of them is due (:meth:`AdvisoryLimiter.due`: each was told to this vehicle,
+    as severe, within its repeat interval; without a due item no rider goes either)."""
+    return not any(e in tracked or limiter.due(emitter_hex(e), unlocated, now_s) for e in emitters)
 
 
 def fresh_first(

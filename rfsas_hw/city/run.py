@@ -654,6 +654,7 @@ def _costs(
         "vehicles_judged": sum(b.vehicles_judged for b in stats.backends.values()),
         # car-steps with an emitter within near_m but none within the car's reach
         "vehicles_out_of_reach": sum(b.out_of_reach for b in stats.backends.values()),
+        "vehicles_unchanged": sum(b.vehicles_unchanged for b in stats.backends.values()),
         "vehicle_states_held": stats.states_held,
         # groups of bearings (a unit's frames of one 20 ms slot) the workers published
         # more than a slot after their time (the loop behind its lead)

@@ -47,6 +47,7 @@ from __future__ import annotations
 
 import datetime as dt
 import math
+import sys
 import threading
 import time
 from dataclasses import dataclass, field
@@ -92,6 +93,10 @@ TRAFFIC_LOOKAHEAD_S = 4.0
 """How far ahead the twin generates every phone's traffic in one go, seconds. The
 frames do not depend on it; each generator's call has a fixed cost (a few dozen numpy
 calls), so generating 4 s at a time costs a quarter of generating 1 s at a time."""
+
+SWITCH_INTERVAL_S = 0.0005
+"""The worker process's interpreter switch interval (``sys.setswitchinterval``), seconds:
+how long the step's thread may keep the interpreter while the sending thread waits."""
 
 __all__ = ["Snapshot", "TileWork", "TwinWorker", "unit_sensor", "utc_text", "worker_main"]
 
@@ -515,6 +520,10 @@ def worker_main(work: TileWork, conn: Connection) -> None:
     :class:`Snapshot` received until ``None``; answer ``("end", counters)``. A failure
     is answered ``("error", message)`` (the main process ends the run with it)."""
     worker: TwinWorker | None = None
+    # the sending thread takes the interpreter back after each of its socket writes; at
+    # the default 5 ms switch interval every such hand-back waits up to 5 ms while the
+    # step is computed, so a slot of many units' messages went out tens of ms late
+    sys.setswitchinterval(SWITCH_INTERVAL_S)
     try:
         worker = TwinWorker(work)
         conn.send(("warming",))  # built: the warm-up is judged by its CPU time

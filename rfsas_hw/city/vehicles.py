@@ -38,6 +38,7 @@ from typing import Any
 from cryptography.hazmat.primitives import serialization
 from cryptography.hazmat.primitives.asymmetric import ec
 
+from rfsas_hw.backend.risk import ADVISORY_RANK
 from rfsas_hw.city.clock import SimClock, cpu_s
 from rfsas_hw.city.handshake import answer_failure
 from rfsas_hw.fleet.advisory import (
@@ -54,7 +55,6 @@ IDLE_S = 0.05
 """The longest the gateway process sleeps while neither the broker connection nor its
 pipe has anything, wall seconds (it wakes at once for either; waking this often keeps
 the broker connection's own thread from reading for it)."""
-_SEVERITY = {"brake": 3, "caution": 2, "clear": 1, "none": 0}
 
 __all__ = [
     "Arrival",
@@ -104,7 +104,7 @@ class GatewayStats:
 
 def most_severe(message: AdvisoryMessage) -> str:
     """The most severe advice in a message (``brake``, ``caution``, ``clear``, ``none``)."""
-    return max((it.advisory for it in message.items), key=lambda a: _SEVERITY.get(a, 0))
+    return max((it.advisory for it in message.items), key=lambda a: ADVISORY_RANK.get(a, 0))
 
 
 ArrivalRow = tuple[str, str, int, int, str, tuple[str, ...]]

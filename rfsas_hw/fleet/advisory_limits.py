@@ -123,11 +123,9 @@ class AdvisoryLimiter:
         riders = []
         for item in items:
             severity = ADVISORY_RANK.get(item.advisory, 0)
-            last = self._last.get(item.emitter)
-            # unchanged or milder advice repeats at the interval of the advice last sent
-            if last is None or severity > last[1] or now_s - last[0] >= lim.interval_s(last[1]):
+            if self.due(item.emitter, severity, now_s):
                 due.append((severity, item))
-            elif lim.ride_along_s > 0 and now_s - last[0] >= lim.ride_along_s:
+            elif lim.ride_along_s > 0 and now_s - self._last[item.emitter][0] >= lim.ride_along_s:
                 riders.append((severity, item))
         self._refill(now_s)
         due.sort(key=lambda d: (-d[0], -_finite(d[1].p_collision)))
@@ -150,6 +148,17 @@ class AdvisoryLimiter:
             del self._last[forgotten]
             self.unsettled.discard(forgotten)
         return chosen
+
+    def due(self, emitter: str, severity: int, now_s: float) -> bool:
+        """Whether advice of rank ``severity`` (:data:`~rfsas_hw.backend.risk.ADVISORY_RANK`)
+        about ``emitter`` would be due at ``now_s`` (monotonic seconds): the emitter is
+        new, the advice more severe than the last sent, or the interval of the advice
+        last sent has passed (unchanged or milder advice repeats at it). A step of items
+        none of which is due sends nothing (riders go only with a due item)."""
+        last = self._last.get(emitter)
+        return (
+            last is None or severity > last[1] or now_s - last[0] >= self.limits.interval_s(last[1])
+        )
 
     def _refill(self, now_s: float) -> None:
         if self._filled_at is not None:

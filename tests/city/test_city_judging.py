@@ -12,9 +12,16 @@ import numpy as np
 import pytest
 from cryptography.hazmat.primitives.asymmetric import ec
 
+from rfsas_hw.backend.risk import ADVISORY_RANK
 from rfsas_hw.backend.service import BackendService
 from rfsas_hw.backend.vehicle import VehicleState
-from rfsas_hw.city.backendproc import Reach, VehicleStates, fresh_first, tick_phase_s
+from rfsas_hw.city.backendproc import (
+    Reach,
+    VehicleStates,
+    fresh_first,
+    nothing_due,
+    tick_phase_s,
+)
 from rfsas_hw.fleet.advisory import AdvisorySink, decode_advisory
 from rfsas_hw.fleet.advisory_limits import AdvisoryLimiter, AdvisoryLimits
 from rfsas_hw.geo import SiteOrigin
@@ -167,3 +174,36 @@ def test_the_backends_ticks_are_spread_over_the_slots_of_a_step() -> None:
         assert math.isclose((phase - 0.005) / 0.02, round((phase - 0.005) / 0.02), abs_tol=1e-9)
     with pytest.raises(ValueError, match="index"):
         tick_phase_s(2, 2, 0.1)
+
+
+def test_a_vehicle_near_only_untracked_emitters_told_recently_would_be_sent_nothing() -> None:
+    """Skipping a vehicle when ``nothing_due`` says so never changes what goes out: over
+    random steps of untracked (CAUTION for every vehicle) and tracked emitters, whenever
+    it says nothing is due the limiter's own choice is empty, with riding along on."""
+    rng = np.random.default_rng(3)
+
+    class Item:
+        def __init__(self, emitter: int, advisory: str) -> None:
+            self.emitter, self.advisory, self.p_collision = emitter_hex(emitter), advisory, 0.1
+
+    limiter = AdvisoryLimiter(
+        AdvisoryLimits(min_interval_s=1.0, ride_along_s=0.25, brake_interval_s=0.5)
+    )
+    caution = ADVISORY_RANK["caution"]
+    said_nothing = 0
+    for step in range(400):
+        now = step * 0.1
+        near = sorted({int(e) for e in rng.integers(1, 9, size=rng.integers(1, 5))})
+        tracked = {e for e in near if e > 6}  # 7 and 8 are tracked: any advice
+        items = [
+            Item(e, str(rng.choice(["clear", "caution", "brake"])) if e in tracked else "caution")
+            for e in near
+        ]
+        skip = nothing_due(limiter, now, near, tracked, caution)
+        chosen = limiter.select(items, now)
+        if skip:
+            said_nothing += 1
+            assert chosen == []
+    assert said_nothing > 50  # the case arises often enough to be tested
+    assert not nothing_due(limiter, 1e6, [1], set(), caution)  # an interval later: due
+    assert not nothing_due(limiter, 0.0, [99], set(), caution)  # never told: due

@@ -12,11 +12,13 @@ import os
 import socket
 import time
 
+import pytest
 from brokerhelp import Broker, Deployment
 from fleethelp import ORIGIN, SCHEDULE, bearings_now, drain, well_inside_an_epoch
 
+from rfsas_hw.errors import LinkError
 from rfsas_hw.link import Publisher, Receiver, ReceiverConfig, SafetyMessage
-from rfsas_hw.link.mqtt import open_mqtt
+from rfsas_hw.link.mqtt import MqttTransport, open_mqtt
 from rfsas_hw.link.preauth import derive_key, seal
 from rfsas_hw.link.topics import ZOOM, Route, bearing_topic, nonce_topic, topic_sender
 from rfsas_hw.records import Pose
@@ -84,6 +86,40 @@ def test_sensor_to_backend_through_the_broker(broker: Broker, deployment: Deploy
     assert {m.sender_id for m in got} == {"rsu-1"}
     assert rx.stats.rejected_total == 0
     assert max(m.age_s for m in got) < 1.0
+
+
+def test_publishes_held_together_arrive_whole_and_in_order(
+    broker: Broker, deployment: Deployment
+) -> None:
+    """Messages published in one ``together`` block leave in one write at its end: all
+    arrive, in the order published, and are counted sent once written; blocks do not
+    nest."""
+    rx = open_mqtt(broker.url("be-a"), "recv")
+    pub = Publisher.to_url(
+        broker.url("rsu-1", origin=ORIGIN), deployment.sensors["rsu-1"].signer(), POSE
+    )
+    transport = pub.transport
+    assert isinstance(transport, MqttTransport)
+    try:
+        sent: list[bytes] = []
+        transport.send = sent.append  # type: ignore[method-assign]
+        for i in range(30):  # the signed datagrams, made without sending them
+            pub.on_bearings(bearings_now("rsu-1", 2, seed=i))
+        del transport.send
+        before = transport.stats.sent
+        with transport.together() as held:
+            for datagram in sent:
+                transport.send(datagram)
+            assert transport.stats.sent == before  # held, not written yet
+            with pytest.raises(LinkError, match="already held"), transport.together():
+                pass
+        assert (held.written, held.lost) == (30, 0)
+        assert transport.stats.sent == before + 30
+        got = [rx.recv_from(5) for _ in range(30)]
+    finally:
+        pub.close()
+        rx.close()
+    assert [g[0] for g in got if g is not None] == sent
 
 
 def test_topic_has_one_level_per_quadkey_digit(broker: Broker, deployment: Deployment) -> None:

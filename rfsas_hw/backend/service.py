@@ -405,8 +405,8 @@ class BackendService:
         now = self.clock() if now_ns is None else int(now_ns)
         self.stats.steps += 1
         fixes = self._triangulate(now)
-        self.tracker.prune(now)
-        keep = now - int(self.config.tracker.drop_after_s * NS_PER_S)
+        keep = max(now - int(self.config.tracker.drop_after_s * NS_PER_S), self._epoch_floor(now))
+        self.tracker.prune(now, keep)
         for emitter in [e for e, f in self.fixes.items() if f.t_ns < keep]:
             del self.fixes[emitter]
         held_now = self.fixes
@@ -426,6 +426,18 @@ class BackendService:
             except Exception as err:
                 self._sink_failed(sink, err, "failed")
         return assessments
+
+    def _epoch_floor(self, now: int) -> int:
+        """The earliest last-fix time (UTC ns) a track or fix may have at ``now`` for its
+        epoch: with ``tracker.epoch_overlap_s``, once that long into a nonce epoch
+        (``association.epoch_s``, on the UTC grid), its start; before then, the
+        previous epoch's start (0 without it)."""
+        overlap = self.config.tracker.epoch_overlap_s
+        if overlap is None:
+            return 0
+        epoch_ns = int(self.config.association.epoch_s * NS_PER_S)
+        start = now // epoch_ns * epoch_ns
+        return start if now - start >= overlap * NS_PER_S else start - epoch_ns
 
     def _triangulate(self, now: int) -> list[Fix]:
         # tracks fed by bearings: a bearing from outside its unit's field of view stays

@@ -40,6 +40,13 @@ class TrackerConfig:
         gate_chi2: Mahalanobis² above which a fix restarts the track (default:
             the 99.99 % point of χ² with 2 degrees of freedom).
         drop_after_s: seconds without a fix after which a track is dropped.
+        epoch_overlap_s: seconds into a nonce epoch after which the tracks and fixes
+            last fixed in an earlier epoch are dropped (None: only ``drop_after_s``):
+            their ids, keyed with an earlier epoch's nonce, get no more bearings (the
+            same emitters come back under new ids), so kept for ``drop_after_s`` they
+            would stand beside their successors as second targets. At least the
+            receivers' age limit (late bearings of the old epoch still arrive that
+            long).
         stop_go: a standing model beside the constant-velocity one, and how often
             a target switches between them (None: constant velocity alone).
 
@@ -52,11 +59,14 @@ class TrackerConfig:
     gate_chi2: float = 18.42
     drop_after_s: float = 10.0
     stop_go: StopGoConfig | None = None
+    epoch_overlap_s: float | None = None
 
     def __post_init__(self) -> None:
         for name in ("accel_sigma_mps2", "initial_speed_sigma_mps", "gate_chi2", "drop_after_s"):
             if not getattr(self, name) > 0:
                 raise BackendError(f"tracker {name} must be > 0, got {getattr(self, name)}")
+        if self.epoch_overlap_s is not None and not self.epoch_overlap_s > 0:
+            raise BackendError(f"tracker epoch_overlap_s must be > 0, got {self.epoch_overlap_s}")
 
 
 @dataclass(slots=True)
@@ -299,9 +309,12 @@ class Tracker:
         track.sensors = sensors
         self.stats.updated += 1
 
-    def prune(self, now_ns: int) -> list[int]:
-        """Drop tracks without a fix for ``drop_after_s``; return their emitter ids."""
+    def prune(self, now_ns: int, limit_ns: int | None = None) -> list[int]:
+        """Drop tracks without a fix for ``drop_after_s`` (or whose last fix is older than
+        ``limit_ns``, UTC ns, when that is later); return their emitter ids."""
         limit = now_ns - int(self.config.drop_after_s * NS_PER_S)
+        if limit_ns is not None:
+            limit = max(limit, limit_ns)
         gone = [e for e, t in self.tracks.items() if t.t_ns < limit]
         for emitter in gone:
             del self.tracks[emitter]

@@ -83,6 +83,7 @@ from rfsas_hw.fleet.tiles import TilePlan
 from rfsas_hw.geo import SiteOrigin
 from rfsas_hw.link.distribution import NonceDistributor
 from rfsas_hw.link.mqtt import open_mqtt
+from rfsas_hw.link.receiver import ReceiverConfig
 from rfsas_hw.link.topics import ROOT, TopicRouter, quadkeys
 from rfsas_hw.privacy.epochs import EpochSchedule
 from rfsas_hw.records import Assessment, Fix
@@ -143,6 +144,13 @@ class LiveConfig:
     """After a BRAKE, the vehicle is told that emitter's advice again (the BRAKE, or
     what is milder) after this long, seconds: below :attr:`hold_s`, so a vehicle
     held stopped hears the next BRAKE before its hold ends."""
+    epoch_overlap_s: float | None = 2.0
+    """The backends drop the tracks and fixes of an earlier nonce epoch this long into a
+    new one (``TrackerConfig.epoch_overlap_s``; None: after the tracker's
+    ``drop_after_s``, 10 s, as for any silent emitter), seconds: every phone's id
+    changes at once at an epoch's start, and each comes back under its new id within
+    seconds; kept 10 s, the old ids doubled the emitters judged against every car.
+    Above the receivers' age limit (1 s), below the epoch."""
     lead_s: float = 0.2
     """The simulation runs this far ahead of the deployment's clock, seconds: a step's
     frames are computed before they are heard, so each leaves the worker when its
@@ -173,6 +181,12 @@ class LiveConfig:
             raise ValueError(
                 "need 0 < brake_repeat_s < hold_s and brake_repeat_s <= repeat_s, got "
                 f"{self.brake_repeat_s:g}, {self.hold_s:g}, {self.repeat_s:g}"
+            )
+        overlap = self.epoch_overlap_s
+        if overlap is not None and not ReceiverConfig().max_age_s < overlap < self.epoch_s:
+            raise ValueError(
+                f"epoch_overlap_s must be above the receivers' age limit "
+                f"({ReceiverConfig().max_age_s:g} s) and below the epoch, got {overlap:g}"
             )
         if not 0.0 <= self.lead_s <= 1.0:
             raise ValueError("lead_s must be in [0, 1] seconds")
@@ -472,6 +486,8 @@ class DistributedRfsas(ClosingContext):
         self.distributor.tick()
 
     def _start_backends(self, ctx: Any, backend_ids: list[str], settings: BackendConfig) -> None:
+        tracker = replace(settings.tracker, epoch_overlap_s=self.config.epoch_overlap_s)
+        settings = replace(settings, tracker=tracker)
         origin = f"{self.origin.lat_deg:.7f},{self.origin.lon_deg:.7f}"
         for k, b in enumerate(backend_ids):
             group = self.plan.group_of(b)

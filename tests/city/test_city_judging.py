@@ -13,7 +13,7 @@ import pytest
 from cryptography.hazmat.primitives.asymmetric import ec
 
 from rfsas_hw.backend.risk import ADVISORY_RANK
-from rfsas_hw.backend.service import BackendService
+from rfsas_hw.backend.service import BackendConfig, BackendService
 from rfsas_hw.backend.vehicle import VehicleState
 from rfsas_hw.city.backendproc import (
     Reach,
@@ -22,6 +22,7 @@ from rfsas_hw.city.backendproc import (
     nothing_due,
     tick_phase_s,
 )
+from rfsas_hw.errors import BackendError
 from rfsas_hw.fleet.advisory import AdvisorySink, decode_advisory
 from rfsas_hw.fleet.advisory_limits import AdvisoryLimiter, AdvisoryLimits
 from rfsas_hw.geo import SiteOrigin
@@ -207,3 +208,28 @@ def test_a_vehicle_near_only_untracked_emitters_told_recently_would_be_sent_noth
     assert said_nothing > 50  # the case arises often enough to be tested
     assert not nothing_due(limiter, 1e6, [1], set(), caution)  # an interval later: due
     assert not nothing_due(limiter, 0.0, [99], set(), caution)  # never told: due
+
+
+@pytest.mark.parametrize("overlap_s", [None, 2.0])
+def test_an_earlier_epochs_emitters_are_dropped_once_the_overlap_is_over(
+    overlap_s: float | None,
+) -> None:
+    """Ids are keyed per nonce epoch: with ``epoch_overlap_s``, an emitter last fixed in
+    the epoch before is kept that long into the new one (its successor's id takes over)
+    and then dropped, fix and track; without it, after ``drop_after_s`` (10 s)."""
+    base = BackendConfig()
+    config = replace(base, tracker=replace(base.tracker, epoch_overlap_s=overlap_s))
+    service = BackendService(config, clock=lambda: NOW)
+    epoch_ns = int(config.association.epoch_s * S)
+    walk_east(service, 7, 0.0, 15.0, 8, NOW - S)  # fixed until 1.1 s before the epoch
+    walk_east(service, 8, 0.0, -15.0, 8, NOW + S)  # another, fixed in the new epoch
+    assert 7 in service.fixes and 7 in service.tracker.tracks
+    service.step(NOW + 1_900_000_000)  # 1.9 s into the epoch: both kept
+    assert {7, 8} <= set(service.fixes)
+    service.step(NOW + 2 * S)  # the overlap is over
+    assert (7 in service.fixes, 7 in service.tracker.tracks) == (overlap_s is None,) * 2
+    assert 8 in service.fixes and 8 in service.tracker.tracks  # of this epoch: kept
+    service.step(NOW + epoch_ns // 2)  # half an epoch on, silent for 30 s: both gone
+    assert not service.fixes
+    with pytest.raises(BackendError, match="epoch_overlap_s"):
+        replace(base.tracker, epoch_overlap_s=0.0)

@@ -411,8 +411,6 @@ class CityBackend:
         """The trustworthy fixes the service's steps made since :meth:`new_fixes`."""
         self._shown: dict[int, Any] = {}
         """The fixes as they were at the last dashboard report."""
-        self._new_fixes: list[Any] = []
-        """The trustworthy fixes the service's steps made since :meth:`new_fixes`."""
 
     def warm(self) -> None:
         """Load (or compile, the first time on a machine) the numeric kernels before the

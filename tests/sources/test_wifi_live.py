@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import re
 import socket
 import subprocess
 import sys
@@ -136,7 +137,13 @@ def test_garbage_costs_only_that_frame(veth: tuple[str, str]) -> None:
         obs = _read_until(src, 2)
         errors = list(src.stats.errors)
     assert obs.seq.tolist() == [1, 3]
-    assert len(errors) == 1 and f"wifi:{rx}: frame 2" in errors[0] and "it_len 4000" in errors[0]
+    # the kernel may put a frame of its own on the link (an IPv6 multicast report raced
+    # the sysctl once, and was refused as frame 1): the garbage frame is still the only
+    # one of ours refused, named by its number (the second of ours at the earliest)
+    ours = [e for e in errors if "it_len 4000" in e]
+    assert len(ours) == 1, errors
+    number = re.search(rf"wifi:{rx}: frame (\d+) at byte", ours[0])
+    assert number is not None and int(number[1]) >= 2, errors
 
 
 def test_an_interface_that_is_not_radiotap_is_refused(veth: tuple[str, str]) -> None:

@@ -34,6 +34,7 @@ possibly shared machine; ratios from the same run.
 
 from __future__ import annotations
 
+import argparse
 import importlib.util
 import logging
 import resource
@@ -269,11 +270,16 @@ def run_pair(
 
 
 def main() -> None:
-    args = sys.argv[1:]
-    if args and args[0] == "--client":
-        client_only(int(args[1]) if len(args) > 1 else 3000)
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("n", nargs="?", type=int, help="messages per row (2,000; --client: 3,000)")
+    ap.add_argument("--client", action="store_true", help="the MQTT client alone, each side")
+    args = ap.parse_args()
+    if args.n is not None and args.n < 1:
+        ap.error(f"n must be at least 1, got {args.n}")
+    if args.client:
+        client_only(args.n or 3000)
         return
-    n = int(args[0]) if args else 2000
+    n = args.n or 2000
     paho = importlib.util.find_spec("paho") is not None
     with tempfile.TemporaryDirectory() as tmp:
         files = setup(Path(tmp))

@@ -844,7 +844,9 @@ class MqttTransport(Transport):
         self.publish(self.router.route(datagram, int(self.clock())), datagram)
 
     def publish(self, route: Route, datagram: bytes) -> None:
-        """Publish ``datagram`` as ``route`` says (QoS 0 or 1, retain, expiry).
+        """Publish ``datagram`` as ``route`` says (QoS 0 or 1, retain, expiry). In a
+        :meth:`together` block of this thread a QoS-0 publish is held and written with
+        the others at the block's end (its write's failure is counted there).
 
         Raises:
             LinkError: the broker is not connected or the write failed.

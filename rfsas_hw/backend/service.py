@@ -50,6 +50,7 @@ from rfsas_hw.backend.vehicle import VehicleFeed, VehicleState
 from rfsas_hw.config import from_mapping, read_yaml
 from rfsas_hw.errors import BackendError, ConfigError
 from rfsas_hw.geo import SiteOrigin
+from rfsas_hw.privacy.epochs import EpochSchedule
 from rfsas_hw.records import Assessment, BearingBatch, Fix, Pose, emitter_hex
 
 log = logging.getLogger(__name__)
@@ -404,15 +405,14 @@ class BackendService:
         """
         now = self.clock() if now_ns is None else int(now_ns)
         self.stats.steps += 1
-        fixes = self._triangulate(now)
+        made = self._triangulate(now)
+        fixes = [f for _, f in made]
         keep = max(now - int(self.config.tracker.drop_after_s * NS_PER_S), self._epoch_floor(now))
         self.tracker.prune(now, keep)
         for emitter in [e for e, f in self.fixes.items() if f.t_ns < keep]:
             del self.fixes[emitter]
         held_now = self.fixes
-        self.stepped = {
-            e: f for e, f in ((int(f.emitter, 16), f) for f in fixes) if held_now.get(e) is f
-        }
+        self.stepped = {e: f for e, f in made if held_now.get(e) is f}
         held = list(self.fixes.items())
         assessments = (
             self._assess(now, [self._vehicle_at(now)], held, [range(len(held))])[0]
@@ -435,11 +435,15 @@ class BackendService:
         overlap = self.config.tracker.epoch_overlap_s
         if overlap is None:
             return 0
-        epoch_ns = int(self.config.association.epoch_s * NS_PER_S)
-        start = now // epoch_ns * epoch_ns
-        return start if now - start >= overlap * NS_PER_S else start - epoch_ns
+        schedule = EpochSchedule(self.config.association.epoch_s, 0.0)
+        epoch = schedule.epoch_of(now)
+        if now - schedule.start_ns(epoch) < overlap * NS_PER_S:
+            epoch -= 1
+        return schedule.start_ns(epoch)
 
-    def _triangulate(self, now: int) -> list[Fix]:
+    def _triangulate(self, now: int) -> list[tuple[int, Fix]]:
+        """Fix every group of bearings ready at ``now``: per fix, its emitter id and the
+        fix (held in :attr:`fixes`; the trustworthy ones update the tracks)."""
         # tracks fed by bearings: a bearing from outside its unit's field of view stays
         # out of the fixes as it stays out of the tracks
         admit = None if self.bearing_tracker is None else self.bearing_tracker.admit
@@ -497,7 +501,7 @@ class BackendService:
                 batch.covariance[good],
                 [out[i].sensors for i in good],
             )
-        return out
+        return list(zip(emitters, out, strict=True))
 
     def _vehicle_at(self, now: int) -> VehicleState | None:
         return None if self.vehicle is None else self.vehicle.at(now)

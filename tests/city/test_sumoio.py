@@ -1,8 +1,9 @@
-"""SumoDistrict: subscription results into the rfsas frame, cars apart from VRUs; each
+"""SumoDistrict: what libsumo's getters give, into the rfsas frame, cars apart from VRUs; each
 vehicle's own advisories acted on."""
 
 from __future__ import annotations
 
+from collections import Counter
 from types import SimpleNamespace
 from typing import Any
 
@@ -11,18 +12,17 @@ import numpy as np
 from rfsas_hw.bridges.sumo import SumoControl
 from rfsas_hw.city.sumoio import SumoDistrict
 
-POS, SPEED, ANGLE, DIST = 0x42, 0x40, 0x43, 0x84
-
 
 class _Domain:
-    """One TraCI domain (vehicle or person) of a fake SUMO: static values and results."""
+    """One libsumo domain (vehicle or person) of a fake SUMO: static values, each object's
+    position, speed, angle and odometer, and a count of every getter's calls."""
 
     def __init__(self, static: dict[str, tuple[str, float, float]]) -> None:
         self.static = static
-        self.results: dict[str, dict[int, Any]] = {}
-        self.subscribed: list[tuple[str, tuple[int, ...]]] = []
+        self.values: dict[str, tuple[tuple[float, float], float, float, float]] = {}
+        self.calls: Counter[str] = Counter()
 
-    def getVehicleClass(self, oid: str) -> str:  # noqa: N802 (TraCI's name)
+    def getVehicleClass(self, oid: str) -> str:  # noqa: N802 (libsumo's name)
         return self.static[oid][0]
 
     def getLength(self, oid: str) -> float:  # noqa: N802
@@ -31,25 +31,34 @@ class _Domain:
     def getWidth(self, oid: str) -> float:  # noqa: N802
         return self.static[oid][2]
 
-    def subscribe(self, oid: str, variables: tuple[int, ...]) -> None:
-        self.subscribed.append((oid, variables))
+    def getIDList(self) -> tuple[str, ...]:  # noqa: N802
+        self.calls["getIDList"] += 1
+        return tuple(self.values)
 
-    def getAllSubscriptionResults(self) -> dict[str, dict[int, Any]]:  # noqa: N802
-        return self.results
+    def getPosition(self, oid: str) -> tuple[float, float]:  # noqa: N802
+        self.calls["getPosition"] += 1
+        return self.values[oid][0]
+
+    def getSpeed(self, oid: str) -> float:  # noqa: N802
+        self.calls["getSpeed"] += 1
+        return self.values[oid][1]
+
+    def getAngle(self, oid: str) -> float:  # noqa: N802
+        self.calls["getAngle"] += 1
+        return self.values[oid][2]
+
+    def getDistance(self, oid: str) -> float:  # noqa: N802
+        self.calls["getDistance"] += 1
+        return self.values[oid][3]
 
 
 class _Steered(_Domain):
-    """A vehicle domain that records speed commands and has no ``getIDList``: acting on
-    a vehicle must not ask SUMO for every vehicle's id (a list as long as the traffic,
-    per advisory)."""
+    """A vehicle domain that records speed commands."""
 
     def __init__(self, static: dict[str, tuple[str, float, float]]) -> None:
         super().__init__(static)
-        self.speeds: dict[str, float] = dict.fromkeys(static, 10.0)
+        self.values = {oid: ((0.0, 0.0), 10.0, 0.0, 0.0) for oid in static}
         self.commands: list[tuple[str, float]] = []
-
-    def getSpeed(self, oid: str) -> float:  # noqa: N802
-        return self.speeds[oid]
 
     def setSpeed(self, oid: str, speed: float) -> None:  # noqa: N802
         self.commands.append((oid, speed))
@@ -72,13 +81,13 @@ def _fake_sumo() -> Any:
 
 def test_read_puts_box_centres_in_the_frame_and_vrus_apart() -> None:
     sumo = _fake_sumo()
-    sumo.vehicle.results = {
-        "car": {POS: (10.0, 20.0), SPEED: 5.0, ANGLE: 90.0, DIST: 30.0},  # heading east
-        "bike": {POS: (0.0, 0.0), SPEED: -1.0, ANGLE: 0.0},  # north; SUMO's -1
-        "bus": {POS: (-5.0, 0.0), SPEED: 0.0, ANGLE: 180.0, DIST: 0.0},
-        "gone": {POS: (0.0, 0.0), SPEED: 0.0, ANGLE: 0.0, DIST: 0.0},  # never departed
+    sumo.vehicle.values = {
+        "car": ((10.0, 20.0), 5.0, 90.0, 30.0),  # heading east
+        "bike": ((0.0, 0.0), -1.0, 0.0, 7.0),  # north; SUMO's -1
+        "bus": ((-5.0, 0.0), 0.0, 180.0, 0.0),
+        "gone": ((0.0, 0.0), 0.0, 0.0, 0.0),  # never departed
     }
-    sumo.person.results = {"ped": {POS: (1.0, 2.0), SPEED: 1.2, ANGLE: 270.0}}
+    sumo.person.values = {"ped": ((1.0, 2.0), 1.2, 270.0, 0.0)}
     # a frame shifted by (100, 0) m and turned by 0°
     district = SumoDistrict(sumo, lambda x, y: (x + 100.0, y), lambda a: np.asarray(a) % 360.0)
     cars, vrus = district.read()
@@ -96,18 +105,17 @@ def test_read_puts_box_centres_in_the_frame_and_vrus_apart() -> None:
     np.testing.assert_allclose(vrus.heading_deg, [0.0, 270.0])
     np.testing.assert_allclose(vrus.speed_mps, [0.0, 1.2])  # negative speeds clipped
     np.testing.assert_allclose(vrus.odometer_m, [0.0, 0.0])
-    # the odometer is read for vehicles only (each value read costs every step)
-    assert sumo.vehicle.subscribed == [
-        ("car", (POS, SPEED, ANGLE, DIST)),
-        ("bike", (POS, SPEED, ANGLE)),
-        ("bus", (POS, SPEED, ANGLE, DIST)),
-    ]
-    assert sumo.person.subscribed == [("ped", (POS, SPEED, ANGLE))]
+    # each object is read once; the odometer for vehicles only (each value costs a call)
+    assert sumo.vehicle.calls == Counter(
+        getIDList=1, getPosition=3, getAngle=3, getSpeed=3, getDistance=2
+    )
+    assert sumo.person.calls == Counter(getIDList=1, getPosition=1, getAngle=1, getSpeed=1)
 
 
 def test_read_of_an_empty_simulation_gives_empty_arrays() -> None:
     sumo = _fake_sumo()
     sumo.departed["v"], sumo.departed["p"] = [], []
+    sumo.vehicle.values = {}
     cars, vrus = SumoDistrict(sumo, lambda x, y: (x, y), lambda a: np.asarray(a)).read()
     assert len(cars) == len(vrus) == 0
     assert cars.x_m.shape == vrus.speed_mps.shape == (0,)
@@ -117,6 +125,7 @@ def test_act_brakes_holds_and_releases_only_the_advised_vehicle() -> None:
     sumo = _fake_sumo()
     district = SumoDistrict(sumo, lambda x, y: (x, y), lambda a: np.asarray(a), SumoControl(1.0))
     district.read()
+    listed = sumo.vehicle.calls["getIDList"]
     assert district.act(10.0, "car", "clear") == "none"  # nothing to hand back
     assert district.act(10.0, "car", "brake") == "brake"
     assert sumo.vehicle.commands == [("car", 0.0)]
@@ -131,12 +140,16 @@ def test_act_brakes_holds_and_releases_only_the_advised_vehicle() -> None:
     assert district.held() == []
     # CAUTION after a BRAKE keeps the speed the car came down to
     district.act(12.0, "bus", "brake")
-    sumo.vehicle.speeds["bus"] = 2.5
+    sumo.vehicle.values["bus"] = ((0.0, 0.0), 2.5, 0.0, 0.0)
     assert district.act(13.5, "bus", "caution") == "cap"
     assert sumo.vehicle.commands[-1] == ("bus", 2.5)
+    # acting on a vehicle never asks SUMO for every vehicle's id (a list as long as the
+    # traffic, per advisory)
+    assert sumo.vehicle.calls["getIDList"] == listed
     # a vehicle that has left the simulation is gone, not an error
     sumo.departed["v"] = []
     sumo.simulation.getArrivedIDList = lambda: ["bus"]
+    del sumo.vehicle.values["bus"]
     district.read()
     assert district.act(14.0, "bus", "brake") == "gone"
     assert "bus" not in district.held()

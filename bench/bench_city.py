@@ -74,6 +74,7 @@ def _row(vrus: int, duration_s: float, net: Path | None, seed: int, nice: int) -
         - rt.counts.get("advisories_received", 0),
         "latency_p50_ms": res.summary.latency_p50_ms,
         "latency_p99_ms": res.summary.latency_p99_ms,
+        "latency_parts_ms": res.summary.latency_parts_ms,
         "cpu_share": {k: round(v, 3) for k, v in rt.cpu_share().items()},
     }
 
@@ -97,6 +98,7 @@ def main() -> None:
     ]
     keys = sorted({k for r in rows for k in r["cpu_share"]})  # type: ignore[attr-defined]
     head = ["VRUs", "cars", "phones", "RTF", "bear/s", "verified", "adv/s", "lost", "p50", "p99"]
+    head += ["p99 to step / judging / delivery"]
     head += keys
     print(" | ".join(head))
     for r in rows:
@@ -112,6 +114,7 @@ def main() -> None:
             r["lost"],
             r["latency_p50_ms"],
             r["latency_p99_ms"],
+            " / ".join(str(part.get("p99")) for part in r["latency_parts_ms"].values()),  # type: ignore[attr-defined]
             *(share.get(k, "") for k in keys),  # type: ignore[attr-defined]
         ]
         print(" | ".join(str(c) for c in cells))

@@ -29,10 +29,11 @@ t_ns)``), so that the main process can tell a backend that does not read them
 and hold them back instead of blocking on a full pipe.
 
 When an advisory carries a fix made in this step, the process tells the main
-process (over the pipe) its vehicle, sequence numbers and that fix's time (the
-newest frame it was made of), so the frame → advisory latency is measured where
-the vehicle receives it, once per fix and vehicle (the repeats of a track's
-state in later steps would measure the track's age, not the path).
+process (over the pipe) its vehicle, sequence numbers, that fix's time (the
+newest frame it was made of) and when the step began, so the frame → advisory
+latency, and where it went (:class:`~rfsas_hw.city.latency.LatencyParts`), is
+measured where the vehicle receives it, once per fix and vehicle (the repeats of
+a track's state in later steps would measure the track's age, not the path).
 """
 
 from __future__ import annotations
@@ -452,11 +453,11 @@ class CityBackend:
             out.append((fix.t_ns, fix.emitter, fix.x_m, fix.y_m, sigma))
         return out
 
-    def judge(self, now_ns: int, fresh_only: bool = False) -> list[tuple[str, int, int, int]]:
+    def judge(self, now_ns: int, fresh_only: bool = False) -> list[tuple[str, int, int, int, int]]:
         """Step the service and advise every vehicle near a live emitter (``fresh_only``:
         near an emitter fixed in this step, judged against those emitters only); per
         advisory that carried a fix made in this step, (vehicle id, first and last
-        sequence number, time of that fix in UTC ns)."""
+        sequence number, time of that fix's newest frame and ``now_ns``, UTC ns)."""
         service = self.app.service
         # the service's own vehicle is none: its assessments only feed the dashboard
         service.step(now_ns, assess=self.work.dashboard)
@@ -472,7 +473,7 @@ class CityBackend:
         emitters, predicted = service.predicted(now_ns, fresh_ns if fresh_only else None)
         chosen = np.isfinite(predicted[:, 0]) & np.isfinite(predicted[:, 1])
         emitters, predicted = emitters[chosen], predicted[chosen]
-        out: list[tuple[str, int, int, int]] = []
+        out: list[tuple[str, int, int, int, int]] = []
         close, judged = states.within(
             emitters, predicted[:, 0], predicted[:, 1], self.work.near_m, self._reach(predicted)
         )
@@ -508,11 +509,11 @@ class CityBackend:
         batch: list[tuple[int, VehicleState, list[int]]],
         now_ns: int,
         fresh_ns: dict[int, int],
-    ) -> list[tuple[str, int, int, int]]:
+    ) -> list[tuple[str, int, int, int, int]]:
         """Judge the vehicles of ``batch`` (:meth:`VehicleStates.near`) at ``now_ns`` and
         publish their advice; per advisory that carried a fix made in this step (its
         emitter a key of ``fresh_ns``, with that fix's time), as :meth:`judge` gives it."""
-        out: list[tuple[str, int, int, int]] = []
+        out: list[tuple[str, int, int, int, int]] = []
         requests = [(vehicle, mine) for _, vehicle, mine in batch]
         service = self.app.service
         for (i, _, _), assessed in zip(batch, service.assess_many(requests, now_ns), strict=True):
@@ -529,7 +530,7 @@ class CityBackend:
             fresh = [fresh_ns[e] for e in (int(a.emitter, 16) for a in assessed) if e in fresh_ns]
             if fresh:
                 # the advisory that carries a fix made in this step: its latency counts
-                out.append((vid, first, (first + n - 1) % (1 << 32), max(fresh)))
+                out.append((vid, first, (first + n - 1) % (1 << 32), max(fresh), now_ns))
         return out
 
     def _reach(self, predicted: np.ndarray) -> Reach | None:

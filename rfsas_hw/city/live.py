@@ -64,7 +64,7 @@ from rfsas_hw.city.deploy import (
     make_deployment,
 )
 from rfsas_hw.city.handshake import proc_cpu_s, wait_ready
-from rfsas_hw.city.latency import LatencyMatch
+from rfsas_hw.city.latency import LatencyMatch, LatencyParts
 from rfsas_hw.city.owners import VehicleOwners
 from rfsas_hw.city.partition import Site, district_tiles, plan_tiles, split_units
 from rfsas_hw.city.sumoio import Movers
@@ -275,12 +275,12 @@ class StepOut:
 
     arrivals: list[Arrival] = field(default_factory=list)
     """Advisories verified at their vehicle this step."""
-    latency_s: dict[tuple[str, int], float] = field(default_factory=dict)
-    """Frame → advisory latency, seconds of the deployment's clock (wall seconds at time
-    scale 1), of the advisories that carried a fix of their step (the others repeat a
-    track's state), by (backend, sequence number): of this step's arrivals, and of
-    earlier arrivals whose backend reported the fix they carried only now
-    (:class:`~rfsas_hw.city.latency.LatencyMatch`)."""
+    latency: dict[tuple[str, int], LatencyParts] = field(default_factory=dict)
+    """Frame → advisory latency and its parts, seconds of the deployment's clock (wall
+    seconds at time scale 1), of the advisories that carried a fix of their step (the
+    others repeat a track's state), by (backend, sequence number): of this step's
+    arrivals, and of earlier arrivals whose backend reported the fix they carried only
+    now (:class:`~rfsas_hw.city.latency.LatencyMatch`)."""
     fixes: list[FixRecord] = field(default_factory=list)
     foreign: int = 0
     """Arrivals signed by a backend that does not own the vehicle's tile."""
@@ -681,12 +681,12 @@ class DistributedRfsas(ClosingContext):
             while conn.poll():
                 msg = conn.recv()
                 if msg[0] == "sent":
-                    for _vid, first, last, fix_ns in msg[1]:
+                    for _vid, first, last, fix_ns, step_ns in msg[1]:
                         seq = first
                         while True:
-                            latency = self._latency.sent((b, seq), fix_ns)
+                            latency = self._latency.sent((b, seq), fix_ns, step_ns)
                             if latency is not None:  # it arrived at an earlier step
-                                out.latency_s[(b, seq)] = latency
+                                out.latency[(b, seq)] = latency
                             if seq == last:
                                 break
                             seq = (seq + 1) % (1 << 32)
@@ -713,9 +713,9 @@ class DistributedRfsas(ClosingContext):
         """Take one verified advisory: its owner check, its vehicle's tiles, its latency
         when its backend said which fix it carried."""
         key = (arrival.backend_id, arrival.seq)
-        latency = self._latency.arrived(key, arrival.t_ns)
+        latency = self._latency.arrived(key, arrival.t_ns, arrival.signed_ns)
         if latency is not None:
-            out.latency_s[key] = latency
+            out.latency[key] = latency
         vid = arrival.vehicle_id
         owned = self._owners.owns(arrival.backend_id, vid)
         out.foreign += not owned

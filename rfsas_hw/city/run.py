@@ -50,6 +50,7 @@ from rfsas_hw.city.childlog import redact_macs
 from rfsas_hw.city.clock import cpu_s
 from rfsas_hw.city.demand import Demand, DemandConfig, generate
 from rfsas_hw.city.deploy import AUTHORITY_ID, BrokerAccess, make_identities
+from rfsas_hw.city.latency import LatencyParts
 from rfsas_hw.city.live import DistributedRfsas, LiveConfig, LiveStats, backend_names
 from rfsas_hw.city.net import NetInfo, district_net, read_net, sumo_home
 from rfsas_hw.city.placement import UnitSite, buildings, placed_units
@@ -554,10 +555,10 @@ def _run_loop(
                 advised: set[str] = set()
                 for f in out.fixes:
                     scorer.fix(f.t_s, f.emitter, f.person, f.x_m, f.y_m, f.sigma_m)
-                latencies = dict(out.latency_s)
+                latencies = dict(out.latency)
                 for a in out.arrivals:
                     kind = a.advice
-                    latency = latencies.pop((a.backend_id, a.seq), math.nan)
+                    latency = latencies.pop((a.backend_id, a.seq), None)
                     scorer.advisory(t, a.vehicle_id, kind, latency)
                     sim.act(t, a.vehicle_id, kind)
                     advised.add(a.vehicle_id)
@@ -604,12 +605,14 @@ def _run_loop(
             tmp.cleanup()
     for a in live.late if live is not None else ():
         # reached its vehicle after the simulation's end: logged, not acted on
-        _log_arrival(log, cfg.duration_s, a, a.advice, math.nan)
+        _log_arrival(log, cfg.duration_s, a, a.advice, None)
     _costs(runtime, timers, cpu_s() - cpu0, stats)
     return runtime
 
 
-def _log_arrival(log: _Log, t_s: float, a: Arrival, kind: str, latency_s: float) -> None:
+def _log_arrival(
+    log: _Log, t_s: float, a: Arrival, kind: str, latency: LatencyParts | None
+) -> None:
     log.write(
         {
             "record": "advisory",
@@ -618,7 +621,11 @@ def _log_arrival(log: _Log, t_s: float, a: Arrival, kind: str, latency_s: float)
             "backend": a.backend_id,
             "advice": kind,
             "emitters": list(a.emitters),
-            "latency_ms": _finite(round(latency_s * 1e3, 2)),
+            "latency_ms": None if latency is None else _finite(round(latency.total_s * 1e3, 2)),
+            # frame → the backend's step, the step → signed, signed → verified at the car
+            "latency_parts_ms": None
+            if latency is None
+            else [_finite(round(part * 1e3, 2)) for part in latency],
             "owned": a.owned,
             "tiles": list(a.tiles),
         }

@@ -67,6 +67,7 @@ from rfsas_hw.bridges.boxes import overlap
 from rfsas_hw.bridges.bridge import Entity
 from rfsas_hw.bridges.config import EntityKind
 from rfsas_hw.city.demand import VruRecord
+from rfsas_hw.city.latency import LatencyParts
 from rfsas_hw.city.net import Crossing
 from rfsas_hw.errors import ConfigError
 
@@ -78,6 +79,9 @@ LATENCY_BIN_S = 0.0005
 """Width of a latency histogram bin, seconds."""
 LATENCY_MAX_S = 5.0
 """Latencies above this land in the last bin, seconds."""
+LATENCY_PARTS = ("to_step", "judging", "delivery")
+"""The parts of a latency in the summary, in the order of
+:class:`~rfsas_hw.city.latency.LatencyParts`."""
 ERROR_BIN_M = 0.25
 """Width of a fix-error histogram bin, metres."""
 ERROR_MAX_M = 100.0
@@ -283,6 +287,9 @@ class CitySummary:
     """Persons with fixes, and the median / p90 / max of their longest linked stretch
     (seconds, metres, share of the trip)."""
     crossings: list[CrossingCoverage] = field(default_factory=list)
+    latency_parts_ms: dict[str, dict[str, float | None]] = field(default_factory=dict)
+    """The p50 and p99 of each part of the latency (:data:`LATENCY_PARTS`), over the same
+    advisories as the latency's: ``{"to_step": {"p50": …, "p99": …}, …}``, ms."""
 
     @property
     def conflicts(self) -> int:
@@ -314,6 +321,10 @@ def _finite(v: Any) -> Any:
     if isinstance(v, list):
         return [_finite(x) for x in v]
     return v
+
+
+def _ms(seconds: float | None) -> float | None:
+    return None if seconds is None else seconds * 1000.0
 
 
 def _hist_quantile(counts: npt.NDArray[np.int64], bin_width: float, q: float) -> float | None:
@@ -403,6 +414,7 @@ class CityScorer:
         self._nuisance_events: list[tuple[float, float, str]] = []
         self._advisories: dict[str, int] = {}
         self._latency = np.zeros(int(LATENCY_MAX_S / LATENCY_BIN_S) + 1, np.int64)
+        self._latency_parts = np.zeros((len(LATENCY_PARTS), len(self._latency)), np.int64)
         self._messages = 0
         self._vehicles = Actors.empty()
         self._vrus = Actors.empty()
@@ -607,11 +619,14 @@ class CityScorer:
         else:
             link.last_s, link.last_m = t_s, walked
 
-    def advisory(self, t_s: float, vehicle_id: str, kind: str, latency_s: float) -> None:
+    def advisory(
+        self, t_s: float, vehicle_id: str, kind: str, latency: LatencyParts | None
+    ) -> None:
         """One advisory that reached a car: its kind (``brake``, ``caution``, ``clear``)
-        and its frame → advisory latency, seconds."""
+        and its frame → advisory latency (None: not known, or not yet)."""
         self._advisories[kind] = self._advisories.get(kind, 0) + 1
-        self.latency(latency_s)
+        if latency is not None:
+            self.latency(latency)
         if kind != "brake":
             return
         last = self._brake_last.get(vehicle_id)
@@ -631,12 +646,18 @@ class CityScorer:
                 veh = self._vehicles
                 self._nuisance_events.append((float(veh.x_m[v]), float(veh.y_m[v]), vehicle_id))
 
-    def latency(self, latency_s: float) -> None:
-        """One frame → advisory latency, seconds (NaN or negative: none, not counted);
-        :meth:`advisory` takes it with its advisory, this one for an advisory whose
-        latency became known after it reached its car."""
-        if math.isfinite(latency_s) and latency_s >= 0:
-            self._latency[min(int(latency_s / LATENCY_BIN_S), len(self._latency) - 1)] += 1
+    def latency(self, latency: LatencyParts) -> None:
+        """One frame → advisory latency and its parts (a total that is not finite or is
+        negative, clocks that disagree, is not counted); :meth:`advisory` takes it with
+        its advisory, this one for an advisory whose latency became known after it
+        reached its car."""
+        total = latency.total_s
+        if not (math.isfinite(total) and total >= 0):
+            return
+        last = len(self._latency) - 1
+        self._latency[min(int(total / LATENCY_BIN_S), last)] += 1
+        for row, part in zip(self._latency_parts, latency, strict=True):
+            row[min(max(int(part / LATENCY_BIN_S), 0), last)] += 1
 
     def messages(self, n: int) -> None:
         """``n`` more bearing messages were published."""
@@ -714,8 +735,8 @@ class CityScorer:
         with_phone = sum(c.arrivals_with_phone for c in crossings)
         covered = sum(c.covered for c in crossings)
         rate = (lambda n: n / duration) if duration > 0 else (lambda n: 0.0)
-        p50 = _hist_quantile(self._latency, LATENCY_BIN_S, 0.5)
-        p99 = _hist_quantile(self._latency, LATENCY_BIN_S, 0.99)
+        p50 = _ms(_hist_quantile(self._latency, LATENCY_BIN_S, 0.5))
+        p99 = _ms(_hist_quantile(self._latency, LATENCY_BIN_S, 0.99))
         return CitySummary(
             duration_s=duration,
             steps=self._steps,
@@ -735,8 +756,8 @@ class CityScorer:
             messages=self._messages,
             messages_per_s=rate(self._messages),
             latency_n=int(self._latency.sum()),
-            latency_p50_ms=None if p50 is None else p50 * 1000.0,
-            latency_p99_ms=None if p99 is None else p99 * 1000.0,
+            latency_p50_ms=p50,
+            latency_p99_ms=p99,
             fixes=self._fixes,
             fixes_ghost=self._ghost,
             coverage_share=covered / with_phone if with_phone else None,
@@ -744,4 +765,11 @@ class CityScorer:
             crossings_reached=len(crossings),
             linkability=self._linkability(),
             crossings=crossings,
+            latency_parts_ms={
+                name: {
+                    f"p{round(q * 100)}": _ms(_hist_quantile(row, LATENCY_BIN_S, q))
+                    for q in (0.5, 0.99)
+                }
+                for name, row in zip(LATENCY_PARTS, self._latency_parts, strict=True)
+            },
         )

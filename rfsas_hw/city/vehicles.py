@@ -81,6 +81,8 @@ class Arrival:
     """Its sequence number (with ``backend_id``, the message's identity)."""
     t_ns: int
     """When it arrived (was verified), UTC ns."""
+    signed_ns: int
+    """When its backend signed it (its generation time), UTC ns."""
     advice: str
     """Its most severe advice (``brake``, ``caution``, ``clear``, ``none``)."""
     emitters: tuple[str, ...]
@@ -107,14 +109,17 @@ def most_severe(message: AdvisoryMessage) -> str:
     return max((it.advisory for it in message.items), key=lambda a: ADVISORY_RANK.get(a, 0))
 
 
-ArrivalRow = tuple[str, str, int, int, str, tuple[str, ...]]
+ArrivalRow = tuple[str, str, int, int, int, str, tuple[str, ...]]
 """An :class:`Arrival` as it crosses the pipe: (vehicle id, backend id, sequence number,
-arrival UTC ns, most severe advice, emitter ids)."""
+arrival and signing UTC ns, most severe advice, emitter ids)."""
 
 
 def arrival_rows(arrivals: Iterable[Arrival]) -> list[ArrivalRow]:
     """Arrivals as plain tuples, to cross a pipe (pickled without per-object state)."""
-    return [(a.vehicle_id, a.backend_id, a.seq, a.t_ns, a.advice, a.emitters) for a in arrivals]
+    return [
+        (a.vehicle_id, a.backend_id, a.seq, a.t_ns, a.signed_ns, a.advice, a.emitters)
+        for a in arrivals
+    ]
 
 
 def arrivals_of(rows: Iterable[ArrivalRow]) -> list[Arrival]:
@@ -192,6 +197,7 @@ class VehicleGateway:
                         msg.sender_id,
                         msg.seq,
                         now,
+                        msg.t_gen_us * 1000,
                         most_severe(msg),
                         tuple(it.emitter for it in msg.items),
                     )

@@ -400,6 +400,8 @@ def _modes(rfsas: str) -> tuple[Mode, ...]:
 
 
 def _table(results: dict[str, CityRunResult]) -> Table:
+    from rfsas_hw.city.scoring import LATENCY_PARTS
+
     table = Table(title="district run")
     table.add_column("measure")
     for mode in results:
@@ -420,6 +422,13 @@ def _table(results: dict[str, CityRunResult]) -> Table:
         (
             "latency p50 / p99, ms",
             lambda r: f"{_fmt(r.summary.latency_p50_ms, 1)} / {_fmt(r.summary.latency_p99_ms, 1)}",
+        ),
+        (
+            "  p99 of each part: to the backend's step / judging / delivery, ms",
+            lambda r: " / ".join(
+                _fmt(r.summary.latency_parts_ms.get(part, {}).get("p99"), 1)
+                for part in LATENCY_PARTS
+            ),
         ),
         (
             "linkability: longest linked stretch p50 / max, s",

@@ -186,6 +186,17 @@ def test_small_district_end_to_end(grid_net: Path, tmp_path: Path) -> None:
     for r in advisories:
         assert r["tiles"] and any(t in plan[r["backend"]] for t in r["tiles"]), r
     assert counts["advisories_foreign"] == 0
+    # the latency of an advisory that carried a fresh fix, in its three parts: in order
+    # on one clock (none negative), adding up to the whole
+    timed = [r for r in advisories if r["latency_ms"] is not None]
+    assert timed and on.summary.latency_n >= len(timed)
+    for r in timed:
+        parts = r["latency_parts_ms"]
+        assert len(parts) == 3 and min(parts) >= 0, r
+        assert sum(parts) == pytest.approx(r["latency_ms"], abs=0.02), r
+    p99 = on.summary.latency_parts_ms
+    assert set(p99) == {"to_step", "judging", "delivery"}
+    assert all(0 <= p99[part]["p50"] <= p99[part]["p99"] for part in p99), p99
 
     # no raw MAC in the broker's traffic, the run log, the summary or the map
     demand = [ln.split(",")[0] for ln in (out / "demand" / "vrus.csv").read_text().splitlines()[1:]]

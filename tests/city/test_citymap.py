@@ -11,6 +11,7 @@ pytest.importorskip("sumo", reason="needs the city extra: pip install 'rfsas-hw[
 pytest.importorskip("sumolib", reason="needs the city extra: pip install 'rfsas-hw[city]'")
 
 from rfsas_hw.city.citymap import write_map
+from rfsas_hw.city.latency import LatencyParts
 from rfsas_hw.city.net import read_net
 from rfsas_hw.city.placement import place_units
 from rfsas_hw.city.scoring import Actors, CityScorer
@@ -32,7 +33,9 @@ def test_map_holds_every_kind_and_no_emitter_id(grid_net: Path, tmp_path: Path) 
     )
     scorer.fix(0.0, "a1b2c3d4e5f60718", "ped2", kx + 1.0, ky, 2.0)
     scorer.step(0.0, cars, peds)
-    scorer.advisory(0.0, "car2", "brake", 0.02)  # no VRU ahead of car2: a nuisance
+    scorer.advisory(
+        0.0, "car2", "brake", LatencyParts(0.01, 0.005, 0.005)
+    )  # no VRU ahead of car2: a nuisance
     png, gj = tmp_path / "city.png", tmp_path / "city.geojson"
     assert write_map(scorer, units, info, png, gj) == [gj, png]
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

@@ -8,6 +8,7 @@ import math
 import pytest
 
 from rfsas_hw.city.demand import VruRecord
+from rfsas_hw.city.latency import LatencyParts
 from rfsas_hw.city.net import Crossing
 from rfsas_hw.city.scoring import Actors, CityScorer, ScoringConfig
 from rfsas_hw.errors import ConfigError
@@ -114,10 +115,10 @@ def test_a_brake_with_no_vru_ahead_is_a_nuisance() -> None:
         ),
         vrus(("p", "pedestrian", 100.0, 30.0, 0.0, 0.0)),
     )  # ttc 2.5 s for "threat"
-    s.advisory(0.0, "lonely", "brake", 0.02)
-    s.advisory(0.5, "lonely", "brake", 0.02)  # same episode
-    s.advisory(0.0, "threat", "brake", 0.02)
-    s.advisory(0.0, "threat", "caution", 0.02)
+    s.advisory(0.0, "lonely", "brake", LatencyParts(0.02, 0.0, 0.0))
+    s.advisory(0.5, "lonely", "brake", LatencyParts(0.02, 0.0, 0.0))  # same episode
+    s.advisory(0.0, "threat", "brake", LatencyParts(0.02, 0.0, 0.0))
+    s.advisory(0.0, "threat", "caution", LatencyParts(0.02, 0.0, 0.0))
     out = s.summary()
     assert out.brake_episodes == 2
     assert out.nuisance_brakes == 1
@@ -130,7 +131,7 @@ def test_a_brake_with_no_vru_ahead_is_a_nuisance() -> None:
 
 def test_a_conflict_braked_for_is_advised_and_defused_unless_it_collided() -> None:
     s = CityScorer()
-    s.advisory(0.0, "c1", "brake", 0.01)
+    s.advisory(0.0, "c1", "brake", LatencyParts(0.01, 0.0, 0.0))
     s.step(
         0.5,
         cars(("c1", 0.0, 0.0, 10.0, 0.0, 0.0), ("c2", 50.0, 0.0, 10.0, 0.0, 0.0)),
@@ -198,7 +199,13 @@ def test_latency_percentiles_and_rates() -> None:
     s = CityScorer()
     s.step(0.0, Actors.empty(), Actors.empty())
     for k in range(100):
-        s.advisory(0.0, "c", "clear", 0.010 if k < 98 else 0.080)
+        # the slowest two were late at their backend's step
+        s.advisory(
+            0.0,
+            "c",
+            "clear",
+            (LatencyParts(0.004, 0.003, 0.003) if k < 98 else LatencyParts(0.070, 0.004, 0.006)),
+        )
     s.messages(500)
     s.step(10.0, Actors.empty(), Actors.empty())
     out = s.summary()
@@ -207,18 +214,25 @@ def test_latency_percentiles_and_rates() -> None:
     assert out.latency_p99_ms == pytest.approx(80.0, abs=0.5)
     assert out.messages_per_s == pytest.approx(50.0)
     assert out.advisories_per_s == pytest.approx(10.0)
+    # each part's own percentiles, over the same advisories
+    assert out.latency_parts_ms["to_step"]["p50"] == pytest.approx(4.0, abs=0.5)
+    assert out.latency_parts_ms["to_step"]["p99"] == pytest.approx(70.0, abs=0.5)
+    assert out.latency_parts_ms["judging"]["p99"] == pytest.approx(4.0, abs=0.5)
+    assert out.latency_parts_ms["delivery"]["p50"] == pytest.approx(3.0, abs=0.5)
+    assert out.latency_parts_ms["delivery"]["p99"] == pytest.approx(6.0, abs=0.5)
     doc = json.loads(out.to_json())
     assert doc["latency_p99_ms"] == pytest.approx(80.0, abs=0.5)
+    assert doc["latency_parts_ms"]["to_step"]["p99"] == pytest.approx(70.0, abs=0.5)
     assert doc["nuisance_per_100_vehicle_km"] is None
 
 
 def test_a_latency_known_after_its_advisory_counts_once() -> None:
     s = CityScorer()
     s.step(0.0, Actors.empty(), Actors.empty())
-    s.advisory(0.0, "c", "clear", math.nan)  # its backend had not reported yet
-    s.latency(0.040)  # the report came at a later step
-    s.latency(math.nan)
-    s.latency(-0.001)  # clocks disagree: not a latency
+    s.advisory(0.0, "c", "clear", None)  # its backend had not reported yet
+    s.latency(LatencyParts(0.030, 0.005, 0.005))  # the report came at a later step
+    s.latency(LatencyParts(math.nan, 0.0, 0.0))
+    s.latency(LatencyParts(0.0, 0.0, -0.001))  # clocks disagree: not a latency
     out = s.summary()
     assert out.latency_n == 1
     assert out.latency_p50_ms == pytest.approx(40.0, abs=0.5)

@@ -10,16 +10,13 @@ backend judges every vehicle in its tiles, not one. Every 0.1 s
 2. for each vehicle in its tiles (the states the vehicles report, arriving on a
    pipe from the simulator, which stands for their cooperative-awareness
    messages), the live emitters within :attr:`BackendWork.near_m` are judged
-   against that vehicle — the vehicles near a new fix first, then the others,
-   :attr:`BackendWork.tick_slice` vehicles in one batch
+   against that vehicle — every such vehicle of the step in one batch
    (:meth:`BackendService.assess_many`: the tracks predicted once, every
    vehicle–emitter pair in one call of the same encounter model, each pair as it
    would be judged alone) —, and the assessments are signed and published on
    that vehicle's own topic ``rfsas/v1/vehicle/<id>/advisory`` through a
    per-vehicle :class:`~rfsas_hw.fleet.advisory.AdvisorySink` (its limits hold
-   per vehicle). Between two slices of a tick the backend takes the bearings that
-   came and makes a quick step when one is due (below): at a thousand phones a
-   whole tick took 15–30 ms, up to 70, and a new fix waited for all of it.
+   per vehicle).
 
 Between two ticks, bearings verified since the last step make the service step
 again just after the end of the sensors' slot they came in (:attr:`BackendWork.slot_s`,
@@ -75,7 +72,6 @@ __all__ = [
     "Cadence",
     "Reach",
     "StatesByTime",
-    "TickSlices",
     "VehicleStates",
     "backend_main",
     "fresh_first",
@@ -127,11 +123,6 @@ class BackendWork:
     """Unchanged advice sent at least this long ago goes with any advisory to the same
     vehicle, so that its repeats travel together (``AdvisoryLimits.ride_along_s``),
     seconds."""
-    tick_slice: int = 24
-    """A tick judges its vehicles this many at a time, the vehicles near a new fix first;
-    between two slices the backend takes the bearings that came and makes a quick step
-    when one is due (:class:`TickSlices`), so a new fix does not wait for the whole tick
-    (tens of milliseconds at a thousand phones)."""
     clock: SimClock = field(default_factory=lambda: SimClock(0))
     """The deployment's clock."""
     dashboard: bool = False
@@ -382,59 +373,6 @@ class Cadence:
         return what
 
 
-Entry = tuple[int, VehicleState, list[int]]
-"""A vehicle to judge (:meth:`VehicleStates.near`): its index in the states, its state,
-the emitters (ids) to judge it against."""
-
-
-@dataclass
-class TickSlices:
-    """A tick's vehicles, judged a slice at a time (:attr:`BackendWork.tick_slice`).
-
-    Args:
-        states: the vehicles' states of the tick.
-        order: the vehicles in the order they are judged (:func:`fresh_first`).
-        fresh_ns: the emitters fixed in the tick's step, with their fixes' times.
-        step_ns: when the tick began, UTC ns.
-        size: vehicles per slice (≥ 1).
-
-    Raises:
-        ValueError: ``size`` below 1.
-    """
-
-    states: VehicleStates
-    order: list[list[Entry]]
-    fresh_ns: dict[int, int]
-    step_ns: int
-    size: int
-
-    def __post_init__(self) -> None:
-        if self.size < 1:
-            raise ValueError(f"a tick's slice must hold at least one vehicle, got {self.size}")
-        # slices never mix the vehicles near a new fix with the others: the first go as
-        # soon as they are judged
-        self._slices = [
-            group[k : k + self.size]
-            for group in self.order
-            for k in range(0, len(group), self.size)
-        ]
-
-    def __bool__(self) -> bool:
-        """Whether a slice is left."""
-        return bool(self._slices)
-
-    def take(self, all_left: bool = False) -> list[Entry]:
-        """The next slice (``all_left``: every vehicle left), taken off; empty when none
-        is left."""
-        if not self._slices:
-            return []
-        if all_left:
-            out = [entry for piece in self._slices for entry in piece]
-            self._slices = []
-            return out
-        return self._slices.pop(0)
-
-
 class CityBackend:
     """One district backend (see the module docstring); :meth:`run` until told to stop.
 
@@ -474,8 +412,6 @@ class CityBackend:
         """The trustworthy fixes the service's steps made since :meth:`new_fixes`."""
         self._shown: dict[int, Any] = {}
         """The fixes as they were at the last dashboard report."""
-        self._tick: TickSlices | None = None
-        """What is left of the last tick."""
 
     def warm(self) -> None:
         """Load (or compile, the first time on a machine) the numeric kernels before the
@@ -519,14 +455,9 @@ class CityBackend:
 
     def judge(self, now_ns: int, fresh_only: bool = False) -> list[tuple[str, int, int, int, int]]:
         """Step the service and advise every vehicle near a live emitter (``fresh_only``:
-        near an emitter fixed in this step, judged against those emitters only; else a
-        tick, whose vehicles after its first slice are left to :meth:`judge_more`); per
+        near an emitter fixed in this step, judged against those emitters only); per
         advisory that carried a fix made in this step, (vehicle id, first and last
         sequence number, time of that fix's newest frame and ``now_ns``, UTC ns)."""
-        out: list[tuple[str, int, int, int, int]] = []
-        if not fresh_only and self._tick:
-            # a tick came before the last one was done: its vehicles are judged first
-            out += self.judge_more(now_ns, all_left=True)
         service = self.app.service
         # the service's own vehicle is none: its assessments only feed the dashboard
         service.step(now_ns, assess=self.work.dashboard)
@@ -535,13 +466,14 @@ class CityBackend:
         states = self.vehicles.at(now_ns)
         if states is None or not len(states.ids) or not service.fixes:
             self._forget(set() if states is None else set(states.ids))
-            return out
+            return []
         if fresh_only and not fresh_ns:
-            return out
+            return []
         t0 = time.perf_counter()
         emitters, predicted = service.predicted(now_ns, fresh_ns if fresh_only else None)
         chosen = np.isfinite(predicted[:, 0]) & np.isfinite(predicted[:, 1])
         emitters, predicted = emitters[chosen], predicted[chosen]
+        out: list[tuple[str, int, int, int, int]] = []
         close, judged = states.within(
             emitters, predicted[:, 0], predicted[:, 1], self.work.near_m, self._reach(predicted)
         )
@@ -561,61 +493,26 @@ class CityBackend:
             ):
                 kept.append(entry)
         self.counters.vehicles_unchanged += len(near) - len(kept)
+        for batch in fresh_first(kept, fresh_ns):
+            with self.transport.together() as held:  # a batch's advisories in one write
+                out += self._advise(states, batch, now_ns, fresh_ns)
+            # the sinks counted a message sent when it was held
+            self.counters.advisories_failed += held.lost
+            self.counters.advisories_sent -= held.lost
         self._forget(set(states.ids))
-        if fresh_only:
-            for batch in fresh_first(kept, fresh_ns):
-                out += self._advise_batch(states, batch, now_ns, now_ns, fresh_ns)
-        else:
-            self._tick = TickSlices(
-                states, fresh_first(kept, fresh_ns), fresh_ns, now_ns, self.work.tick_slice
-            )
-            out += self._advise_batch(states, self._tick.take(), now_ns, now_ns, fresh_ns)
         self.counters.judge_s += time.perf_counter() - t0
-        return out
-
-    def judge_more(
-        self, now_ns: int, all_left: bool = False
-    ) -> list[tuple[str, int, int, int, int]]:
-        """Judge the next slice of the last tick's vehicles (``all_left``: all that are
-        left), each moved to ``now_ns`` (UTC ns) and judged then; as :meth:`judge`, the
-        step's start being the tick's. Nothing when none is left."""
-        work = self._tick
-        if not work:
-            return []
-        t0 = time.perf_counter()
-        batch = [(i, vehicle.at(now_ns), mine) for i, vehicle, mine in work.take(all_left)]
-        out = self._advise_batch(work.states, batch, now_ns, work.step_ns, work.fresh_ns)
-        self.counters.judge_s += time.perf_counter() - t0
-        return out
-
-    def _advise_batch(
-        self,
-        states: VehicleStates,
-        batch: list[Entry],
-        now_ns: int,
-        step_ns: int,
-        fresh_ns: dict[int, int],
-    ) -> list[tuple[str, int, int, int, int]]:
-        """:meth:`_advise`, the batch's advisories written together."""
-        with self.transport.together() as held:  # a batch's advisories in one write
-            out = self._advise(states, batch, now_ns, step_ns, fresh_ns)
-        # the sinks counted a message sent when it was held
-        self.counters.advisories_failed += held.lost
-        self.counters.advisories_sent -= held.lost
         return out
 
     def _advise(
         self,
         states: VehicleStates,
-        batch: list[Entry],
+        batch: list[tuple[int, VehicleState, list[int]]],
         now_ns: int,
-        step_ns: int,
         fresh_ns: dict[int, int],
     ) -> list[tuple[str, int, int, int, int]]:
         """Judge the vehicles of ``batch`` (:meth:`VehicleStates.near`) at ``now_ns`` and
-        publish their advice; per advisory that carried a fix made in the step that began
-        at ``step_ns`` (its emitter a key of ``fresh_ns``, with that fix's time), as
-        :meth:`judge` gives it."""
+        publish their advice; per advisory that carried a fix made in this step (its
+        emitter a key of ``fresh_ns``, with that fix's time), as :meth:`judge` gives it."""
         out: list[tuple[str, int, int, int, int]] = []
         requests = [(vehicle, mine) for _, vehicle, mine in batch]
         service = self.app.service
@@ -633,7 +530,7 @@ class CityBackend:
             fresh = [fresh_ns[e] for e in (int(a.emitter, 16) for a in assessed) if e in fresh_ns]
             if fresh:
                 # the advisory that carries a fix made in this step: its latency counts
-                out.append((vid, first, (first + n - 1) % (1 << 32), max(fresh), step_ns))
+                out.append((vid, first, (first + n - 1) % (1 << 32), max(fresh), now_ns))
         return out
 
     def _reach(self, predicted: np.ndarray) -> Reach | None:
@@ -659,12 +556,11 @@ class CityBackend:
     def run(self, conn: Connection) -> None:
         """Receive and judge, reporting to ``conn``, until ``None`` arrives on it.
 
-        Every ``step_s`` (0.1 s) every vehicle near a live emitter is judged, a slice at a
-        time (:class:`TickSlices`); between those steps, once bearings were verified
-        since the last step, the service steps again just after the end of the sensors'
-        slot (:class:`Cadence`) and the vehicles near an emitter it fixed are judged
-        against it at once (a new fix does not wait for the tick, nor for the rest of
-        one, nor for more bearings).
+        Every ``step_s`` (0.1 s) every vehicle near a live emitter is judged; between
+        those steps, once bearings were verified since the last step, the service
+        steps again just after the end of the sensors' slot (:class:`Cadence`) and
+        the vehicles near an emitter it fixed are judged against it at once (a new fix
+        does not wait for the tick, nor for more bearings).
         """
         receiver = self.app.receiver
         service = self.app.service
@@ -676,9 +572,7 @@ class CityBackend:
             round(self.work.tick_phase_s * NS_PER_S),
         )
         while True:
-            # with a tick's slices left, only take what has come before the next one
-            wait_ns = 0 if self._tick else cadence.wait_ns(clock())
-            wait_s = clock.wall_s(wait_ns / NS_PER_S)
+            wait_s = clock.wall_s(cadence.wait_ns(clock()) / NS_PER_S)
             got = receiver.receive(timeout=min(wait_s, clock.wall_s(self.work.slot_s)))
             for message in got:
                 service.on_verified(message)
@@ -689,10 +583,6 @@ class CityBackend:
             now = clock()
             what = cadence.due(now)
             if what is None:
-                if self._tick:
-                    sent = self.judge_more(now)
-                    if sent:
-                        conn.send(("sent", sent))
                 continue
             sent = self.judge(now, fresh_only=what == "quick")
             if what == "tick" and self.work.dashboard:

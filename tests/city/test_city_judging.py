@@ -17,7 +17,6 @@ from rfsas_hw.backend.service import BackendConfig, BackendService
 from rfsas_hw.backend.vehicle import VehicleState
 from rfsas_hw.city.backendproc import (
     Reach,
-    TickSlices,
     VehicleStates,
     fresh_first,
     nothing_due,
@@ -163,27 +162,6 @@ def test_the_vehicles_near_a_new_fix_are_judged_and_advised_first() -> None:
     assert fresh_first(near, {}) == [near]  # no fix in this step: one batch
     assert fresh_first(near, {9: 1}) == [near]  # none near a new fix
     assert fresh_first([], {1: 1}) == []
-
-
-def test_a_tick_is_judged_a_slice_at_a_time_the_vehicles_near_a_new_fix_first() -> None:
-    car = VehicleState(x_m=0.0, y_m=0.0, heading_deg=0.0, speed_mps=10.0)
-    near = [(i, car, [i]) for i in range(7)]
-    fresh = {0: 5, 3: 6, 6: 7}
-    states = _cars([10.0] * 7, [0.0] * 7)
-    tick = TickSlices(states, fresh_first(near, fresh), fresh, NOW, 2)
-    taken = []
-    while tick:
-        taken.append([i for i, _, _ in tick.take()])
-    # the three near a new fix in slices of their own (the last one short), then the rest
-    assert taken == [[0, 3], [6], [1, 2], [4, 5]]
-    assert tick.take() == [] and not tick
-    # a tick that must end at once (the next one is due) gives every vehicle left
-    tick = TickSlices(states, fresh_first(near, fresh), fresh, NOW, 2)
-    assert [i for i, _, _ in tick.take()] == [0, 3]
-    assert [i for i, _, _ in tick.take(all_left=True)] == [6, 1, 2, 4, 5]
-    assert not tick
-    with pytest.raises(ValueError, match="at least one vehicle"):
-        TickSlices(states, [near], {}, NOW, 0)
 
 
 def test_the_backends_ticks_are_spread_over_the_slots_of_a_step() -> None:

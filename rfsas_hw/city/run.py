@@ -158,6 +158,11 @@ class Runtime:
     log_records: dict[str, int] = field(default_factory=dict)
     """Log records of the run's processes written to the run log, by level."""
     problems: list[str] = field(default_factory=list)
+    stopped: str = "end"
+    """How the run ended: ``end`` (its duration simulated) or ``interrupted`` (Ctrl-C or
+    SIGTERM: the steps simulated until then are scored and written as for a whole run)."""
+    simulated_s: float = 0.0
+    """Simulated seconds done, seconds."""
 
     def cpu_share(self) -> dict[str, float]:
         """Each component's CPU seconds per wall second (1.0 = one core)."""
@@ -523,80 +528,85 @@ def _run_loop(
         if live is not None:
             live.start()
         steps = round(cfg.duration_s / STEP_S)
-        for k in range(1, steps + 1):
-            t = k * STEP_S
-            if live is not None:
-                # ahead of the clock (LiveConfig.lead_s): the workers send each frame on time
-                due_s = max(t - live.config.lead_s, 0.0)
-                ahead = live.clock.wall_s(due_s) - (time.monotonic() - wall0)
-                if ahead > 0:
-                    time.sleep(ahead)
-                runtime.behind_s = max(runtime.behind_s, -ahead)
-            # CPU time of this thread per phase (the wall time would count other
-            # processes' turns on a busy machine)
-            w = time.thread_time()
-            sumo.simulationStep()
-            w1 = time.thread_time()
-            cars, vrus = sim.read()
-            w2 = time.thread_time()
-            timers["sumo"] += w1 - w
-            timers["read"] += w2 - w1
-            # the twin workers and backends get the step before it is scored: they have
-            # only the lead's slack, the scorer has the rest of the step
-            out = None if live is None else live.step(t, cars, vrus, phones)
-            w3 = time.thread_time()
-            scorer.step(t, _actors(cars, True), _actors(vrus, False))
-            w4 = time.thread_time()
-            timers["scoring"] += w4 - w3
-            if out is not None:
-                if dashboard is not None:
-                    dashboard.take(out)
-                scorer.messages(out.messages)
-                advised: set[str] = set()
-                for f in out.fixes:
-                    scorer.fix(f.t_s, f.emitter, f.person, f.x_m, f.y_m, f.sigma_m)
-                latencies = dict(out.latency)
-                for a in out.arrivals:
-                    kind = a.advice
-                    latency = latencies.pop((a.backend_id, a.seq), None)
-                    scorer.advisory(t, a.vehicle_id, kind, latency)
-                    sim.act(t, a.vehicle_id, kind)
-                    advised.add(a.vehicle_id)
-                    advisories += 1
-                    brakes += kind == "brake"
-                    _log_arrival(log, t, a, kind, latency)
-                for latency in latencies.values():
-                    scorer.latency(latency)  # of an advisory that reached its car earlier
-                sim.release_idle(t, advised)
-                timers["path"] += (w3 - w2) + (time.thread_time() - w4)
-            if k % round(1.0 / STEP_S) == 0:
-                elapsed = time.monotonic() - wall0
-                log.write(
-                    {
-                        "record": "second",
-                        "t_s": round(t, 1),
-                        "wall_s": round(elapsed, 3),
-                        "vehicles": len(cars),
-                        "vrus": len(vrus),
-                        "vrus_with_phone": sum(v in phones for v in vrus.ids),
-                        "advisories": advisories,
-                        "brakes": brakes,
-                    }
-                )
-                if on_progress is not None:
-                    on_progress(
-                        Progress(
-                            t,
-                            cfg.duration_s,
-                            len(cars),
-                            len(vrus),
-                            advisories,
-                            brakes,
-                            t / max(elapsed, 1e-9),
-                        )
+        try:
+            for k in range(1, steps + 1):
+                t = k * STEP_S
+                if live is not None:
+                    # ahead of the clock (LiveConfig.lead_s): the workers send each frame on time
+                    due_s = max(t - live.config.lead_s, 0.0)
+                    ahead = live.clock.wall_s(due_s) - (time.monotonic() - wall0)
+                    if ahead > 0:
+                        time.sleep(ahead)
+                    runtime.behind_s = max(runtime.behind_s, -ahead)
+                # CPU time of this thread per phase (the wall time would count other
+                # processes' turns on a busy machine)
+                w = time.thread_time()
+                sumo.simulationStep()
+                w1 = time.thread_time()
+                cars, vrus = sim.read()
+                w2 = time.thread_time()
+                timers["sumo"] += w1 - w
+                timers["read"] += w2 - w1
+                # the twin workers and backends get the step before it is scored: they have
+                # only the lead's slack, the scorer has the rest of the step
+                out = None if live is None else live.step(t, cars, vrus, phones)
+                w3 = time.thread_time()
+                scorer.step(t, _actors(cars, True), _actors(vrus, False))
+                runtime.simulated_s = t
+                w4 = time.thread_time()
+                timers["scoring"] += w4 - w3
+                if out is not None:
+                    if dashboard is not None:
+                        dashboard.take(out)
+                    scorer.messages(out.messages)
+                    advised: set[str] = set()
+                    for f in out.fixes:
+                        scorer.fix(f.t_s, f.emitter, f.person, f.x_m, f.y_m, f.sigma_m)
+                    latencies = dict(out.latency)
+                    for a in out.arrivals:
+                        kind = a.advice
+                        latency = latencies.pop((a.backend_id, a.seq), None)
+                        scorer.advisory(t, a.vehicle_id, kind, latency)
+                        sim.act(t, a.vehicle_id, kind)
+                        advised.add(a.vehicle_id)
+                        advisories += 1
+                        brakes += kind == "brake"
+                        _log_arrival(log, t, a, kind, latency)
+                    for latency in latencies.values():
+                        scorer.latency(latency)  # of an advisory that reached its car earlier
+                    sim.release_idle(t, advised)
+                    timers["path"] += (w3 - w2) + (time.thread_time() - w4)
+                if k % round(1.0 / STEP_S) == 0:
+                    elapsed = time.monotonic() - wall0
+                    log.write(
+                        {
+                            "record": "second",
+                            "t_s": round(t, 1),
+                            "wall_s": round(elapsed, 3),
+                            "vehicles": len(cars),
+                            "vrus": len(vrus),
+                            "vrus_with_phone": sum(v in phones for v in vrus.ids),
+                            "advisories": advisories,
+                            "brakes": brakes,
+                        }
                     )
+                    if on_progress is not None:
+                        on_progress(
+                            Progress(
+                                t,
+                                cfg.duration_s,
+                                len(cars),
+                                len(vrus),
+                                advisories,
+                                brakes,
+                                t / max(elapsed, 1e-9),
+                            )
+                        )
+        except KeyboardInterrupt:  # Ctrl-C or SIGTERM: what was simulated is scored and written
+            runtime.stopped = "interrupted"
         runtime.wall_s = time.monotonic() - wall0
-        runtime.realtime_factor = cfg.duration_s / runtime.wall_s if runtime.wall_s > 0 else 0.0
+        done = runtime.simulated_s
+        runtime.realtime_factor = done / runtime.wall_s if runtime.wall_s > 0 else 0.0
     finally:
         with contextlib.suppress(Exception):  # libsumo raises when nothing runs
             sumo.close()

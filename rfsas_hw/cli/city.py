@@ -12,7 +12,7 @@ from rich.console import Console
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
-from rfsas_hw.cli.exitcodes import WorkFailed
+from rfsas_hw.cli.exitcodes import Interrupted, WorkFailed
 from rfsas_hw.cli.outopts import OutputPath
 
 if TYPE_CHECKING:
@@ -345,6 +345,15 @@ def run(
     problems = [p for r in results.values() for p in r.runtime.problems]
     if problems:
         raise WorkFailed("; ".join(problems[:5]))
+    stopped = [(m, r) for m, r in results.items() if r.runtime.stopped != "end"]
+    if stopped:
+        mode, res = stopped[0]
+        left = [m for m in _modes(modes) if m not in results]
+        raise Interrupted(
+            f"RF-SAS {mode} after {res.runtime.simulated_s:.1f} of {cfg.duration_s:g} simulated"
+            " s (its log, summary and map are written"
+            + (f"; RF-SAS {', '.join(left)} not run)" if left else ")")
+        )
 
 
 def _runs(
@@ -380,7 +389,7 @@ def _runs(
                     f"({p.brakes} BRAKE), {p.realtime_factor:.2f}× real time",
                 )
 
-            results[mode] = run_city(
+            results[mode] = result = run_city(
                 cfg,
                 out_dir,
                 mode,
@@ -391,6 +400,8 @@ def _runs(
                 broker=access,
                 dashboard=dashboard,
             )
+        if result.runtime.stopped != "end":
+            break  # interrupted: the next mode is not run
     return results
 
 

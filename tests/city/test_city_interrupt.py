@@ -12,6 +12,7 @@ import time
 from pathlib import Path
 
 import pytest
+from terminal import ctrl_c_as_at_a_terminal
 
 from rfsas_hw.city.deploy import find_mosquitto
 from rfsas_hw.cli.exitcodes import INTERRUPTED
@@ -19,13 +20,6 @@ from rfsas_hw.errors import MissingDependencyError
 
 DURATION_S = 600.0
 """Far longer than the test waits: the run ends only by the interrupt."""
-
-
-def _ctrl_c_as_at_a_terminal() -> None:
-    """In the child before it runs: SIGINT as a terminal delivers it (a suite started as
-    a background job of a non-interactive shell ignores SIGINT, and an ignored signal
-    stays ignored across exec)."""
-    signal.signal(signal.SIGINT, signal.SIG_DFL)
 
 
 def _seconds_logged(log: Path) -> int:
@@ -50,7 +44,7 @@ def test_ctrl_c_writes_what_was_simulated_and_exits_130(grid_net: Path, tmp_path
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
-        preexec_fn=_ctrl_c_as_at_a_terminal,
+        preexec_fn=ctrl_c_as_at_a_terminal,
     )
     try:
         # the off run first; then the on run, interrupted once it has stepped a while

@@ -22,13 +22,7 @@ from rfsas_hw.privacy.hashing import write_secret
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "cli"))
 
 from clihelp import STILL, rt_writer, write_calibration
-
-
-def _ctrl_c_as_at_a_terminal() -> None:
-    """In the child before it runs: Ctrl-C (SIGINT) as a terminal delivers it. A suite
-    started as a background job of a non-interactive shell ignores SIGINT, and an
-    ignored signal stays ignored across exec, so the run under test would not see it."""
-    signal.signal(signal.SIGINT, signal.SIG_DFL)
+from terminal import ctrl_c_as_at_a_terminal
 
 
 def test_live_rides_out_a_broker_outage(
@@ -44,7 +38,7 @@ def test_live_rides_out_a_broker_outage(
          "--keys", str(sensor.path), "--nonce-secret", str(secret), "--pose", "1,2,90",
          "--send", broker.url("rsu-1", origin=ORIGIN), "--json", *STILL],
         stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-        preexec_fn=_ctrl_c_as_at_a_terminal,
+        preexec_fn=ctrl_c_as_at_a_terminal,
     )  # fmt: skip
     assert proc.stdin is not None
     stop = threading.Event()

@@ -12,6 +12,7 @@ from pathlib import Path
 import pytest
 import rt_writer as w
 from click.testing import CliRunner
+from terminal import ctrl_c_as_at_a_terminal
 
 import rfsas_hw.sources
 from rfsas_hw.cli.main import _load_commands, cli
@@ -46,13 +47,6 @@ class Collect:
 
     def close(self) -> None:
         self.closed = True
-
-
-def _ctrl_c_as_at_a_terminal() -> None:
-    """In the child before it runs: Ctrl-C (SIGINT) as a terminal delivers it. A suite
-    started as a background job of a non-interactive shell ignores SIGINT, and an
-    ignored signal stays ignored across exec, so the run under test would not see it."""
-    signal.signal(signal.SIGINT, signal.SIG_DFL)
 
 
 def _runner(capture: Path, cal: Path, **kwargs: object) -> tuple[Runner, Collect]:
@@ -229,7 +223,7 @@ def test_live_ctrl_c_ends_cleanly_with_the_summary(
     consumer = subprocess.Popen(
         _cli("live", "pcap:-", *w.STILL, "--calibration", str(cal_path), "--out", str(out)),
         stdin=producer.stdout,
-        preexec_fn=_ctrl_c_as_at_a_terminal,
+        preexec_fn=ctrl_c_as_at_a_terminal,
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
     )

@@ -158,7 +158,7 @@ class Runtime:
     log_records: dict[str, int] = field(default_factory=dict)
     """Log records of the run's processes written to the run log, by level."""
     problems: list[str] = field(default_factory=list)
-    stopped: str = "end"
+    stopped: Literal["end", "interrupted"] = "end"
     """How the run ended: ``end`` (its duration simulated) or ``interrupted`` (Ctrl-C or
     SIGTERM: the steps simulated until then are scored and written as for a whole run)."""
     simulated_s: float = 0.0
@@ -605,8 +605,8 @@ def _run_loop(
         except KeyboardInterrupt:  # Ctrl-C or SIGTERM: what was simulated is scored and written
             runtime.stopped = "interrupted"
         runtime.wall_s = time.monotonic() - wall0
-        done = runtime.simulated_s
-        runtime.realtime_factor = done / runtime.wall_s if runtime.wall_s > 0 else 0.0
+        wall = runtime.wall_s
+        runtime.realtime_factor = runtime.simulated_s / wall if wall > 0 else 0.0
     finally:
         with contextlib.suppress(Exception):  # libsumo raises when nothing runs
             sumo.close()
@@ -615,7 +615,7 @@ def _run_loop(
             tmp.cleanup()
     for a in live.late if live is not None else ():
         # reached its vehicle after the simulation's end: logged, not acted on
-        _log_arrival(log, cfg.duration_s, a, a.advice, None)
+        _log_arrival(log, runtime.simulated_s, a, a.advice, None)
     _costs(runtime, timers, cpu_s() - cpu0, stats)
     return runtime
 

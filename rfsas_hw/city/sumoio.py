@@ -11,9 +11,9 @@ Why getters and not subscriptions: with libsumo a getter is a function call, and
 a subscription makes SUMO build every subscribed value of every object at the
 end of each step. Measured on the Adlershof district's demand (1,000 simulated
 steps, 935 persons and up to 709 vehicles), subscriptions made SUMO's own steps
-cost about half again as much, for the same values read (the log of
-:doc:`docs/city-log`). Over TraCI's socket each getter would be a round trip;
-the district runs libsumo.
+cost about half again as much, for the same values read (``docs/city-log.md``,
+"This round: the simulator's lag"). Over TraCI's socket each getter would be a
+round trip; the district runs libsumo.
 
 :meth:`SumoDistrict.act` applies one vehicle's advisory through that vehicle's
 own :class:`~rfsas_hw.bridges.sumo.SumoAdapter` (BRAKE stops it and holds it
